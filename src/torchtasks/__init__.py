@@ -1,0 +1,8 @@
+"""torchtasks: batched, differentiable tasks and rewards for TorchRL.
+
+Layers (imports only point down): :mod:`torchtasks.spaces`, :mod:`torchtasks.rewards`,
+:mod:`torchtasks.tasks`, :mod:`torchtasks.predefined`, :mod:`torchtasks.transforms`,
+:mod:`torchtasks.envs`.
+"""
+
+__version__ = "0.1.0"

@@ -1,0 +1,38 @@
+"""Reward functions: ``torch.nn.Module``\\ s on batched tensors, differentiable end to end.
+
+Stateless rewards are called as ``reward(error_state, error_action) -> Tensor[*B]``. Every reward
+also follows the functional memory protocol (``reset`` / ``step``) so that stateful ones (the
+forward-velocity family) compose with tasks the same way.
+"""
+
+from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.compound import CompoundReward
+from torchtasks.rewards.constant import ConstantReward
+from torchtasks.rewards.cosine import CosineReward, ShiftedCosineReward
+from torchtasks.rewards.error import (
+    AbsoluteErrorReward,
+    ExpQuadraticErrorReward,
+    QuadraticErrorReward,
+    ScaledExpQuadraticErrorReward,
+)
+from torchtasks.rewards.locomotion import AntForwardReward, ForwardVelocityReward, HumanoidForwardReward
+from torchtasks.rewards.state_function import StateFunctionReward
+from torchtasks.rewards.swing_up import CartPoleSwingUpReward, SwingUpReward
+
+__all__ = [
+    "AbsoluteErrorReward",
+    "AntForwardReward",
+    "CartPoleSwingUpReward",
+    "CompoundReward",
+    "ConstantReward",
+    "CosineReward",
+    "ExpQuadraticErrorReward",
+    "ForwardVelocityReward",
+    "HumanoidForwardReward",
+    "QuadraticErrorReward",
+    "RewardFunction",
+    "ScaledExpQuadraticErrorReward",
+    "ShiftedCosineReward",
+    "StateFunctionReward",
+    "SwingUpReward",
+]

@@ -1,0 +1,115 @@
+"""A sum of named reward terms whose values can be logged one by one."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import torch
+from tensordict import TensorDict
+from torch import nn
+
+from torchtasks.rewards.base import RewardFunction, empty_memory
+
+__all__ = ["CompoundReward"]
+
+
+def _sum_in_order(values: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """Sum the terms left to right (the order Pyrado adds them in)."""
+    iterator = iter(values.values())
+    total = next(iterator)
+    for value in iterator:
+        total = total + value
+    return total
+
+
+class CompoundReward(RewardFunction):
+    """Sum of named reward terms, ``Σ_k term_k(e_s, e_a)``, with the per-term values available.
+
+    Args:
+        rewards: a mapping ``name -> reward function`` or a sequence of reward functions (named
+            ``term0``, ``term1``, ...). Terms may be stateful (forward velocity): their memory is
+            kept under their name.
+
+    :meth:`terms` returns the per-term values (stateless terms only); :meth:`step_terms` returns
+    them with memory. :class:`~torchtasks.transforms.TaskTransform` logs them.
+
+    Pyrado name: ``CompoundRewFcn``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import CompoundReward, ConstantReward, QuadraticErrorReward
+        >>> reward = CompoundReward({"track": QuadraticErrorReward([1.0], None), "alive": ConstantReward(1.0)})
+        >>> reward(torch.tensor([[2.0]]), None)
+        tensor([-3.])
+        >>> reward.terms(torch.tensor([[2.0]]), None)
+        {'track': tensor([-4.]), 'alive': tensor([1.])}
+    """
+
+    def __init__(self, rewards: Mapping[str, RewardFunction] | Sequence[RewardFunction]) -> None:
+        super().__init__()
+        if isinstance(rewards, Mapping):
+            items = list(rewards.items())
+        elif isinstance(rewards, Sequence) and not isinstance(rewards, str):
+            items = [(f"term{i}", reward) for i, reward in enumerate(rewards)]
+        else:
+            raise TypeError(f"rewards must be a mapping or a sequence of RewardFunction, got {type(rewards).__name__}")
+        if not items:
+            raise ValueError("rewards must contain at least one reward function, got an empty collection")
+        for name, reward in items:
+            if not isinstance(name, str) or not name.isidentifier():
+                raise ValueError(f"term names must be identifiers, got {name!r}")
+            if not isinstance(reward, RewardFunction):
+                raise TypeError(f"term {name!r} must be a RewardFunction, got {type(reward).__name__}")
+        self.rewards = nn.ModuleDict(dict(items))
+        self.stateful = any(reward.stateful for reward in self.rewards.values())
+        self.can_fail = any(reward.can_fail for reward in self.rewards.values())
+        self.uses_action = any(reward.uses_action for reward in self.rewards.values())
+        self._stateful_names = tuple(name for name, reward in self.rewards.items() if reward.stateful)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The term names, in order."""
+        return tuple(self.rewards.keys())
+
+    def terms(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> dict[str, torch.Tensor]:
+        """Return ``{name: value[*B]}`` for every term (stateless compounds only)."""
+        if self.stateful:
+            raise TypeError("this CompoundReward has stateful terms: use step_terms(state, action, memory)")
+        return {name: reward(error_state, error_action) for name, reward in self.rewards.items()}
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return _sum_in_order(self.terms(error_state, error_action))
+
+    def reset(self, init_state: torch.Tensor) -> TensorDict:
+        memory = empty_memory(init_state)
+        for name in self._stateful_names:
+            memory.set(name, self.rewards[name].reset(init_state))
+        return memory
+
+    def step_terms(
+        self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
+    ) -> tuple[dict[str, torch.Tensor], TensorDict]:
+        """Return ``({name: value[*B]}, memory)`` for one step, advancing stateful terms."""
+        values: dict[str, torch.Tensor] = {}
+        if self._stateful_names:
+            memory = memory.copy()
+        for name, reward in self.rewards.items():
+            if reward.stateful:
+                values[name], sub_memory = reward.step(state, action, memory.get(name))
+                memory.set(name, sub_memory)
+            else:
+                values[name] = reward(state, action)
+        return values, memory
+
+    def step(
+        self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
+    ) -> tuple[torch.Tensor, TensorDict]:
+        values, memory = self.step_terms(state, action, memory)
+        return _sum_in_order(values), memory
+
+    def has_failed(self, state: torch.Tensor) -> torch.Tensor:
+        failed = super().has_failed(state)
+        for reward in self.rewards.values():
+            if reward.can_fail:
+                failed = failed | reward.has_failed(state)
+        return failed

@@ -1,0 +1,243 @@
+"""Rewards on state and action errors: absolute, quadratic, exp-quadratic and scaled exp-quadratic."""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from torchtasks._checks import as_constant, cast_like, check_finite_scalar
+from torchtasks.rewards.base import RewardFunction
+from torchtasks.spaces import Box
+
+__all__ = [
+    "AbsoluteErrorReward",
+    "ExpQuadraticErrorReward",
+    "QuadraticErrorReward",
+    "ScaledExpQuadraticErrorReward",
+]
+
+_EIGENVALUE_TOLERANCE = 1e-10
+
+
+def _weight_matrix(value: object, name: str) -> torch.Tensor:
+    """Validate a PSD weight given as a full ``n x n`` matrix or a vector (its diagonal)."""
+    weight = as_constant(value, name, ndim=(1, 2))
+    if weight.ndim == 2:
+        if weight.shape[0] != weight.shape[1]:
+            raise ValueError(f"{name} must be a square n x n matrix or a vector, got shape {tuple(weight.shape)}")
+        if not torch.isfinite(weight).all():
+            raise ValueError(f"{name} must be finite, got {weight.tolist()}")
+        if weight.numel():
+            symmetric = 0.5 * (weight + weight.T)
+            smallest = torch.linalg.eigvalsh(symmetric).min()
+            scale = max(1.0, float(weight.abs().max()))
+            if smallest < -_EIGENVALUE_TOLERANCE * scale:
+                raise ValueError(
+                    f"{name} must be positive semi-definite, got a matrix with eigenvalue {float(smallest):.6g}"
+                )
+    else:
+        if not torch.isfinite(weight).all():
+            raise ValueError(f"{name} must be finite, got {weight.tolist()}")
+        if (weight < 0).any():
+            raise ValueError(f"{name} (a diagonal) must be non-negative, got {weight.tolist()}")
+    return weight
+
+
+def _weight_vector(value: object, name: str) -> torch.Tensor:
+    """Validate a non-negative weight vector."""
+    weight = as_constant(value, name, ndim=(1,))
+    if not torch.isfinite(weight).all() or (weight < 0).any():
+        raise ValueError(f"{name} must be finite and non-negative, got {weight.tolist()}")
+    return weight
+
+
+def quadratic_form(weight: torch.Tensor, error: torch.Tensor) -> torch.Tensor:
+    """Return ``errorᵀ W error`` per row, for a full matrix or a diagonal vector ``W``."""
+    weight = cast_like(weight, error)
+    if weight.ndim == 1:
+        return (error * error * weight).sum(dim=-1)
+    return ((error @ weight) * error).sum(dim=-1)
+
+
+class _QuadraticCost(RewardFunction):
+    """Shared part of the quadratic rewards: validated ``Q``/``R`` and the cost ``eᵀQe + aᵀRa``."""
+
+    def __init__(self, Q: object, R: object | None = None, *, learnable: bool = False) -> None:
+        super().__init__()
+        self._register_constant("Q", _weight_matrix(Q, "Q"), learnable)
+        if R is None:
+            self.R = None
+            self.uses_action = False
+        else:
+            self._register_constant("R", _weight_matrix(R, "R"), learnable)
+
+    @property
+    def state_size(self) -> int:
+        """Size of the state error this reward expects."""
+        return self.Q.shape[0]
+
+    @property
+    def action_size(self) -> int:
+        """Size of the action error this reward expects (0 without ``R``)."""
+        return 0 if self.R is None else self.R.shape[0]
+
+    def cost(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        """Return ``e_sᵀ Q e_s + e_aᵀ R e_a`` per environment."""
+        self._check_inputs(error_state, error_action, self.state_size, self.action_size)
+        cost = quadratic_form(self.Q, error_state)
+        if self.uses_action:
+            cost = cost + quadratic_form(self.R, error_action)
+        return cost
+
+
+class QuadraticErrorReward(_QuadraticCost):
+    """Negative quadratic cost of state and action errors: ``-(e_sᵀ Q e_s + e_aᵀ R e_a)``.
+
+    Args:
+        Q: state weight, a positive semi-definite ``n x n`` matrix or a non-negative vector
+            (the diagonal).
+        R: action weight, ``m x m`` matrix or vector; ``None`` for no action cost.
+        learnable: make ``Q`` and ``R`` ``nn.Parameter``\\ s (reward learning) instead of buffers.
+
+    Pyrado name: ``QuadrErrRewFcn`` (whose docstring wrongly promised an exponential).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> reward = QuadraticErrorReward(Q=torch.eye(2), R=[0.1])
+        >>> reward(torch.tensor([[1.0, 2.0]]), torch.tensor([[3.0]]))
+        tensor([-5.9000])
+    """
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return -self.cost(error_state, error_action)
+
+
+class ExpQuadraticErrorReward(_QuadraticCost):
+    """Exponentiated negative quadratic cost: ``exp(-(e_sᵀ Q e_s + e_aᵀ R e_a))``, in ``(0, 1]``.
+
+    Args:
+        Q: state weight (``n x n`` PSD matrix or non-negative diagonal vector).
+        R: action weight (``m x m`` or vector); ``None`` for no action cost.
+        learnable: make ``Q`` and ``R`` trainable parameters.
+
+    Pyrado name: ``ExpQuadrErrRewFcn``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import ExpQuadraticErrorReward
+        >>> ExpQuadraticErrorReward(Q=[1.0], R=None)(torch.zeros(3, 1), None)
+        tensor([1., 1., 1.])
+    """
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return torch.exp(-self.cost(error_state, error_action))
+
+
+class ScaledExpQuadraticErrorReward(_QuadraticCost):
+    """Exp-quadratic reward scaled so that the worst-case error of the boxes gives ``min_reward``.
+
+    ``exp(-c_max · (e_sᵀ Q e_s + e_aᵀ R e_a))`` with ``c_max = -ln(min_reward) / C_max`` and
+    ``C_max = s_maxᵀ Q s_max + a_maxᵀ R a_max``, where ``s_max``/``a_max`` are the largest
+    absolute bounds of ``state_space``/``action_space``. Infinite bounds give ``c_max = 0``
+    (reward ≡ 1); entries with zero weight do not count.
+
+    Args:
+        Q, R: weights as for :class:`QuadraticErrorReward` (``R`` is required here).
+        state_space, action_space: the boxes whose worst case defines the scale.
+        min_reward: reward at the worst-case error, in the open interval ``(0, 1)``. Unlike
+            Pyrado (which reverted to 1e-4 at every task reset), the value given here is kept.
+        learnable: make ``Q`` and ``R`` trainable parameters (the scale follows them).
+
+    Pyrado name: ``ScaledExpQuadrErrRewFcn``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import ScaledExpQuadraticErrorReward
+        >>> from torchtasks.spaces import Box
+        >>> reward = ScaledExpQuadraticErrorReward([1.0], [1.0], Box(-2.0, 2.0), Box(-1.0, 1.0), min_reward=0.01)
+        >>> reward(torch.tensor([[2.0]]), torch.tensor([[1.0]]))
+        tensor([0.0100])
+    """
+
+    def __init__(
+        self,
+        Q: object,
+        R: object,
+        state_space: Box,
+        action_space: Box,
+        min_reward: float = 1e-4,
+        *,
+        learnable: bool = False,
+    ) -> None:
+        super().__init__(Q, R, learnable=learnable)
+        if not isinstance(state_space, Box) or not isinstance(action_space, Box):
+            raise TypeError(
+                "state_space and action_space must be torchtasks.spaces.Box, got "
+                f"{type(state_space).__name__} and {type(action_space).__name__}"
+            )
+        min_reward = check_finite_scalar(min_reward, "min_reward")
+        if not 0.0 < min_reward < 1.0:
+            raise ValueError(f"min_reward must lie in the open interval (0, 1), got {min_reward}")
+        if state_space.size != self.state_size:
+            raise ValueError(f"state_space must have {self.state_size} entries to match Q, got {state_space.size}")
+        if action_space.size != self.action_size:
+            raise ValueError(f"action_space must have {self.action_size} entries to match R, got {action_space.size}")
+        self.min_reward = min_reward
+        self.register_buffer("state_bound", state_space.bound_abs_high)
+        self.register_buffer("action_bound", action_space.bound_abs_high)
+        if float(self._worst_case_cost()) == 0.0:
+            raise ValueError("the worst-case cost s_maxᵀQs_max + a_maxᵀRa_max is 0: the reward cannot be scaled")
+
+    def _worst_case_cost(self) -> torch.Tensor:
+        def bounded_form(weight: torch.Tensor, bound: torch.Tensor) -> torch.Tensor:
+            outer = torch.outer(bound, bound) if weight.ndim == 2 else bound * bound
+            terms = weight * outer
+            return torch.where(weight == 0, torch.zeros_like(terms), terms).sum()
+
+        return bounded_form(self.Q, self.state_bound) + bounded_form(self.R, self.action_bound)
+
+    @property
+    def c_max(self) -> torch.Tensor:
+        """The scale ``-ln(min_reward) / C_max`` (0 for infinite bounds)."""
+        return -math.log(self.min_reward) / self._worst_case_cost()
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        scale = cast_like(self.c_max, error_state)
+        return torch.exp(-scale * self.cost(error_state, error_action))
+
+
+class AbsoluteErrorReward(RewardFunction):
+    """Negative weighted absolute error: ``-(|e_s| · q + |e_a| · r)``.
+
+    Args:
+        q: non-negative state weights, a vector of ``n``.
+        r: non-negative action weights, a vector of ``m``; ``None`` for no action cost.
+        learnable: make ``q`` and ``r`` trainable parameters.
+
+    Pyrado name: ``AbsErrRewFcn``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import AbsoluteErrorReward
+        >>> AbsoluteErrorReward(q=[1.0, 2.0], r=[0.5])(torch.tensor([[1.0, -1.0]]), torch.tensor([[-2.0]]))
+        tensor([-4.])
+    """
+
+    def __init__(self, q: object, r: object | None = None, *, learnable: bool = False) -> None:
+        super().__init__()
+        self._register_constant("q", _weight_vector(q, "q"), learnable)
+        if r is None:
+            self.r = None
+            self.uses_action = False
+        else:
+            self._register_constant("r", _weight_vector(r, "r"), learnable)
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        action_size = 0 if self.r is None else self.r.shape[0]
+        self._check_inputs(error_state, error_action, self.q.shape[0], action_size)
+        value = (error_state.abs() * cast_like(self.q, error_state)).sum(dim=-1)
+        if self.uses_action:
+            value = value + (error_action.abs() * cast_like(self.r, error_action)).sum(dim=-1)
+        return -value

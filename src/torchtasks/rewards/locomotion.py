@@ -1,0 +1,336 @@
+"""Forward-progress rewards of locomotion tasks (HalfCheetah, Hopper, Ant, Humanoid).
+
+These rewards are stateful: the velocity is the finite difference of the forward position
+between two calls, so the previous position lives in memory (key ``"x_last"``), set by
+:meth:`reset` from the initial state and advanced by every :meth:`step`.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict
+
+from torchtasks._checks import check_finite_scalar, check_index, check_input, check_same_batch
+from torchtasks.rewards.base import RewardFunction
+
+__all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
+
+
+def _check_range(value: object, name: str, *, allow_infinite: bool = False) -> tuple[float, float]:
+    try:
+        low, high = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}") from error
+    if low != low or high != high:
+        raise ValueError(f"{name} must not contain NaN, got {value!r}")
+    if not allow_infinite and not (abs(low) < float("inf") and abs(high) < float("inf")):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    if low > high:
+        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
+    return low, high
+
+
+class _ForwardProgressReward(RewardFunction):
+    """Shared memory protocol and velocity/control terms of the forward-progress rewards."""
+
+    stateful = True
+
+    def __init__(self, dt: float, x_index: int, forward_reward_weight: float, ctrl_cost_weight: float) -> None:
+        super().__init__()
+        dt = check_finite_scalar(dt, "dt")
+        if dt <= 0:
+            raise ValueError(f"dt must be positive, got {dt}")
+        self.dt = dt
+        self.x_index = check_index(x_index, "x_index")
+        self._register_scalar(
+            "forward_reward_weight", check_finite_scalar(forward_reward_weight, "forward_reward_weight")
+        )
+        ctrl_cost_weight = check_finite_scalar(ctrl_cost_weight, "ctrl_cost_weight")
+        if ctrl_cost_weight < 0:
+            raise ValueError(f"ctrl_cost_weight must be non-negative, got {ctrl_cost_weight}")
+        self._register_scalar("ctrl_cost_weight", ctrl_cost_weight)
+
+    def _x(self, state: torch.Tensor) -> torch.Tensor:
+        size = state.shape[-1]
+        if not -size <= self.x_index < size:
+            raise ValueError(f"x_index={self.x_index} is out of range for a state of shape {tuple(state.shape)}")
+        return state[..., self.x_index]
+
+    def reset(self, init_state: torch.Tensor) -> TensorDict:
+        check_input(init_state, "init_state")
+        return TensorDict({"x_last": self._x(init_state)}, batch_size=init_state.shape[:-1])
+
+    def _check_step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> None:
+        check_input(state, "state")
+        check_input(action, "action")
+        check_same_batch(state, action, "state", "action")
+        if not isinstance(memory, TensorDict) or "x_last" not in memory.keys():
+            raise TypeError(f"memory must be the TensorDict returned by {type(self).__name__}.reset(init_state)")
+
+    def _common_terms(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
+        x = self._x(state)
+        velocity = (x - memory.get("x_last")) / self.dt
+        return {
+            "forward": self.forward_reward_weight * velocity,
+            "ctrl": -self.ctrl_cost_weight * (action * action).sum(dim=-1),
+        }
+
+    def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
+        """Return the named reward terms of one step (costs are negative)."""
+        return self._common_terms(state, action, memory)
+
+    def step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict
+    ) -> tuple[dict[str, torch.Tensor], TensorDict]:
+        """Return ``({term: value[*B]}, memory)``: the named terms and the advanced memory."""
+        self._check_step(state, action, memory)
+        values = self.terms_of(state, action, memory)
+        new_memory = TensorDict({"x_last": self._x(state)}, batch_size=memory.batch_size)
+        return values, new_memory
+
+    def step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
+        values, memory = self.step_terms(state, action, memory)
+        iterator = iter(values.values())
+        total = next(iterator)
+        for value in iterator:
+            total = total + value
+        return total, memory
+
+    def forward(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
+        return self.step(state, action, memory)
+
+
+class ForwardVelocityReward(_ForwardProgressReward):
+    """Forward velocity minus control cost: ``w_f·(x - x_last)/dt - w_ctrl·Σ a²``.
+
+    Reads the raw state (``x = state[index]``) and action. Stateful: the previous ``x`` is in
+    memory, so the first step after :meth:`reset` measures ``x_1 - x_0``.
+
+    Args:
+        dt: time between two calls [s].
+        index: position of the forward coordinate in the state.
+        forward_reward_weight: weight ``w_f`` of the velocity.
+        ctrl_cost_weight: weight ``w_ctrl`` of the control cost.
+
+    Pyrado name: ``ForwardVelocityRewFcn``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import ForwardVelocityReward
+        >>> reward = ForwardVelocityReward(dt=0.05, index=0)
+        >>> memory = reward.reset(torch.zeros(1, 2))
+        >>> value, memory = reward.step(torch.tensor([[0.1, 0.0]]), torch.ones(1, 3), memory)
+        >>> value, memory["x_last"]
+        (tensor([1.7000]), tensor([0.1000]))
+    """
+
+    def __init__(
+        self, dt: float, index: int = 0, forward_reward_weight: float = 1.0, ctrl_cost_weight: float = 0.1
+    ) -> None:
+        super().__init__(dt, index, forward_reward_weight, ctrl_cost_weight)
+
+
+class _HealthyForwardReward(_ForwardProgressReward):
+    """Forward progress with a healthy reward and an optional "unhealthy = failure" rule."""
+
+    def __init__(
+        self,
+        dt: float,
+        *,
+        forward_reward_weight: float,
+        ctrl_cost_weight: float,
+        contact_cost_weight: float,
+        healthy_reward: float,
+        terminate_when_unhealthy: bool,
+        healthy_z_range: tuple[float, float],
+        x_index: int,
+        z_index: int,
+        contact_forces_start: int,
+    ) -> None:
+        super().__init__(dt, x_index, forward_reward_weight, ctrl_cost_weight)
+        contact_cost_weight = check_finite_scalar(contact_cost_weight, "contact_cost_weight")
+        if contact_cost_weight < 0:
+            raise ValueError(f"contact_cost_weight must be non-negative, got {contact_cost_weight}")
+        self._register_scalar("contact_cost_weight", contact_cost_weight)
+        self._register_scalar("healthy_reward", check_finite_scalar(healthy_reward, "healthy_reward"))
+        if not isinstance(terminate_when_unhealthy, bool):
+            raise TypeError(f"terminate_when_unhealthy must be a bool, got {terminate_when_unhealthy!r}")
+        self.terminate_when_unhealthy = terminate_when_unhealthy
+        self.can_fail = terminate_when_unhealthy
+        low, high = _check_range(healthy_z_range, "healthy_z_range", allow_infinite=True)
+        self._register_scalar("healthy_z_low", low)
+        self._register_scalar("healthy_z_high", high)
+        self.z_index = check_index(z_index, "z_index")
+        self.contact_forces_start = check_index(contact_forces_start, "contact_forces_start")
+
+    def _z(self, state: torch.Tensor) -> torch.Tensor:
+        if not -state.shape[-1] <= self.z_index < state.shape[-1]:
+            raise ValueError(f"z_index={self.z_index} is out of range for a state of shape {tuple(state.shape)}")
+        return state[..., self.z_index]
+
+    def _contact_forces(self, state: torch.Tensor) -> torch.Tensor:
+        if self.contact_forces_start >= state.shape[-1]:
+            raise ValueError(
+                f"contact_forces_start={self.contact_forces_start} is beyond a state of shape {tuple(state.shape)}"
+            )
+        return state[..., self.contact_forces_start :]
+
+    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        """Return ``bool[*B]``: whether the body is in its healthy height range."""
+        raise NotImplementedError
+
+    def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
+        values = self._common_terms(state, action, memory)
+        healthy = self.is_healthy(state).to(state.dtype)
+        values["healthy"] = self.healthy_reward * healthy
+        values["contact"] = -self._contact_cost(state)
+        return values
+
+    def has_failed(self, state: torch.Tensor) -> torch.Tensor:
+        if not self.terminate_when_unhealthy:
+            return super().has_failed(state)
+        return ~self.is_healthy(state)
+
+
+class AntForwardReward(_HealthyForwardReward):
+    """Ant locomotion reward: velocity + healthy reward - control cost - contact cost.
+
+    ``w_f·(x - x_last)/dt + healthy_reward·is_healthy - w_ctrl·Σ a² - w_c·Σ clip(f, lo, hi)²`` where
+    ``f = state[contact_forces_start:]`` are the external contact forces and
+    ``is_healthy = all(isfinite(state)) and z_lo <= state[z_index] <= z_hi`` (inclusive bounds).
+    The healthy reward is paid only when healthy; with ``terminate_when_unhealthy`` an unhealthy
+    state is a failure (:meth:`has_failed`), as in Gymnasium's Ant-v5. Defaults are Ant-v5's.
+
+    Args:
+        dt: time between two calls [s].
+        contact_cost_weight, ctrl_cost_weight, forward_reward_weight: weights.
+        healthy_reward: reward per healthy step.
+        terminate_when_unhealthy: whether an unhealthy state is a task failure.
+        healthy_z_range: inclusive range of the torso height.
+        contact_force_range: range each contact force is clipped to before squaring.
+        x_index, z_index, contact_forces_start: layout of the state (Pyrado's AntSim: 0, 2, 29).
+
+    Pyrado name: ``ForwardVelocityRewFcnAnt`` (whose ``terminate_when_unhealthy`` never terminated).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import AntForwardReward
+        >>> reward = AntForwardReward(dt=0.05)
+        >>> state = torch.zeros(1, 113); state[:, 2] = 0.5
+        >>> value, memory = reward.step(state, torch.zeros(1, 8), reward.reset(state))
+        >>> value, reward.has_failed(state)
+        (tensor([1.]), tensor([False]))
+    """
+
+    def __init__(
+        self,
+        dt: float,
+        contact_cost_weight: float = 5e-4,
+        ctrl_cost_weight: float = 0.5,
+        healthy_reward: float = 1.0,
+        terminate_when_unhealthy: bool = True,
+        healthy_z_range: tuple[float, float] = (0.2, 1.0),
+        contact_force_range: tuple[float, float] = (-1.0, 1.0),
+        forward_reward_weight: float = 1.0,
+        *,
+        x_index: int = 0,
+        z_index: int = 2,
+        contact_forces_start: int = 29,
+    ) -> None:
+        super().__init__(
+            dt,
+            forward_reward_weight=forward_reward_weight,
+            ctrl_cost_weight=ctrl_cost_weight,
+            contact_cost_weight=contact_cost_weight,
+            healthy_reward=healthy_reward,
+            terminate_when_unhealthy=terminate_when_unhealthy,
+            healthy_z_range=healthy_z_range,
+            x_index=x_index,
+            z_index=z_index,
+            contact_forces_start=contact_forces_start,
+        )
+        low, high = _check_range(contact_force_range, "contact_force_range", allow_infinite=True)
+        self._register_scalar("contact_force_low", low)
+        self._register_scalar("contact_force_high", high)
+
+    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        z = self._z(state)
+        finite = torch.isfinite(state).all(dim=-1)
+        return finite & (z >= self.healthy_z_low) & (z <= self.healthy_z_high)
+
+    def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
+        forces = self._contact_forces(state).clamp(self.contact_force_low, self.contact_force_high)
+        return self.contact_cost_weight * (forces * forces).sum(dim=-1)
+
+
+class HumanoidForwardReward(_HealthyForwardReward):
+    """Humanoid locomotion reward: velocity + healthy reward - control cost - clipped contact cost.
+
+    ``w_f·(x - x_last)/dt + healthy_reward·is_healthy - w_ctrl·Σ a² - clip(w_c·Σ f², lo_c, hi_c)``
+    with ``f = state[contact_forces_start:]`` and ``is_healthy = z_lo < state[z_index] < z_hi``
+    (strict bounds, no finiteness check). The healthy reward is paid only when healthy; with
+    ``terminate_when_unhealthy`` an unhealthy state is a failure. Defaults are Humanoid-v5's.
+
+    Args:
+        dt: time between two calls [s].
+        contact_cost_weight, ctrl_cost_weight, forward_reward_weight: weights.
+        healthy_reward: reward per healthy step.
+        terminate_when_unhealthy: whether an unhealthy state is a task failure.
+        healthy_z_range: open range of the torso height.
+        contact_cost_range: range the weighted contact cost is clipped to.
+        x_index, z_index, contact_forces_start: layout of the state (Pyrado's HumanoidSim: 0, 2, 294).
+
+    Pyrado name: ``ForwardVelocityRewFcnHumanoid``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import HumanoidForwardReward
+        >>> reward = HumanoidForwardReward(dt=0.015)
+        >>> state = torch.zeros(1, 378); state[:, 2] = 1.4
+        >>> value, memory = reward.step(state, torch.zeros(1, 17), reward.reset(state))
+        >>> value
+        tensor([5.])
+    """
+
+    def __init__(
+        self,
+        dt: float,
+        contact_cost_weight: float = 5e-7,
+        ctrl_cost_weight: float = 0.1,
+        forward_reward_weight: float = 1.25,
+        healthy_reward: float = 5.0,
+        terminate_when_unhealthy: bool = True,
+        healthy_z_range: tuple[float, float] = (1.0, 2.0),
+        contact_cost_range: tuple[float, float] = (float("-inf"), 10.0),
+        *,
+        x_index: int = 0,
+        z_index: int = 2,
+        contact_forces_start: int = 294,
+    ) -> None:
+        super().__init__(
+            dt,
+            forward_reward_weight=forward_reward_weight,
+            ctrl_cost_weight=ctrl_cost_weight,
+            contact_cost_weight=contact_cost_weight,
+            healthy_reward=healthy_reward,
+            terminate_when_unhealthy=terminate_when_unhealthy,
+            healthy_z_range=healthy_z_range,
+            x_index=x_index,
+            z_index=z_index,
+            contact_forces_start=contact_forces_start,
+        )
+        low, high = _check_range(contact_cost_range, "contact_cost_range", allow_infinite=True)
+        self._register_scalar("contact_cost_low", low)
+        self._register_scalar("contact_cost_high", high)
+
+    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        z = self._z(state)
+        return (z > self.healthy_z_low) & (z < self.healthy_z_high)
+
+    def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
+        forces = self._contact_forces(state)
+        cost = self.contact_cost_weight * (forces * forces).sum(dim=-1)
+        return cost.clamp(self.contact_cost_low, self.contact_cost_high)

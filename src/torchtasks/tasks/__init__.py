@@ -1,0 +1,36 @@
+"""Tasks: batched, functional evaluation of transitions with per-environment memory in a TensorDict."""
+
+from torchtasks.tasks.base import Task, TaskWrapper, all_tasks
+from torchtasks.tasks.composite import CompositeTask
+from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDesiredStateTask
+from torchtasks.tasks.final_reward import BestStateFinalRewardTask, FinalRewardMode, FinalRewardTask
+from torchtasks.tasks.flipping import FlippingTask
+from torchtasks.tasks.goalless import ConditionTask, DesiredSpaceTask, GoallessTask, OptimizationTask
+from torchtasks.tasks.leaf import RewardTask
+from torchtasks.tasks.masked import MaskedTask
+from torchtasks.tasks.parallel import ParallelTasks
+from torchtasks.tasks.sequential import SequentialTasks
+from torchtasks.tasks.success import never_succeeded, proximity_succeeded
+
+__all__ = [
+    "BestStateFinalRewardTask",
+    "CompositeTask",
+    "ConditionTask",
+    "DesiredSpaceTask",
+    "DesiredStateTask",
+    "FinalRewardMode",
+    "FinalRewardTask",
+    "FlippingTask",
+    "GoallessTask",
+    "MaskedTask",
+    "OptimizationTask",
+    "ParallelTasks",
+    "RadiallySymmetricDesiredStateTask",
+    "RewardTask",
+    "SequentialTasks",
+    "Task",
+    "TaskWrapper",
+    "all_tasks",
+    "never_succeeded",
+    "proximity_succeeded",
+]

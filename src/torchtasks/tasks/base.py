@@ -1,0 +1,343 @@
+"""The functional task protocol: :class:`Task`, :class:`TaskWrapper` and :func:`all_tasks`.
+
+A task is an ``nn.Module`` whose configuration is fixed at construction and whose
+per-environment memory is an explicit TensorDict, passed in and returned::
+
+    memory = task.reset(init_state)                       # batch_size = init_state.shape[:-1]
+    reward, memory = task.step_reward(state, action, memory, remaining_steps)
+    success = task.has_succeeded(state, memory)           # pure
+    failure = task.has_failed(state, memory)              # pure
+    done = task.is_done(state, memory)                    # success | failure
+    final, memory = task.final_reward(state, memory, remaining_steps, done)
+
+The public methods validate their inputs (shapes, dtypes; never values) and call the private
+``_``-methods, which composite tasks call on their children without validating again.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+
+from torchtasks._checks import check_input, check_same_batch
+from torchtasks.spaces import EnvSpec
+from torchtasks.tasks.memory import make_memory
+
+__all__ = ["Task", "TaskWrapper", "all_tasks"]
+
+
+def _false(state: torch.Tensor) -> torch.Tensor:
+    return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
+
+
+class Task(nn.Module):
+    """Base class of tasks: what an agent should do, evaluated for a batch of environments.
+
+    Subclasses implement ``_reset``, ``_step_reward`` and ``_has_succeeded`` and may override
+    ``_has_failed`` (default: the state left ``spec.state_space``; NaN is always outside) and
+    ``_compute_final_reward`` (default 0). Every per-environment quantity that changes during an
+    episode lives in the memory TensorDict, so environments of a batch are independent.
+
+    Args:
+        spec: the task's :class:`~torchtasks.spaces.EnvSpec` (state and action boxes).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> from torchtasks.spaces import Box, EnvSpec
+        >>> from torchtasks.tasks import DesiredStateTask
+        >>> task = DesiredStateTask(EnvSpec(Box(-1.0, 1.0).select([0]), 1), [0.5], QuadraticErrorReward([1.0], [0.0]))
+        >>> memory = task.reset(torch.zeros(2, 1))
+        >>> reward, memory = task.step_reward(torch.tensor([[0.0], [2.0]]), torch.zeros(2, 1), memory, 0)
+        >>> reward, task.has_failed(torch.tensor([[0.0], [2.0]]), memory)
+        (tensor([-0.2500, -2.2500]), tensor([False,  True]))
+    """
+
+    #: names of the per-environment overrides this task's ``reset`` understands
+    reset_keys: tuple[str, ...] = ()
+
+    def __init__(self, spec: EnvSpec) -> None:
+        super().__init__()
+        if not isinstance(spec, EnvSpec):
+            raise TypeError(f"spec must be a torchtasks.spaces.EnvSpec, got {type(spec).__name__}")
+        self.spec = spec
+        self.register_buffer("state_low", spec.state_space.low.clone())
+        self.register_buffer("state_high", spec.state_space.high.clone())
+        self._state_bounded = spec.state_space.is_bounded
+
+    # ----------------------------------------------------------------------------- properties
+    @property
+    def state_size(self) -> int:
+        """Number of state entries the task reads."""
+        return self.spec.state_size
+
+    @property
+    def action_size(self) -> int:
+        """Number of action entries the task reads."""
+        return self.spec.action_size
+
+    def children_tasks(self) -> tuple[Task, ...]:
+        """The tasks this one is made of (empty for a leaf task)."""
+        return ()
+
+    def all_reset_keys(self) -> set[str]:
+        """Names of the reset overrides understood anywhere in this task tree."""
+        keys = set(self.reset_keys)
+        for child in self.children_tasks():
+            keys |= child.all_reset_keys()
+        return keys
+
+    # ------------------------------------------------------------------------- validation
+    def _check_state(self, state: torch.Tensor, name: str = "state") -> None:
+        check_input(state, name, self.state_size)
+
+    def _check_action(self, state: torch.Tensor, action: torch.Tensor) -> None:
+        check_input(action, "action", self.action_size)
+        check_same_batch(state, action, "state", "action")
+
+    def _check_memory(self, state: torch.Tensor, memory: TensorDictBase) -> None:
+        if not isinstance(memory, TensorDictBase):
+            raise TypeError(f"memory must be the TensorDict returned by reset(), got {type(memory).__name__}")
+        if memory.batch_size != state.shape[:-1]:
+            raise ValueError(
+                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
+                f"{tuple(state.shape[:-1])}; call reset() with a state of the same batch shape"
+            )
+
+    @staticmethod
+    def _as_remaining(remaining_steps: int | torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+        if isinstance(remaining_steps, bool):
+            raise TypeError("remaining_steps must be an int or an integer tensor, got a bool")
+        if isinstance(remaining_steps, int):
+            return torch.tensor(remaining_steps, device=state.device)
+        if not isinstance(remaining_steps, torch.Tensor):
+            raise TypeError(f"remaining_steps must be an int or a tensor, got {type(remaining_steps).__name__}")
+        if remaining_steps.is_floating_point() or remaining_steps.dtype == torch.bool:
+            raise TypeError(f"remaining_steps must be an integer tensor, got dtype {remaining_steps.dtype}")
+        batch = state.shape[:-1]
+        if remaining_steps.shape not in (torch.Size([]), batch):
+            raise ValueError(
+                f"remaining_steps must have shape () or the batch shape {tuple(batch)}, "
+                f"got {tuple(remaining_steps.shape)}"
+            )
+        return remaining_steps
+
+    @staticmethod
+    def _check_done(done: torch.Tensor, state: torch.Tensor) -> None:
+        if not isinstance(done, torch.Tensor) or done.dtype != torch.bool:
+            raise TypeError(f"done must be a bool tensor of shape {tuple(state.shape[:-1])}, got {done!r}")
+        if done.shape != state.shape[:-1]:
+            raise ValueError(f"done must have shape {tuple(state.shape[:-1])}, got {tuple(done.shape)}")
+
+    # ------------------------------------------------------------------------ public API
+    def reset(self, init_state: torch.Tensor, **overrides: Any) -> TensorDict:
+        """Return fresh memory for episodes starting in ``init_state`` (``[*B, n]``).
+
+        ``overrides`` are per-environment reset values understood by tasks of the tree (e.g.
+        ``state_des`` of :class:`DesiredStateTask`, ``start_index`` of :class:`SequentialTasks`);
+        composite tasks forward them to their children. Unknown names raise ``TypeError``.
+        """
+        self._check_state(init_state, "init_state")
+        unknown = set(overrides) - self.all_reset_keys()
+        if unknown:
+            raise TypeError(
+                f"unknown reset override(s) {sorted(unknown)}; this task understands {sorted(self.all_reset_keys())}"
+            )
+        return self._reset(init_state, overrides)
+
+    def step_reward(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: int | torch.Tensor = 0,
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        """Return ``(reward[*B], memory)`` of one step taken from ``state`` with ``action``."""
+        self._check_state(state)
+        self._check_action(state, action)
+        self._check_memory(state, memory)
+        return self._step_reward(state, action, memory, self._as_remaining(remaining_steps, state))
+
+    def has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        """Return ``bool[*B]``: whether each environment's episode is a success (pure)."""
+        self._check_state(state)
+        self._check_memory(state, memory)
+        return self._has_succeeded(state, memory)
+
+    def has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        """Return ``bool[*B]``: whether each environment's episode is a failure (pure)."""
+        self._check_state(state)
+        self._check_memory(state, memory)
+        return self._has_failed(state, memory)
+
+    def is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        """Return ``bool[*B]``: success or failure (pure)."""
+        self._check_state(state)
+        self._check_memory(state, memory)
+        return self._is_done(state, memory)
+
+    def final_reward(
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: int | torch.Tensor,
+        done: torch.Tensor,
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        """Return ``(final_reward[*B], memory)``: the one-off reward, paid once and only where ``done``.
+
+        It sums the final rewards of this task and of the tasks it wraps (Pyrado's
+        ``final_rew`` over ``all_tasks``).
+        """
+        self._check_state(state)
+        self._check_memory(state, memory)
+        self._check_done(done, state)
+        return self._final_reward(state, memory, self._as_remaining(remaining_steps, state), done)
+
+    def forward(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        next_state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: int | torch.Tensor = 0,
+        truncated: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, TensorDictBase]:
+        """Evaluate one whole transition in Pyrado's order: step reward on ``state``, the rest on ``next_state``.
+
+        Returns ``(reward, success, failure, memory)`` where ``reward`` includes the final reward
+        of environments whose episode ends (success, failure, or ``truncated``).
+        """
+        reward, memory = self.step_reward(state, action, memory, remaining_steps)
+        success = self._has_succeeded(next_state, memory)
+        failure = self._has_failed(next_state, memory)
+        done = success | failure
+        if truncated is not None:
+            done = done | truncated
+        final, memory = self._final_reward(next_state, memory, self._as_remaining(remaining_steps, state), done)
+        return reward + final, success, failure, memory
+
+    # ------------------------------------------------------------------- implementation
+    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
+        return make_memory({}, init_state.shape[:-1])
+
+    def _step_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        raise NotImplementedError
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        raise NotImplementedError
+
+    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        if not self._state_bounded:
+            return torch.isnan(state).any(dim=-1)
+        low = self.state_low.to(state.dtype)
+        high = self.state_high.to(state.dtype)
+        return ~((state >= low) & (state <= high)).all(dim=-1)
+
+    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self._has_succeeded(state, memory) | self._has_failed(state, memory)
+
+    def _compute_final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        """This task's own final reward (Pyrado's ``compute_final_rew``): 0 by default."""
+        return state.new_zeros(state.shape[:-1]), memory
+
+    def _final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        return self._compute_final_reward(state, memory, remaining_steps, done)
+
+
+class TaskWrapper(Task):
+    """A task that wraps another one and forwards everything it does not change.
+
+    The wrapped task's memory is kept under the key ``"wrapped"``; :meth:`final_reward` adds this
+    wrapper's own final reward to the wrapped task's (so nested wrappers each pay once).
+
+    Args:
+        task: the wrapped task.
+
+    Example:
+        >>> from torchtasks.rewards import ConstantReward
+        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.tasks import GoallessTask, TaskWrapper
+        >>> wrapper = TaskWrapper(GoallessTask(EnvSpec(2, 1), ConstantReward(1.0)))
+        >>> wrapper.wrapped_task.__class__.__name__
+        'GoallessTask'
+    """
+
+    def __init__(self, task: Task) -> None:
+        if not isinstance(task, Task):
+            raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
+        super().__init__(task.spec)
+        self.wrapped_task = task
+
+    def children_tasks(self) -> tuple[Task, ...]:
+        return (self.wrapped_task,)
+
+    def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
+        """This wrapper's own memory entries at reset (none by default)."""
+        return {}
+
+    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
+        entries: dict[str, Any] = self._own_memory(init_state)
+        entries["wrapped"] = self.wrapped_task._reset(init_state, overrides)
+        return make_memory(entries, init_state.shape[:-1])
+
+    @staticmethod
+    def _replace(memory: TensorDictBase, **entries: Any) -> TensorDictBase:
+        """Return a shallow copy of ``memory`` with ``entries`` replaced."""
+        values = dict(memory.items())
+        values.update(entries)
+        return make_memory(values, memory.batch_size)
+
+    def _step_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        reward, inner = self.wrapped_task._step_reward(state, action, memory.get("wrapped"), remaining_steps)
+        return reward, self._replace(memory, wrapped=inner)
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_succeeded(state, memory.get("wrapped"))
+
+    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_failed(state, memory.get("wrapped"))
+
+    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._is_done(state, memory.get("wrapped"))
+
+    def _final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        own, memory = self._compute_final_reward(state, memory, remaining_steps, done)
+        inner_reward, inner = self.wrapped_task._final_reward(state, memory.get("wrapped"), remaining_steps, done)
+        return own + inner_reward, self._replace(memory, wrapped=inner)
+
+
+def all_tasks(task: Task) -> Iterator[Task]:
+    """Yield ``task`` and, while the current one is a :class:`TaskWrapper`, the task it wraps.
+
+    Outermost first. Like Pyrado's ``all_tasks``, it stops at the first task that is not a
+    wrapper (composite tasks such as :class:`ParallelTasks` are not descended into).
+
+    Example:
+        >>> from torchtasks.rewards import ConstantReward
+        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.tasks import FinalRewardTask, GoallessTask, all_tasks
+        >>> task = FinalRewardTask(GoallessTask(EnvSpec(1, 1), ConstantReward(0.0)))
+        >>> [type(t).__name__ for t in all_tasks(task)]
+        ['FinalRewardTask', 'GoallessTask']
+    """
+    if not isinstance(task, Task):
+        raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
+    current = task
+    yield current
+    while isinstance(current, TaskWrapper):
+        current = current.wrapped_task
+        yield current

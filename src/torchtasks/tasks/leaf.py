@@ -1,0 +1,63 @@
+"""Shared machinery of leaf tasks that own one reward function."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from torchtasks.rewards.base import RewardFunction
+from torchtasks.spaces import EnvSpec
+from torchtasks.tasks.base import Task
+from torchtasks.tasks.memory import make_memory
+
+__all__ = ["RewardTask"]
+
+
+class RewardTask(Task):
+    """A leaf task with one reward function; a stateful reward's memory lives under ``"reward"``.
+
+    Subclasses say what the reward sees by overriding :meth:`_reward_inputs` (state and action
+    errors by default) and add their own memory entries with :meth:`_own_memory`.
+    """
+
+    def __init__(self, spec: EnvSpec, reward: RewardFunction) -> None:
+        super().__init__(spec)
+        if not isinstance(reward, RewardFunction):
+            raise TypeError(f"reward must be a torchtasks RewardFunction, got {type(reward).__name__}")
+        self.reward = reward
+
+    def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
+        return {}
+
+    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
+        entries = self._own_memory(init_state, overrides)
+        if self.reward.stateful:
+            entries["reward"] = self.reward.reset(init_state)
+        return make_memory(entries, init_state.shape[:-1])
+
+    def _reward_inputs(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return what the reward function is called with (raw state and action by default)."""
+        return state, action
+
+    def _evaluate_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        inputs = self._reward_inputs(state, action, memory)
+        if not self.reward.stateful:
+            return self.reward(*inputs), memory
+        value, reward_memory = self.reward.step(*inputs, memory.get("reward"))
+        entries = dict(memory.items())
+        entries["reward"] = reward_memory
+        return value, make_memory(entries, memory.batch_size)
+
+    def _step_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        return self._evaluate_reward(state, action, memory)
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)

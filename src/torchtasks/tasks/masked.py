@@ -1,0 +1,104 @@
+"""A task that sees only selected entries of the state and action."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+
+from torchtasks.spaces import EnvSpec
+from torchtasks.tasks.base import Task
+
+__all__ = ["MaskedTask"]
+
+
+class MaskedTask(Task):
+    """Evaluate a task on selected state (and action) entries, in the order given.
+
+    The wrapped task is built for the sub-spec (e.g. ``spec.select_state(indices)``) and sees
+    ``state[..., indices]`` and ``action[..., action_indices]``. Entries that are not selected
+    cannot make it fail. Its memory is the wrapped task's memory, and its final rewards are
+    paid (also when the masked task is itself wrapped).
+
+    Args:
+        spec: the full state and action boxes.
+        task: the task on the selected entries.
+        state_indices: ints or labels of the state entries (order kept; unknown labels and
+            duplicates raise ``ValueError``); ``None`` selects all.
+        action_indices: ints or labels of the action entries; ``None`` selects all.
+
+    Pyrado name: ``MaskedTask`` (whose boolean masks ignored the order given and hid inner final
+    rewards from an outer wrapper).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> from torchtasks.spaces import Box, EnvSpec
+        >>> from torchtasks.tasks import DesiredStateTask, MaskedTask
+        >>> spec = EnvSpec(Box([-1.0] * 3, [1.0] * 3, labels=["x", "y", "z"]), 1)
+        >>> inner = DesiredStateTask(spec.select_state(["z", "x"]), [1.0, 0.0], QuadraticErrorReward([1.0, 1.0], None))
+        >>> task = MaskedTask(spec, inner, ["z", "x"])
+        >>> task.step_reward(torch.tensor([[0.5, 9.0, 1.0]]), torch.zeros(1, 1), task.reset(torch.zeros(1, 3)))[0]
+        tensor([-0.2500])
+    """
+
+    def __init__(
+        self,
+        spec: EnvSpec,
+        task: Task,
+        state_indices: Iterable[int | str] | int | str | None,
+        action_indices: Iterable[int | str] | int | str | None = None,
+    ) -> None:
+        super().__init__(spec)
+        if not isinstance(task, Task):
+            raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
+        state_positions = (
+            list(range(spec.state_size)) if state_indices is None else spec.state_space.indices(state_indices)
+        )
+        action_positions = (
+            list(range(spec.action_size)) if action_indices is None else spec.action_space.indices(action_indices)
+        )
+        if task.state_size != len(state_positions):
+            raise ValueError(
+                f"the wrapped task reads {task.state_size} state entries but {len(state_positions)} are selected"
+            )
+        if task.action_size != len(action_positions):
+            raise ValueError(
+                f"the wrapped task reads {task.action_size} action entries but {len(action_positions)} are selected"
+            )
+        self.wrapped_task = task
+        self.state_indices = state_positions
+        self.action_indices = action_positions
+        self.register_buffer("state_index", torch.tensor(state_positions, dtype=torch.long))
+        self.register_buffer("action_index", torch.tensor(action_positions, dtype=torch.long))
+
+    def children_tasks(self) -> tuple[Task, ...]:
+        return (self.wrapped_task,)
+
+    def _state(self, state: torch.Tensor) -> torch.Tensor:
+        return state.index_select(-1, self.state_index)
+
+    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
+        return self.wrapped_task._reset(self._state(init_state), overrides)
+
+    def _step_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        action = action.index_select(-1, self.action_index)
+        return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps)
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_succeeded(self._state(state), memory)
+
+    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_failed(self._state(state), memory)
+
+    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._is_done(self._state(state), memory)
+
+    def _compute_final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done)

@@ -1,0 +1,124 @@
+"""Several tasks pursued one after the other."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+
+from torchtasks.tasks.base import Task
+from torchtasks.tasks.composite import CompositeTask
+from torchtasks.tasks.memory import make_memory
+
+__all__ = ["SequentialTasks"]
+
+
+class SequentialTasks(CompositeTask):
+    """Pursue sub-tasks one after the other; each environment has its own current sub-task.
+
+    In every step only the current sub-task (memory ``"index"``, ``int64[*B]``) pays its step
+    reward (plus, with ``hold_reward_when_done``, the held rewards of finished ones). When it is
+    done on this state it is marked succeeded or failed, its step reward is held (evaluated
+    once more with 0 remaining steps), its final reward is paid and the index moves on
+    (wrapping to 0 after the last). Goals reached out of order are ignored until they are
+    current. The task succeeds when every sub-task succeeded; it fails when the state leaves the
+    first sub-task's state box (a failed sub-task does not end the episode by itself).
+
+    Args:
+        tasks: the sub-tasks in order (same state and action sizes).
+        start_index: the sub-task to start with at every reset (earlier ones count as
+            succeeded); ``reset(..., start_index=...)`` overrides it per environment.
+        hold_reward_when_done: keep paying finished sub-tasks' last rewards.
+
+    Pyrado name: ``SequentialTasks``. Fixed here: Pyrado forgot ``start_idx`` at reset (and got
+    stuck when it was passed to ``reset``).
+
+    Example:
+        >>> import functools, torch
+        >>> from torchtasks.rewards import ConstantReward
+        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.tasks import DesiredStateTask, SequentialTasks, proximity_succeeded
+        >>> near = functools.partial(proximity_succeeded, threshold=0.1)
+        >>> goal = lambda g: DesiredStateTask(EnvSpec(1, 1), [g], ConstantReward(-1.0), near)
+        >>> task = SequentialTasks([goal(0.0), goal(1.0)])
+        >>> memory = task.reset(torch.zeros(2, 1), start_index=torch.tensor([0, 1]))
+        >>> reward, memory = task.step_reward(torch.ones(2, 1), torch.zeros(2, 1), memory)
+        >>> memory["index"], task.has_succeeded(torch.ones(2, 1), memory)
+        (tensor([0, 0]), tensor([False,  True]))
+    """
+
+    reset_keys = ("start_index",)
+
+    def __init__(self, tasks: Sequence[Task], start_index: int = 0, hold_reward_when_done: bool = False) -> None:
+        super().__init__(tasks, hold_reward_when_done)
+        self.start_index = self._check_start(start_index)
+
+    def _check_start(self, start_index: int) -> int:
+        if isinstance(start_index, bool) or not isinstance(start_index, int):
+            raise TypeError(f"start_index must be an int, got {start_index!r}")
+        if not 0 <= start_index < self.num_tasks:
+            raise ValueError(f"start_index must lie in [0, {self.num_tasks - 1}], got {start_index}")
+        return start_index
+
+    def _bookkeeping(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
+        entries = super()._bookkeeping(init_state, overrides)
+        batch = init_state.shape[:-1]
+        start = overrides.get("start_index")
+        if start is None or isinstance(start, int):
+            start = self.start_index if start is None else self._check_start(start)
+            index = torch.full(batch, start, dtype=torch.long, device=init_state.device)
+        else:
+            index = torch.as_tensor(start, device=init_state.device)
+            if index.is_floating_point() or index.dtype == torch.bool or index.shape not in (torch.Size([]), batch):
+                raise ValueError(
+                    f"start_index override must be an int or an integer tensor of shape {tuple(batch)}, "
+                    f"got {index.dtype} {tuple(index.shape)}"
+                )
+            if ((index < 0) | (index >= self.num_tasks)).any():
+                raise ValueError(f"start_index override must lie in [0, {self.num_tasks - 1}], got {index.tolist()}")
+            index = index.to(torch.long).expand(batch).clone()
+        positions = torch.arange(self.num_tasks, device=init_state.device)
+        entries["succeeded"] = positions < index.unsqueeze(-1)
+        entries["index"] = index
+        return entries
+
+    def _step_reward(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        index = memory.get("index")
+        succeeded = list(memory.get("succeeded").unbind(-1))
+        failed = list(memory.get("failed").unbind(-1))
+        held = list(memory.get("held").unbind(-1)) if self.hold_reward_when_done else None
+        zero = state.new_zeros(state.shape[:-1])
+        total = zero
+        if held is not None:
+            for i in range(self.num_tasks):
+                total = total + torch.where(succeeded[i] | failed[i], held[i], zero)
+        new_index = index
+        entries = dict(memory.items())
+        for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
+            active = (index == i) & ~(succeeded[i] | failed[i])
+            old_memory = memory.get(key)
+            value, sub_memory = task._step_reward(state, action, old_memory, remaining_steps)
+            total = total + torch.where(active, value, zero)
+            newly_done = active & task._is_done(state, sub_memory)
+            self._finish(i, task, state, newly_done, sub_memory, succeeded, failed)
+            if held is not None:
+                value, after_hold = task._step_reward(state, action, sub_memory, torch.zeros_like(remaining_steps))
+                held[i] = torch.where(newly_done, value, held[i])
+                sub_memory = self._gate(newly_done, after_hold, sub_memory)
+            final, sub_memory = task._final_reward(state, sub_memory, remaining_steps, newly_done)
+            total = total + torch.where(newly_done, final, zero)
+            new_index = torch.where(newly_done, (i + 1) % self.num_tasks, new_index)
+            entries[key] = self._gate(active, sub_memory, old_memory)
+        entries["index"] = new_index
+        entries["succeeded"] = torch.stack(succeeded, dim=-1)
+        entries["failed"] = torch.stack(failed, dim=-1)
+        if held is not None:
+            entries["held"] = torch.stack(held, dim=-1)
+        return total, make_memory(entries, memory.batch_size)
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return memory.get("succeeded").all(dim=-1)
