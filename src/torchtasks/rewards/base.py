@@ -33,6 +33,9 @@ class RewardFunction(nn.Module):
         can_fail: whether :meth:`has_failed` may return True (e.g. an unhealthy robot with
             ``terminate_when_unhealthy``); tasks OR it into their failure.
         uses_action: whether the action input is read.
+        term_names: names of the named terms of rewards made of several (compound and
+            locomotion rewards), which also offer ``step_terms(state, action, memory) ->
+            ({name: value}, memory)``.
 
     Pyrado name: ``RewFcn``.
 
@@ -49,6 +52,8 @@ class RewardFunction(nn.Module):
     stateful: bool = False
     can_fail: bool = False
     uses_action: bool = True
+    #: names of the terms :meth:`step_terms` returns (empty for single-term rewards)
+    term_names: tuple[str, ...] = ()
 
     def _register_constant(self, name: str, value: torch.Tensor, learnable: bool = False) -> None:
         """Register ``value`` as a buffer, or as a parameter when ``learnable``."""

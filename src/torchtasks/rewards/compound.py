@@ -65,11 +65,7 @@ class CompoundReward(RewardFunction):
         self.can_fail = any(reward.can_fail for reward in self.rewards.values())
         self.uses_action = any(reward.uses_action for reward in self.rewards.values())
         self._stateful_names = tuple(name for name, reward in self.rewards.items() if reward.stateful)
-
-    @property
-    def names(self) -> tuple[str, ...]:
-        """The term names, in order."""
-        return tuple(self.rewards.keys())
+        self.term_names = tuple(self.rewards.keys())
 
     def terms(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """Return ``{name: value[*B]}`` for every term (stateless compounds only)."""

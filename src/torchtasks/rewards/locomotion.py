@@ -34,6 +34,7 @@ class _ForwardProgressReward(RewardFunction):
     """Shared memory protocol and velocity/control terms of the forward-progress rewards."""
 
     stateful = True
+    term_names = ("forward", "ctrl")
 
     def __init__(self, dt: float, x_index: int, forward_reward_weight: float, ctrl_cost_weight: float) -> None:
         super().__init__()
@@ -132,6 +133,8 @@ class ForwardVelocityReward(_ForwardProgressReward):
 
 class _HealthyForwardReward(_ForwardProgressReward):
     """Forward progress with a healthy reward and an optional "unhealthy = failure" rule."""
+
+    term_names = ("forward", "ctrl", "healthy", "contact")
 
     def __init__(
         self,

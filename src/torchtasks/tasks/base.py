@@ -84,6 +84,11 @@ class Task(nn.Module):
         """The tasks this one is made of (empty for a leaf task)."""
         return ()
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        """Names of the step-reward terms :meth:`step_reward_terms` reports (empty: no breakdown)."""
+        return ()
+
     def all_reset_keys(self) -> set[str]:
         """Names of the reset overrides understood anywhere in this task tree."""
         keys = set(self.reset_keys)
@@ -162,6 +167,23 @@ class Task(nn.Module):
         self._check_memory(state, memory)
         return self._step_reward(state, action, memory, self._as_remaining(remaining_steps, state))
 
+    def step_reward_terms(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: int | torch.Tensor = 0,
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        """Like :meth:`step_reward`, with the named terms: ``({name: value[*B]}, reward[*B], memory)``.
+
+        The terms are those of a compound or locomotion reward reached through wrappers and
+        masks (:attr:`term_names`); they sum to the reward. Other tasks report no terms.
+        """
+        self._check_state(state)
+        self._check_action(state, action)
+        self._check_memory(state, memory)
+        return self._step_terms(state, action, memory, self._as_remaining(remaining_steps, state))
+
     def has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         """Return ``bool[*B]``: whether each environment's episode is a success (pure)."""
         self._check_state(state)
@@ -229,6 +251,12 @@ class Task(nn.Module):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         raise NotImplementedError
 
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        reward, memory = self._step_reward(state, action, memory, remaining_steps)
+        return {}, reward, memory
+
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         raise NotImplementedError
 
@@ -281,6 +309,10 @@ class TaskWrapper(Task):
     def children_tasks(self) -> tuple[Task, ...]:
         return (self.wrapped_task,)
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        return self.wrapped_task.term_names
+
     def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
         """This wrapper's own memory entries at reset (none by default)."""
         return {}
@@ -297,11 +329,21 @@ class TaskWrapper(Task):
         values.update(entries)
         return make_memory(values, memory.batch_size)
 
+    def _after_step(self, reward: torch.Tensor, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
+        """Return this wrapper's memory after a step of the wrapped task (``inner`` is its new memory)."""
+        return self._replace(memory, wrapped=inner)
+
     def _step_reward(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
         reward, inner = self.wrapped_task._step_reward(state, action, memory.get("wrapped"), remaining_steps)
-        return reward, self._replace(memory, wrapped=inner)
+        return reward, self._after_step(reward, memory, inner)
+
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        terms, reward, inner = self.wrapped_task._step_terms(state, action, memory.get("wrapped"), remaining_steps)
+        return terms, reward, self._after_step(reward, memory, inner)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._has_succeeded(state, memory.get("wrapped"))

@@ -184,13 +184,10 @@ class BestStateFinalRewardTask(TaskWrapper):
             "paid": torch.zeros(batch, dtype=torch.bool, device=init_state.device),
         }
 
-    def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        reward, inner = self.wrapped_task._step_reward(state, action, memory.get("wrapped"), remaining_steps)
+    def _after_step(self, reward: torch.Tensor, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
         best = memory.get("best")
         best = torch.where(reward > best, reward.to(best.dtype), best)
-        return reward, self._replace(memory, wrapped=inner, best=best)
+        return self._replace(memory, wrapped=inner, best=best)
 
     def _compute_final_reward(
         self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor

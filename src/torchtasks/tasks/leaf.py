@@ -59,5 +59,29 @@ class RewardTask(Task):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return self._evaluate_reward(state, action, memory)
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        return self.reward.term_names
+
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        if not self.reward.term_names:
+            reward, memory = self._evaluate_reward(state, action, memory)
+            return {}, reward, memory
+        inputs = self._reward_inputs(state, action, memory)
+        if not self.reward.stateful:
+            terms, _ = self.reward.step_terms(*inputs, memory)
+        else:
+            terms, reward_memory = self.reward.step_terms(*inputs, memory.get("reward"))
+            entries = dict(memory.items())
+            entries["reward"] = reward_memory
+            memory = make_memory(entries, memory.batch_size)
+        values = iter(terms.values())
+        total = next(values)
+        for value in values:
+            total = total + value
+        return terms, total, memory
+
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)

@@ -77,6 +77,10 @@ class MaskedTask(Task):
     def children_tasks(self) -> tuple[Task, ...]:
         return (self.wrapped_task,)
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        return self.wrapped_task.term_names
+
     def _state(self, state: torch.Tensor) -> torch.Tensor:
         return state.index_select(-1, self.state_index)
 
@@ -88,6 +92,12 @@ class MaskedTask(Task):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         action = action.index_select(-1, self.action_index)
         return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps)
+
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        action = action.index_select(-1, self.action_index)
+        return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._has_succeeded(self._state(state), memory)
