@@ -1,0 +1,141 @@
+"""A batched, differentiable pendulum in torch whose reward and termination come from a task."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+__all__ = ["PendulumEnv", "pendulum_dynamics"]
+
+
+def pendulum_dynamics(
+    state: torch.Tensor,
+    torque: torch.Tensor,
+    *,
+    dt: float = 0.05,
+    gravity: float = 10.0,
+    mass: float = 1.0,
+    length: float = 1.0,
+    max_speed: float = 8.0,
+) -> torch.Tensor:
+    """Return the next ``[θ, θ̇]`` of a rod pendulum (θ = 0 upright), semi-implicit Euler.
+
+    ``θ̈ = 3g/(2l)·sin θ + 3/(m l²)·u`` (Gymnasium's Pendulum physics); the angular speed is
+    clipped to ``±max_speed``. Pure, batched and differentiable (``state [*B, 2]``,
+    ``torque [*B, 1]``); the angle is not wrapped.
+
+    Example:
+        >>> import torch
+        >>> pendulum_dynamics(torch.tensor([[0.0, 0.0]]), torch.tensor([[1.0]]))
+        tensor([[0.0075, 0.1500]])
+    """
+    theta, speed = state[..., 0], state[..., 1]
+    acceleration = 3.0 * gravity / (2.0 * length) * torch.sin(theta) + 3.0 / (mass * length**2) * torque[..., 0]
+    speed = torch.clamp(speed + dt * acceleration, -max_speed, max_speed)
+    return torch.stack((theta + dt * speed, speed), dim=-1)
+
+
+class PendulumEnv(EnvBase):
+    """A batch of torque-limited pendulums simulated in torch, for swing-up tasks.
+
+    The observation is the raw state ``[θ, θ̇]`` (θ = 0 upright, not wrapped). The env pays no
+    reward and never ends an episode by itself: put a :class:`~torchtasks.transforms.TaskTransform`
+    (and a ``StepCounter``) on it. The dynamics (:func:`pendulum_dynamics`) are differentiable,
+    so ``env.rollout`` keeps the autograd graph from the policy's actions to the task's rewards.
+
+    Args:
+        batch_size: number of pendulums (any shape).
+        dt: time step [s]; max_torque: torque bound; max_speed: speed bound.
+        init_angle, init_speed: half-widths of the uniform initial state distribution.
+        device, dtype: where and in which precision the state lives.
+        seed: seed of the env's own random generator.
+
+    Example:
+        >>> import torch
+        >>> env = PendulumEnv(batch_size=[3], seed=0)
+        >>> td = env.rand_step(env.reset())
+        >>> td["next", "observation"].shape
+        torch.Size([3, 2])
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        batch_size: Sequence[int] | torch.Size = (),
+        *,
+        dt: float = 0.05,
+        max_torque: float = 2.0,
+        max_speed: float = 8.0,
+        init_angle: float = math.pi,
+        init_speed: float = 1.0,
+        device: torch.device | str | None = None,
+        dtype: torch.dtype = torch.float32,
+        seed: int | None = None,
+    ) -> None:
+        super().__init__(batch_size=torch.Size(batch_size), device=device)
+        self.dt = float(dt)
+        self.max_torque = float(max_torque)
+        self.max_speed = float(max_speed)
+        self.init_angle = float(init_angle)
+        self.init_speed = float(init_speed)
+        self.dtype_ = dtype
+        self.rng = torch.Generator(device=self.device or "cpu")
+        self._set_seed(seed)
+        batch = self.batch_size
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(*batch, 2), dtype=dtype, device=self.device), shape=batch
+        )
+        self.action_spec = Bounded(
+            low=-self.max_torque, high=self.max_torque, shape=(*batch, 1), dtype=dtype, device=self.device
+        )
+        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=dtype, device=self.device)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
+            terminated=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
+            shape=batch,
+        )
+
+    def _sample_state(self) -> torch.Tensor:
+        shape = (*self.batch_size, 2)
+        uniform = torch.rand(shape, generator=self.rng, device=self.rng.device, dtype=self.dtype_)
+        scale = torch.tensor([self.init_angle, self.init_speed], dtype=self.dtype_, device=self.rng.device)
+        return ((2 * uniform - 1) * scale).to(self.device or "cpu")
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
+        state = self._sample_state()
+        if tensordict is not None and "_reset" in tensordict.keys() and "observation" in tensordict.keys():
+            reset = tensordict.get("_reset").reshape(*self.batch_size, 1)
+            state = torch.where(reset, state, tensordict.get("observation"))
+        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
+        return TensorDict(
+            {"observation": state, "done": flags, "terminated": flags.clone()},
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        state = tensordict.get("observation")
+        torque = tensordict.get("action").clamp(-self.max_torque, self.max_torque)
+        next_state = pendulum_dynamics(state, torque, dt=self.dt, max_speed=self.max_speed)
+        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
+        return TensorDict(
+            {
+                "observation": next_state,
+                "reward": state.new_zeros((*self.batch_size, 1)),
+                "done": flags,
+                "terminated": flags.clone(),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            seed = int(torch.empty((), dtype=torch.int64).random_().item())
+        self.rng.manual_seed(seed)
