@@ -37,7 +37,8 @@ def _check_vector_gym(base_env: Any) -> None:
     raise ValueError(
         f"{type(base_env).__name__} wraps a Gymnasium vector env that resets its sub-envs itself, so it cannot "
         "end episodes when the task says so. Use ParallelEnv/SerialEnv of single envs, or "
-        "GymWrapper(gymnasium.make_vec(..., vector_kwargs={'autoreset_mode': gymnasium.vector.AutoresetMode.DISABLED}))."
+        "GymWrapper(gymnasium.make_vec(..., vector_kwargs={'autoreset_mode': "
+        "gymnasium.vector.AutoresetMode.DISABLED}))."
     )
 
 
@@ -83,7 +84,8 @@ class TaskTransform(Transform):
         >>> from torchtasks.tasks import RadiallySymmetricDesiredStateTask
         >>> task = RadiallySymmetricDesiredStateTask(
         ...     EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.001]), indices=[0])
-        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(StepCounter(50), TaskTransform(task), RewardSum()))
+        >>> transforms = Compose(StepCounter(50), TaskTransform(task), RewardSum())
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), transforms)
         >>> rollout = env.rollout(10)
         >>> rollout["next", "reward"].shape, rollout["next", "success"].dtype
         (torch.Size([4, 10, 1]), torch.bool)
@@ -372,4 +374,5 @@ class TaskTransform(Transform):
         return next_data.get(self.reward_key)
 
     def __repr__(self) -> str:
-        return f"{type(self).__name__}(task={type(self.task).__name__}, state_keys={self.state_keys}, reward_on={self.reward_on!r})"
+        name = type(self.task).__name__
+        return f"{type(self).__name__}(task={name}, state_keys={self.state_keys}, reward_on={self.reward_on!r})"
