@@ -109,10 +109,14 @@ class Box:
         space = getattr(spec, "space", None)
         low = getattr(space, "low", None)
         high = getattr(space, "high", None)
-        if low is None or high is None:
+        if low is None or high is None or type(spec).__name__.startswith("Unbounded"):
             return cls.unbounded(size, labels=labels)
+        dtype_max = torch.finfo(low.dtype).max if low.is_floating_point() else torch.iinfo(low.dtype).max
         low = torch.as_tensor(low, dtype=torch.float64).reshape(-1, size)
         high = torch.as_tensor(high, dtype=torch.float64).reshape(-1, size)
+        # TorchRL stores "no bound" as the dtype's extreme values
+        low = torch.where(low <= -dtype_max, -math.inf, low)
+        high = torch.where(high >= dtype_max, math.inf, high)
         if not (low == low[0]).all() or not (high == high[0]).all():
             raise ValueError("spec has different bounds per batch row; build one Box per row instead")
         return cls(low[0], high[0], labels=labels)

@@ -187,14 +187,22 @@ class ScaledExpQuadraticErrorReward(_QuadraticCost):
         self.min_reward = min_reward
         self.register_buffer("state_bound", state_space.bound_abs_high)
         self.register_buffer("action_bound", action_space.bound_abs_high)
-        if float(self._worst_case_cost()) == 0.0:
+        if float(self._worst_case_cost().detach()) == 0.0:
             raise ValueError("the worst-case cost s_maxᵀQs_max + a_maxᵀRa_max is 0: the reward cannot be scaled")
 
     def _worst_case_cost(self) -> torch.Tensor:
+        """``s_maxᵀQs_max + a_maxᵀRa_max``; infinite where an unbounded entry has a positive weight.
+
+        An entry with zero diagonal weight does not count (a PSD matrix then has a zero row and
+        column), so infinite bounds on unweighted entries do not make the scale vanish.
+        """
+
         def bounded_form(weight: torch.Tensor, bound: torch.Tensor) -> torch.Tensor:
-            outer = torch.outer(bound, bound) if weight.ndim == 2 else bound * bound
-            terms = weight * outer
-            return torch.where(weight == 0, torch.zeros_like(terms), terms).sum()
+            diagonal = weight.diagonal() if weight.ndim == 2 else weight
+            unbounded = torch.isinf(bound) & (diagonal > 0)
+            finite_bound = torch.where(torch.isinf(bound), torch.zeros_like(bound), bound)
+            value = quadratic_form(weight, finite_bound)
+            return torch.where(unbounded.any(), torch.full_like(value, math.inf), value)
 
         return bounded_form(self.Q, self.state_bound) + bounded_form(self.R, self.action_bound)
 
@@ -234,9 +242,18 @@ class AbsoluteErrorReward(RewardFunction):
         else:
             self._register_constant("r", _weight_vector(r, "r"), learnable)
 
+    @property
+    def state_size(self) -> int:
+        """Size of the state error this reward expects."""
+        return self.q.shape[0]
+
+    @property
+    def action_size(self) -> int:
+        """Size of the action error this reward expects (0 without ``r``)."""
+        return 0 if self.r is None else self.r.shape[0]
+
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        action_size = 0 if self.r is None else self.r.shape[0]
-        self._check_inputs(error_state, error_action, self.q.shape[0], action_size)
+        self._check_inputs(error_state, error_action, self.state_size, self.action_size)
         value = (error_state.abs() * cast_like(self.q, error_state)).sum(dim=-1)
         if self.uses_action:
             value = value + (error_action.abs() * cast_like(self.r, error_action)).sum(dim=-1)

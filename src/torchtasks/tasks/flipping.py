@@ -90,6 +90,11 @@ class FlippingTask(RewardTask):
         self.angle_tol = angle_tol
         self.endless = endless
 
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        """No breakdown: the step reward is the held reward plus the reward of the closer target."""
+        return ()
+
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
         zeros = init_state.new_zeros(init_state.shape[:-1])
         return {"last_angle": zeros, "held": zeros.clone()}

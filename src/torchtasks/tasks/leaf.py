@@ -26,7 +26,24 @@ class RewardTask(Task):
         super().__init__(spec)
         if not isinstance(reward, RewardFunction):
             raise TypeError(f"reward must be a torchtasks RewardFunction, got {type(reward).__name__}")
+        self._check_reward_sizes(spec, reward)
         self.reward = reward
+
+    @staticmethod
+    def _check_reward_sizes(spec: EnvSpec, reward: RewardFunction) -> None:
+        """Reject a reward whose weights do not fit the task's state or action size (at construction)."""
+        state_size = getattr(reward, "state_size", None)
+        if state_size is not None and state_size != spec.state_size:
+            raise ValueError(
+                f"reward {type(reward).__name__} expects states of size {state_size}, "
+                f"but the task's state has {spec.state_size} entries"
+            )
+        action_size = getattr(reward, "action_size", None)
+        if reward.uses_action and action_size is not None and action_size != spec.action_size:
+            raise ValueError(
+                f"reward {type(reward).__name__} expects actions of size {action_size}, "
+                f"but the task's action has {spec.action_size} entries"
+            )
 
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
         return {}
@@ -66,8 +83,8 @@ class RewardTask(Task):
     def _step_terms(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        if not self.reward.term_names:
-            reward, memory = self._evaluate_reward(state, action, memory)
+        if not self.term_names:
+            reward, memory = self._step_reward(state, action, memory, remaining_steps)
             return {}, reward, memory
         inputs = self._reward_inputs(state, action, memory)
         if not self.reward.stateful:
