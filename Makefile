@@ -16,7 +16,7 @@ $(STAMP): pyproject.toml constraints.txt
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/python examples/quickstart.py
+	$(BIN)/torchtasks demo
 
 test: $(STAMP)
 	$(BIN)/ruff check src tests examples benchmarks

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -10,7 +11,11 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-__all__ = ["PendulumEnv", "pendulum_dynamics"]
+from torchtasks.rewards import CompoundReward, QuadraticErrorReward
+from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks import FinalRewardTask, RadiallySymmetricDesiredStateTask, Task, proximity_succeeded
+
+__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task"]
 
 
 def pendulum_dynamics(
@@ -41,7 +46,7 @@ def pendulum_dynamics(
 
 
 class PendulumEnv(EnvBase):
-    """A batch of torque-limited pendulums simulated in torch, for swing-up tasks.
+    """A batch of torque-limited pendulums simulated in torch, for swing-up tasks (see :func:`swing_up_task`).
 
     The observation is the raw state ``[θ, θ̇]`` (θ = 0 upright, not wrapped). The env pays no
     reward and never ends an episode by itself: put a :class:`~torchtasks.transforms.TaskTransform`
@@ -139,3 +144,31 @@ class PendulumEnv(EnvBase):
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         self.rng.manual_seed(seed)
+
+
+def swing_up_task(
+    success_threshold: float = 0.1, success_reward: float = 100.0, max_torque: float = 2.0, max_speed: float = 8.0
+) -> Task:
+    """Return the swing-up task of :class:`PendulumEnv`: reach and hold the upright state ``[0, 0]``.
+
+    A :class:`~torchtasks.tasks.RadiallySymmetricDesiredStateTask` (the angle error is wrapped)
+    with named reward terms ``track = -(θ² + 0.1·θ̇²)`` and ``effort = -0.001·u²`` (Gymnasium
+    Pendulum's cost), succeeding when ``‖[θ, θ̇]‖ < success_threshold``, inside a
+    :class:`~torchtasks.tasks.FinalRewardTask` paying ``+success_reward`` on success (failure,
+    leaving the speed bounds, cannot happen with the env's speed clip).
+
+    Example:
+        >>> import torch
+        >>> task = swing_up_task()
+        >>> memory = task.reset(torch.zeros(2, 2))
+        >>> task.is_done(torch.tensor([[0.01, 0.0], [3.0, 0.0]]), memory)
+        tensor([ True, False])
+    """
+    inf = float("inf")
+    spec = EnvSpec(Box([-inf, -max_speed], [inf, max_speed]), Box(-max_torque, max_torque))
+    reward = CompoundReward(
+        {"track": QuadraticErrorReward(Q=[1.0, 0.1], R=None), "effort": QuadraticErrorReward(Q=[0.0, 0.0], R=[1e-3])}
+    )
+    success = functools.partial(proximity_succeeded, threshold=success_threshold)
+    inner = RadiallySymmetricDesiredStateTask(spec, [0.0, 0.0], reward, indices=[0], success=success)
+    return FinalRewardTask(inner, factor=success_reward)
