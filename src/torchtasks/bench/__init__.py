@@ -1,0 +1,143 @@
+"""The torchtasks benchmark suite (``torchtasks bench``): task evaluation, collector overhead, memory.
+
+Every figure is a ratio measured in the same run (medians of repeats), so the results say how
+torchtasks compares with its baselines on the machine at hand, not absolute speeds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+__all__ = ["format_markdown", "run_benchmarks"]
+
+SECTIONS = ("tasks", "collector", "memory")
+
+
+def _machine() -> dict[str, Any]:
+    return {
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpus": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "date": time.strftime("%Y-%m-%d %H:%M:%S %Z"),
+    }
+
+
+def run_benchmarks(
+    output_dir: str | Path | None = "bench-results", *, tiny: bool = False, sections: list[str] | None = None
+) -> dict[str, Any]:
+    """Run the selected sections and write ``benchmarks.json`` and ``benchmarks.md`` to ``output_dir``.
+
+    ``tiny`` runs every code path on tiny sizes (a smoke test: timings are meaningless).
+    """
+    from torchtasks.bench.task_eval import memory_bytes_per_env, run_task_benchmark
+
+    chosen = tuple(sections) if sections else SECTIONS
+    unknown = set(chosen) - set(SECTIONS)
+    if unknown:
+        raise ValueError(f"unknown benchmark sections {sorted(unknown)}; choose from {list(SECTIONS)}")
+    cases = _cases(tiny)
+    results: dict[str, Any] = {"machine": _machine(), "tiny": tiny}
+    if "tasks" in chosen:
+        results["tasks"] = run_task_benchmark(
+            names=tuple(cases),
+            batches=(1, 8) if tiny else (1, 64, 1024, 16384),
+            compile=True,
+            repeats=1 if tiny else 5,
+            min_seconds=0.001 if tiny else 0.1,
+            extra_cases={name: case for name, case in cases.items() if case is not None},
+        )
+    if "collector" in chosen:
+        from torchtasks.bench.collector import run_collector_benchmark
+
+        results["collector"] = run_collector_benchmark(tiny=tiny)
+    if "memory" in chosen:
+        results["memory"] = [
+            {"case": name, "bytes_per_env": memory_bytes_per_env(*_memory_case(name, case))}
+            for name, case in cases.items()
+        ]
+    if output_dir is not None:
+        folder = Path(output_dir)
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "benchmarks.json").write_text(json.dumps(results, indent=2))
+        (folder / "benchmarks.md").write_text(format_markdown(results))
+    print(format_markdown(results))
+    return results
+
+
+def _cases(tiny: bool) -> dict[str, Any]:
+    cases: dict[str, Any] = {"T1": None, "T2": None, "T3": None}
+    try:
+        from torchtasks.bench.locomotion_case import HalfCheetahCase
+    except ImportError:  # the mujoco extra is missing
+        return cases
+    cases["T4"] = HalfCheetahCase()
+    return cases
+
+
+def _memory_case(name: str, case: Any) -> tuple[Any, int]:
+    from torchtasks.bench.cases import BenchConfig, make_t1, make_t2, make_t3
+
+    if case is not None:
+        return case.task(), case.state_size
+    config = BenchConfig()
+    return {"T1": make_t1, "T2": make_t2, "T3": make_t3}[name](config), config.state_size
+
+
+def format_markdown(results: dict[str, Any]) -> str:
+    """Return the results as Markdown tables."""
+    lines = ["# torchtasks benchmarks", ""]
+    machine = results["machine"]
+    lines.append(
+        f"Machine: {machine['processor']}, {machine['cpus']} CPUs, torch {machine['torch']} "
+        f"({machine['torch_threads']} threads), Python {machine['python']}, {machine['date']}."
+    )
+    if results.get("tiny"):
+        lines += ["", "**Tiny smoke run: the timings below are not meaningful.**"]
+    if "tasks" in results:
+        lines += [
+            "",
+            "## Task evaluation (step_reward + is_done + final_reward per step)",
+            "",
+            "Times in µs per step for the whole batch. `speedup` = numpy loop / best torchtasks; "
+            "`vs limit` = best torchtasks / best hand-fused.",
+            "",
+            "| case | batch | eager | compiled | hand-fused | fused compiled | numpy loop | speedup | vs limit |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        ]
+        for row in results["tasks"]:
+            us = row["us"]
+            lines.append(
+                f"| {row['case']} | {row['batch']} | {us['eager']:.1f} | {us.get('compiled', float('nan')):.1f} | "
+                f"{us['fused']:.1f} | {us.get('fused_compiled', float('nan')):.1f} | {us['numpy_loop']:.1f} | "
+                f"{row['speedup_vs_numpy_loop']:.1f}x | {row['ratio_to_fused_limit']:.2f}x |"
+            )
+    if "collector" in results:
+        lines += [
+            "",
+            "## Collector overhead (frames/s, random policy, StepCounter(1000) + transform)",
+            "",
+            "| setup | identity | TaskTransform(T1) | minimal T1 | task / identity | task / minimal |",
+            "|---|---:|---:|---:|---:|---:|",
+        ]
+        for row in results["collector"]:
+            fps = row["fps"]
+            minimal = f"{fps['minimal']:,.0f}" if "minimal" in fps else "–"
+            over_minimal = f"{row['task_over_minimal']:.2f}" if "task_over_minimal" in row else "–"
+            lines.append(
+                f"| {row['setup']} | {fps['identity']:,.0f} | {fps['task']:,.0f} | {minimal} | "
+                f"{row['task_over_identity']:.2f} | {over_minimal} |"
+            )
+    if "memory" in results:
+        lines += ["", "## Task memory", "", "| case | bytes per env |", "|---|---:|"]
+        lines += [f"| {row['case']} | {row['bytes_per_env']} |" for row in results["memory"]]
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,238 @@
+"""Collector-overhead benchmark: frames/s with TaskTransform against an identity and a minimal transform."""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.data import Categorical, Composite, Unbounded
+from torchrl.envs import Compose, EnvBase, StepCounter, Transform, TransformedEnv
+
+from torchtasks.bench.cases import BenchConfig
+from torchtasks.envs import PendulumEnv
+from torchtasks.rewards import QuadraticErrorReward
+from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
+from torchtasks.transforms import TaskTransform
+
+__all__ = ["IdentityTransform", "MinimalT1Transform", "run_collector_benchmark", "t1_for"]
+
+BOUND = 10.0
+
+
+def t1_for(state_size: int, action_size: int, bound: float = BOUND, config: BenchConfig | None = None) -> Task:
+    """T1 sized for an env: FinalRewardTask(DesiredStateTask(QuadraticErrorReward)) with a ±bound state box."""
+    import functools
+
+    config = config or BenchConfig()
+    spec = EnvSpec(Box([-bound] * state_size, [bound] * state_size), action_size)
+    reward = QuadraticErrorReward(torch.ones(state_size), torch.full((action_size,), 0.1))
+    success = functools.partial(proximity_succeeded, threshold=config.threshold)
+    return FinalRewardTask(DesiredStateTask(spec, torch.zeros(state_size), reward, success), factor=config.factor)
+
+
+class IdentityTransform(Transform):
+    """A transform that changes nothing (the baseline of TorchRL's own per-transform cost)."""
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset
+
+
+class MinimalT1Transform(Transform):
+    """The floor: T1's maths written by hand in one transform, with the same keys and specs as TaskTransform.
+
+    Writes ``reward``, ``success``, ``failure``, ``terminated``/``done``, the memory
+    ``("task", "paid")`` and ``("task", "wrapped", "state_des")`` and the breakdown
+    ``("task_reward", "step"|"final")``, and nothing else.
+    """
+
+    def __init__(self, state_size: int, bound: float = BOUND, config: BenchConfig | None = None) -> None:
+        super().__init__(in_keys=["observation"], out_keys=["reward"])
+        config = config or BenchConfig()
+        self.state_size = state_size
+        self.bound = bound
+        self.threshold = config.threshold
+        self.factor = config.factor
+
+    def _constants(self, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        cached = self.__dict__.get("_cached")
+        if cached is None or cached[0].dtype != like.dtype:
+            cached = (
+                torch.tensor(self.factor, dtype=like.dtype),
+                torch.tensor(0.0, dtype=like.dtype),
+                torch.tensor(0.1, dtype=like.dtype),
+            )
+            self.__dict__["_cached"] = cached
+        return cached
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        state = next_tensordict.get("observation")
+        action = tensordict.get("action").to(state.dtype)
+        paid = tensordict.get(("task", "paid"))
+        goal = tensordict.get(("task", "wrapped", "state_des"))
+        factor, zero, r = self._constants(state)
+        error = goal - state
+        step = -((error * error).sum(-1) + r * (action * action).sum(-1))
+        success = torch.linalg.vector_norm(error, dim=-1) < self.threshold
+        failure = (state.abs() > self.bound).any(-1) | torch.isnan(state).any(-1)
+        done = next_tensordict.get("done")
+        ended = (success | failure).unsqueeze(-1)
+        finished = done.squeeze(-1) | success | failure
+        final = torch.where(finished & ~paid, torch.where(failure, -factor, torch.where(success, factor, zero)), zero)
+        reward_spec_dtype = torch.float32
+        next_tensordict.set("reward", (step + final).unsqueeze(-1).to(reward_spec_dtype))
+        next_tensordict.set("success", success.unsqueeze(-1))
+        next_tensordict.set("failure", failure.unsqueeze(-1))
+        next_tensordict.set("terminated", next_tensordict.get("terminated") | ended)
+        next_tensordict.set("done", done | ended)
+        next_tensordict.set(("task", "paid"), paid | finished)
+        next_tensordict.set(("task", "wrapped", "state_des"), goal)
+        next_tensordict.set(("task_reward", "step"), step.unsqueeze(-1).to(reward_spec_dtype))
+        next_tensordict.set(("task_reward", "final"), final.unsqueeze(-1).to(reward_spec_dtype))
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        state = tensordict_reset.get("observation")
+        batch = state.shape[:-1]
+        memory = TensorDict(
+            {"paid": torch.zeros(batch, dtype=torch.bool), "wrapped": {"state_des": torch.zeros_like(state)}},
+            batch_size=batch,
+        )
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        old = None if tensordict is None else tensordict.get("task", None)
+        if reset is not None and old is not None:
+            memory = old.where(~reset.reshape(batch), memory)
+        tensordict_reset.set("task", memory)
+        flags = torch.zeros((*batch, 1), dtype=torch.bool)
+        tensordict_reset.set("success", flags)
+        tensordict_reset.set("failure", flags.clone())
+        return tensordict_reset
+
+    def _memory_spec(self, batch: torch.Size, dtype: torch.dtype) -> Composite:
+        return Composite(
+            paid=Categorical(2, shape=batch, dtype=torch.bool),
+            wrapped=Composite(state_des=Unbounded(shape=(*batch, self.state_size), dtype=dtype), shape=batch),
+            shape=batch,
+        )
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        batch = observation_spec.shape
+        dtype = observation_spec["observation"].dtype
+        observation_spec["success"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec["failure"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec["task"] = self._memory_spec(batch, dtype)
+        return observation_spec
+
+    def transform_state_spec(self, state_spec: Composite) -> Composite:
+        observation_spec = self.parent.full_observation_spec
+        state_spec["task"] = self._memory_spec(observation_spec.shape, observation_spec["observation"].dtype)
+        return state_spec
+
+    def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        base = reward_spec["reward"]
+        for name in ("step", "final"):
+            reward_spec[("task_reward", name)] = Unbounded(shape=base.shape, dtype=base.dtype)
+        return reward_spec
+
+
+def _frames_per_second(env: EnvBase, frames_per_batch: int, batches: int) -> float:
+    collector = Collector(env, None, frames_per_batch=frames_per_batch, total_frames=frames_per_batch * (batches + 1))
+    iterator = iter(collector)
+    next(iterator)  # warm-up batch
+    start = time.perf_counter()
+    frames = 0
+    for batch in iterator:
+        frames += batch.numel()
+    seconds = time.perf_counter() - start
+    collector.shutdown()
+    return frames / seconds
+
+
+def _compare(
+    variants: dict[str, Callable[[], EnvBase]], frames_per_batch: int, batches: int, repeats: int
+) -> dict[str, float]:
+    """Median frames/s per variant; variants are interleaved in every repeat so drifts hit all alike."""
+    envs = {name: make() for name, make in variants.items()}
+    samples: dict[str, list[float]] = {name: [] for name in variants}
+    for _ in range(repeats):
+        for name, env in envs.items():
+            samples[name].append(_frames_per_second(env, frames_per_batch, batches))
+    for env in envs.values():
+        env.close()
+    return {name: statistics.median(values) for name, values in samples.items()}
+
+
+def _halfcheetah_single() -> EnvBase:
+    from torchrl.envs import GymEnv
+
+    return GymEnv("HalfCheetah-v5")
+
+
+def _halfcheetah_vector(num_envs: int) -> EnvBase:
+    import gymnasium as gym
+    from torchrl.envs import GymWrapper
+
+    return GymWrapper(
+        gym.make_vec(
+            "HalfCheetah-v5",
+            num_envs=num_envs,
+            vectorization_mode="sync",
+            vector_kwargs={"autoreset_mode": gym.vector.AutoresetMode.DISABLED},
+        )
+    )
+
+
+def _with(
+    base: Callable[[], EnvBase], transform: Callable[[], Transform], max_steps: int = 1000
+) -> Callable[[], EnvBase]:
+    return lambda: TransformedEnv(base(), Compose(StepCounter(max_steps), transform()))
+
+
+def run_collector_benchmark(*, tiny: bool = False, repeats: int = 3) -> list[dict[str, Any]]:
+    """Frames/s ratios of TaskTransform(T1) against the identity (and, single env, the minimal) transform."""
+    rows = []
+    cheetah_size, cheetah_actions = 17, 6
+    setups: list[tuple[str, Callable[[], EnvBase], int, int, bool]] = []
+    num_vector = 2 if tiny else 16
+    batched = 8 if tiny else 1024
+    setups.append(
+        (
+            f"HalfCheetah-v5 vectorised x{num_vector}",
+            lambda: _halfcheetah_vector(num_vector),
+            cheetah_size,
+            cheetah_actions,
+            False,
+        )
+    )
+    setups.append(("HalfCheetah-v5 single GymEnv", _halfcheetah_single, cheetah_size, cheetah_actions, True))
+    setups.append((f"PendulumEnv batch {batched}", lambda: PendulumEnv(batch_size=[batched], seed=0), 2, 1, False))
+    for name, base, state_size, action_size, with_minimal in setups:
+        variants = {
+            "identity": _with(base, IdentityTransform),
+            "task": _with(base, lambda s=state_size, a=action_size: TaskTransform(t1_for(s, a), log_terms=True)),
+        }
+        if with_minimal:
+            variants["minimal"] = _with(base, lambda s=state_size: MinimalT1Transform(s))
+        probe = base()
+        env_batch = max(1, probe.batch_size.numel())
+        probe.close()
+        frames_per_batch = env_batch * (8 if tiny else (200 if env_batch < 64 else 20))
+        batches = 1 if tiny else 5
+        fps = _compare(variants, frames_per_batch, batches, 1 if tiny else repeats)
+        row = {
+            "setup": name,
+            "fps": fps,
+            "task_over_identity": fps["task"] / fps["identity"],
+        }
+        if with_minimal:
+            row["task_over_minimal"] = fps["task"] / fps["minimal"]
+        rows.append(row)
+    return rows
