@@ -57,6 +57,10 @@ class TaskTransform(Transform):
     The remaining steps passed to the task are ``max_steps - step_count`` when a
     ``StepCounter(max_steps)`` precedes this transform (0 without a limit, as in Pyrado).
 
+    When the specs are first built, the task is moved to the dtype of the state entry
+    (``task.to(dtype)``, in place), so constants are cast once and not at every step; build a
+    separate task object if you need the original precision elsewhere.
+
     Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
     ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it), and,
     with ``log_terms``, the reward breakdown ``(terms_key, "step")``, ``(terms_key, "final")`` and

@@ -23,7 +23,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
-from torchtasks._checks import check_input, check_same_batch
+from torchtasks._checks import cast_like, check_input, check_same_batch
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.memory import make_memory
 
@@ -263,8 +263,8 @@ class Task(nn.Module):
     def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         if not self._state_bounded:
             return torch.isnan(state).any(dim=-1)
-        low = self.state_low.to(state.dtype)
-        high = self.state_high.to(state.dtype)
+        low = cast_like(self.state_low, state)
+        high = cast_like(self.state_high, state)
         return ~((state >= low) & (state <= high)).all(dim=-1)
 
     def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:

@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from torchtasks._checks import as_constant
+from torchtasks._checks import as_constant, cast_like
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.leaf import RewardTask
@@ -59,6 +59,7 @@ class DesiredStateTask(RewardTask):
     """
 
     reset_keys = ("state_des",)
+    reward_sees_state = False
 
     def __init__(
         self,
@@ -169,6 +170,6 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
 
     def state_error(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         error = memory.get("state_des") - state
-        period = self.modulation.to(error.dtype)
+        period = cast_like(self.modulation, error)
         wrapped = error - period * torch.floor((error + 0.5 * period) / period)
         return torch.where(self.wrap_mask, wrapped, error)

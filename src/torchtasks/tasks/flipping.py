@@ -62,6 +62,8 @@ class FlippingTask(RewardTask):
         (tensor([1.]), tensor([1.5708]), tensor([1.]))
     """
 
+    reward_sees_state = False
+
     def __init__(
         self,
         spec: EnvSpec,

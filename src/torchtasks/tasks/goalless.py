@@ -7,6 +7,7 @@ from collections.abc import Callable
 import torch
 from tensordict import TensorDictBase
 
+from torchtasks._checks import cast_like
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.constant import ConstantReward
 from torchtasks.rewards.state_function import StateFunctionReward
@@ -52,8 +53,8 @@ class DesiredSpaceTask(RewardTask):
         self.register_buffer("space_high", space_des.high.clone())
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        low = self.space_low.to(state.dtype)
-        high = self.space_high.to(state.dtype)
+        low = cast_like(self.space_low, state)
+        high = cast_like(self.space_high, state)
         return ((state >= low) & (state <= high)).all(dim=-1)
 
 
@@ -80,12 +81,6 @@ class GoallessTask(RewardTask):
         >>> task.step_reward(torch.tensor([[0.5, 0.0, 0.0]]), torch.zeros(1, 2), memory)[0]
         tensor([5.])
     """
-
-    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        failed = super()._has_failed(state, memory)
-        if self.reward.can_fail:
-            failed = failed | self.reward.has_failed(state)
-        return failed
 
 
 class OptimizationTask(RewardTask):

@@ -22,6 +22,10 @@ class RewardTask(Task):
     errors by default) and add their own memory entries with :meth:`_own_memory`.
     """
 
+    #: whether the reward is called with the raw state (then a reward that can fail, such as an
+    #: unhealthy robot, makes the task fail); error-based tasks set it to False
+    reward_sees_state: bool = True
+
     def __init__(self, spec: EnvSpec, reward: RewardFunction) -> None:
         super().__init__(spec)
         if not isinstance(reward, RewardFunction):
@@ -102,3 +106,10 @@ class RewardTask(Task):
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
+
+    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        """Out of the state box, or (for rewards of the raw state that can fail) what the reward says."""
+        failed = super()._has_failed(state, memory)
+        if self.reward.can_fail and self.reward_sees_state:
+            failed = failed | self.reward.has_failed(state)
+        return failed

@@ -29,7 +29,8 @@ def proximity_succeeded(error: torch.Tensor, threshold: float, dims: int | Seque
     Args:
         error: state error ``[*B, n]``.
         threshold: distance below which the task is a success.
-        dims: an index or a list of indices of the entries that count; ``None`` for all.
+        dims: an index or a list of indices of the entries that count; ``None`` (or ``-1``, Pyrado's
+            convention) for all entries.
 
     Example:
         >>> import torch
@@ -38,9 +39,9 @@ def proximity_succeeded(error: torch.Tensor, threshold: float, dims: int | Seque
         >>> proximity_succeeded(torch.tensor([[0.0, 5.0]]), threshold=0.1, dims=0)
         tensor([True])
     """
-    if dims is not None:
+    if dims is not None and not (isinstance(dims, int) and dims == -1):
         if isinstance(dims, int) and not isinstance(dims, bool):
-            error = error[..., dims : dims + 1] if dims != -1 else error[..., -1:]
+            error = error[..., dims : dims + 1]
         else:
             error = error[..., list(dims)]
     return torch.linalg.vector_norm(error, dim=-1) < threshold
