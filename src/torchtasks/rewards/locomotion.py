@@ -59,7 +59,7 @@ class _ForwardProgressReward(RewardFunction):
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         check_input(init_state, "init_state")
-        return TensorDict({"x_last": self._x(init_state)}, batch_size=init_state.shape[:-1])
+        return TensorDict({"x_last": self._x(init_state).clone()}, batch_size=init_state.shape[:-1])
 
     def _check_step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> None:
         check_input(state, "state")
@@ -86,7 +86,7 @@ class _ForwardProgressReward(RewardFunction):
         """Return ``({term: value[*B]}, memory)``: the named terms and the advanced memory."""
         self._check_step(state, action, memory)
         values = self.terms_of(state, action, memory)
-        new_memory = TensorDict({"x_last": self._x(state)}, batch_size=memory.batch_size)
+        new_memory = TensorDict({"x_last": self._x(state).clone()}, batch_size=memory.batch_size)
         return values, new_memory
 
     def step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:

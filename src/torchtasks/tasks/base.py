@@ -124,10 +124,14 @@ class Task(nn.Module):
         if remaining_steps.is_floating_point() or remaining_steps.dtype == torch.bool:
             raise TypeError(f"remaining_steps must be an integer tensor, got dtype {remaining_steps.dtype}")
         batch = state.shape[:-1]
-        if remaining_steps.shape not in (torch.Size([]), batch):
+        try:
+            broadcast = torch.broadcast_shapes(remaining_steps.shape, batch)
+        except RuntimeError:
+            broadcast = None
+        if broadcast != batch:
             raise ValueError(
-                f"remaining_steps must have shape () or the batch shape {tuple(batch)}, "
-                f"got {tuple(remaining_steps.shape)}"
+                f"remaining_steps must be broadcastable to the batch shape {tuple(batch)}, "
+                f"got shape {tuple(remaining_steps.shape)}"
             )
         return remaining_steps
 

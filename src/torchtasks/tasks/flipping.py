@@ -31,13 +31,15 @@ def wrap_angle(angle: torch.Tensor) -> torch.Tensor:
 class FlippingTask(RewardTask):
     """Flip a one-dimensional angle by ``±angle_delta`` from the last flip, repeatedly.
 
-    Memory per environment: the angle of the last flip ``last_angle`` (0 at reset) and the
-    ``held`` reward accumulated by past flips. In each step the two targets
+    Memory per environment: the angle of the last flip ``last_angle`` (0 at reset), the
+    ``held`` reward accumulated by past flips and, when not endless, whether the last step
+    flipped (``flipped``). In each step the two targets
     ``last_angle ± angle_delta`` are compared with the state; the one with the smaller wrapped
     error (``wrap(target - s)`` in ``[-π, π)``) is used. The step reward is
     ``held + reward(error, -a)``; when ``|error| <= angle_tol`` the flip is done: that target
     becomes ``last_angle`` and the reward of this step is added to ``held``.
-    With ``endless=False`` the task succeeds when a target is within the tolerance.
+    With ``endless=False`` the task succeeds when a target is within the tolerance or the last
+    step reward recorded a flip (so the flip counts whichever state the step reward was evaluated on).
 
     Args:
         spec: state and action boxes; the state has exactly one entry (use a :class:`MaskedTask`).
@@ -99,7 +101,10 @@ class FlippingTask(RewardTask):
 
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
         zeros = init_state.new_zeros(init_state.shape[:-1])
-        return {"last_angle": zeros, "held": zeros.clone()}
+        entries = {"last_angle": zeros, "held": zeros.clone()}
+        if not self.endless:
+            entries["flipped"] = torch.zeros(init_state.shape[:-1], dtype=torch.bool, device=init_state.device)
+        return entries
 
     def _closest_target(self, state: torch.Tensor, memory: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(target, wrapped error)`` of the target closer to the state."""
@@ -122,10 +127,13 @@ class FlippingTask(RewardTask):
         entries = dict(memory.items())
         entries["last_angle"] = torch.where(flipped, target, memory.get("last_angle"))
         entries["held"] = torch.where(flipped, held + value, held)
+        if not self.endless:
+            entries["flipped"] = flipped
         return held + value, make_memory(entries, memory.batch_size)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         if self.endless:
             return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
+        # a flip recorded by this step's reward (post-step timing) counts, as does a state at a target
         _, error = self._closest_target(state, memory)
-        return error.abs() <= self.angle_tol
+        return memory.get("flipped") | (error.abs() <= self.angle_tol)

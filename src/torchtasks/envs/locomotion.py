@@ -1,0 +1,538 @@
+"""Gymnasium MuJoCo v5 locomotion presets whose reward and termination come from a torchtasks task.
+
+:func:`locomotion_task` builds, for ``HalfCheetah-v5``, ``Hopper-v5``, ``Walker2d-v5``, ``Swimmer-v5``,
+``Ant-v5`` and ``Humanoid-v5``, a :class:`~torchtasks.tasks.GoallessTask` whose reward is a
+:class:`~torchtasks.rewards.CompoundReward` with the terms Gymnasium logs in ``info["reward_*"]``:
+``forward``, ``ctrl``, ``contact`` and ``survive`` (only those the env has). Unhealthy states are task
+failures when ``terminate_when_unhealthy``. Every Gymnasium keyword argument of the env is accepted
+and the defaults are Gymnasium's own (read from the env class's signature).
+
+:func:`gymnasium_env` builds the matching TorchRL env: a Gymnasium env (``GymWrapper``, or a
+``ParallelEnv`` of them), ``StepCounter(1000)``, the :class:`~torchtasks.transforms.TaskTransform` of
+the task and ``RewardSum``. The observation the policy sees is Gymnasium's default observation,
+unchanged. The task's state is assembled from ``info`` entries read as float64 root entries of the
+tensordict (:func:`locomotion_state_layout` lists them, in order):
+
+=============  ======================================  =============================================
+env            task state (info keys, concatenated)    where the entries come from
+=============  ======================================  =============================================
+HalfCheetah    ``x_position``                          Gymnasium's info (``qpos[0]``)
+Swimmer        ``x_position``                          Gymnasium's info (``qpos[0]``)
+Hopper         ``qpos``, ``qvel``                      :class:`MujocoStateInfo` (unclipped qvel)
+Walker2d       ``qpos``                                :class:`MujocoStateInfo`
+Ant            ``x_velocity``, ``qpos``, ``qvel``,     Gymnasium's info (torso ``xpos`` velocity),
+               ``cfrc_ext``                            then :class:`MujocoStateInfo`
+Humanoid       ``x_velocity``, ``qpos``, ``cfrc_ext``  Gymnasium's info (centre-of-mass velocity),
+                                                       then :class:`MujocoStateInfo`
+=============  ======================================  =============================================
+
+The forward term finite-differences ``qpos[0]`` (HalfCheetah, Swimmer, Hopper, Walker2d; memory holds
+the previous position) or reads Gymnasium's ``x_velocity`` (Ant: the main body's ``xpos``; Humanoid:
+the centre of mass from ``xipos``; both lag ``qpos`` by one MuJoCo substep, so they cannot be
+recomputed from ``qpos``).
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import gymnasium
+import numpy as np
+import torch
+from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+from gymnasium.envs.registration import load_env_creator
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs.gym_like import default_info_dict_reader
+
+from torchtasks._checks import check_finite_scalar
+from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.compound import CompoundReward
+from torchtasks.rewards.locomotion import ForwardVelocityReward
+from torchtasks.rewards.terms import (
+    ContactCostReward,
+    ControlCostReward,
+    HealthyReward,
+    VelocityReward,
+    _check_pair,
+    _check_weight,
+)
+from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks.goalless import GoallessTask
+from torchtasks.transforms import TaskTransform
+
+__all__ = [
+    "SUPPORTED_ENV_IDS",
+    "Float64InfoReader",
+    "MujocoStateInfo",
+    "gymnasium_env",
+    "locomotion_state_layout",
+    "locomotion_task",
+    "make_base_env",
+    "make_gymnasium_env",
+]
+
+#: the Gymnasium ids :func:`locomotion_task` and :func:`gymnasium_env` support
+SUPPORTED_ENV_IDS: tuple[str, ...] = (
+    "HalfCheetah-v5",
+    "Hopper-v5",
+    "Walker2d-v5",
+    "Swimmer-v5",
+    "Ant-v5",
+    "Humanoid-v5",
+)
+
+#: Gymnasium's time limit of the v5 locomotion envs (their registered ``max_episode_steps``)
+MAX_EPISODE_STEPS = 1000
+
+#: info keys that only :class:`MujocoStateInfo` provides (Gymnasium's info lacks them)
+_ADDED_INFO_KEYS = ("qpos", "qvel", "cfrc_ext")
+
+#: MujocoEnv keyword arguments that every MuJoCo env forwards through ``**kwargs``
+_MUJOCO_ENV_KWARGS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
+
+
+# ----------------------------------------------------------------------------------- helpers
+def _check_env_id(env_id: object) -> str:
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a string, got {type(env_id).__name__}")
+    if env_id not in SUPPORTED_ENV_IDS:
+        raise ValueError(f"env_id must be one of {list(SUPPORTED_ENV_IDS)}, got {env_id!r}")
+    return env_id
+
+
+@functools.cache
+def _gymnasium_defaults(env_id: str) -> dict[str, Any]:
+    """Return ``{keyword: default}`` of the env's constructor (and of MujocoEnv's forwarded ones)."""
+    creator = load_env_creator(gymnasium.spec(env_id).entry_point)
+    defaults: dict[str, Any] = {}
+    keyword_kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    for name, parameter in inspect.signature(creator).parameters.items():
+        if parameter.kind in keyword_kinds:
+            defaults[name] = parameter.default
+    base = inspect.signature(MujocoEnv.__init__).parameters
+    for name in _MUJOCO_ENV_KWARGS:
+        defaults.setdefault(name, base[name].default)
+    return defaults
+
+
+def _config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """Validate the keyword arguments and return them merged over Gymnasium's defaults."""
+    env_id = _check_env_id(env_id)
+    defaults = _gymnasium_defaults(env_id)
+    unknown = sorted(set(gym_kwargs) - set(defaults))
+    if unknown:
+        raise TypeError(
+            f"{env_id} got unexpected keyword argument(s) {unknown}; its keyword arguments are {sorted(defaults)}"
+        )
+    config = {**defaults, **gym_kwargs}
+    checks: dict[str, Callable[[object, str], object]] = {
+        "forward_reward_weight": check_finite_scalar,
+        "healthy_reward": check_finite_scalar,
+        "ctrl_cost_weight": _check_weight,
+        "contact_cost_weight": _check_weight,
+        "healthy_z_range": _check_pair,
+        "healthy_angle_range": _check_pair,
+        "healthy_state_range": _check_pair,
+        "contact_force_range": _check_pair,
+        "contact_cost_range": _check_pair,
+    }
+    for name, check in checks.items():
+        if name in config:
+            config[name] = check(config[name], name)
+    if "terminate_when_unhealthy" in config and not isinstance(config["terminate_when_unhealthy"], (bool, np.bool_)):
+        raise TypeError(f"terminate_when_unhealthy must be a bool, got {config['terminate_when_unhealthy']!r}")
+    frame_skip = config["frame_skip"]
+    if isinstance(frame_skip, bool) or not isinstance(frame_skip, (int, np.integer)) or frame_skip < 1:
+        raise ValueError(f"frame_skip must be a positive int, got {frame_skip!r}")
+    return config
+
+
+@dataclass(frozen=True)
+class _ModelFacts:
+    """What the task needs to know about the MuJoCo model (read from a made env)."""
+
+    dt: float
+    nq: int
+    nv: int
+    n_contact_forces: int
+    action_low: np.ndarray
+    action_high: np.ndarray
+
+    @classmethod
+    def of(cls, gym_env: Any) -> _ModelFacts:
+        unwrapped = gym_env.unwrapped
+        return cls(
+            dt=float(unwrapped.dt),
+            nq=int(unwrapped.model.nq),
+            nv=int(unwrapped.model.nv),
+            n_contact_forces=int(unwrapped.data.cfrc_ext.size),
+            action_low=np.asarray(gym_env.action_space.low, dtype=np.float64),
+            action_high=np.asarray(gym_env.action_space.high, dtype=np.float64),
+        )
+
+
+def _model_facts(env_id: str, gym_kwargs: Mapping[str, Any]) -> _ModelFacts:
+    gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
+    try:
+        return _ModelFacts.of(gym_env)
+    finally:
+        gym_env.close()
+
+
+def _layout(env_id: str, facts: _ModelFacts) -> dict[str, int]:
+    """The task's state: ``{info key: size}`` in concatenation order."""
+    if env_id in ("HalfCheetah-v5", "Swimmer-v5"):
+        return {"x_position": 1}
+    if env_id == "Hopper-v5":
+        return {"qpos": facts.nq, "qvel": facts.nv}
+    if env_id == "Walker2d-v5":
+        return {"qpos": facts.nq}
+    if env_id == "Ant-v5":
+        return {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
+    return {"x_velocity": 1, "qpos": facts.nq, "cfrc_ext": facts.n_contact_forces}  # Humanoid-v5
+
+
+def _labels(layout: Mapping[str, int]) -> list[str]:
+    labels: list[str] = []
+    for key, size in layout.items():
+        labels.extend([key] if size == 1 else [f"{key}[{i}]" for i in range(size)])
+    return labels
+
+
+def _terms(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> dict[str, RewardFunction]:
+    """The named reward terms of ``env_id`` on the state of :func:`_layout` (order: forward, ctrl, contact, survive)."""
+    forward_weight = config["forward_reward_weight"]
+    terms: dict[str, RewardFunction] = {}
+    if env_id in ("Ant-v5", "Humanoid-v5"):
+        terms["forward"] = VelocityReward(forward_weight, index=0)
+    else:  # x_position or qpos[0] sits at index 0
+        terms["forward"] = ForwardVelocityReward(
+            facts.dt, index=0, forward_reward_weight=forward_weight, ctrl_cost_weight=0.0
+        )
+    terms["ctrl"] = ControlCostReward(config["ctrl_cost_weight"])
+    nq, nv = facts.nq, facts.nv
+    terminate = bool(config.get("terminate_when_unhealthy", False))
+    if env_id == "Ant-v5":
+        terms["contact"] = ContactCostReward(
+            config["contact_cost_weight"], start=1 + nq + nv, force_range=config["contact_force_range"]
+        )
+        # np.isfinite(qpos ⊕ qvel).all() and z_low <= qpos[2] <= z_high (inclusive)
+        low = [-math.inf] * (nq + nv)
+        high = [math.inf] * (nq + nv)
+        low[2], high[2] = config["healthy_z_range"]
+        terms["survive"] = HealthyReward(
+            config["healthy_reward"],
+            index=list(range(1, 1 + nq + nv)),
+            low=low,
+            high=high,
+            inclusive=True,
+            check_finite=True,
+            terminate_when_unhealthy=terminate,
+        )
+    elif env_id == "Humanoid-v5":
+        terms["contact"] = ContactCostReward(
+            config["contact_cost_weight"], start=1 + nq, cost_range=config["contact_cost_range"]
+        )
+        z_low, z_high = config["healthy_z_range"]  # z_low < qpos[2] < z_high
+        terms["survive"] = HealthyReward(
+            config["healthy_reward"], index=[1 + 2], low=z_low, high=z_high, terminate_when_unhealthy=terminate
+        )
+    elif env_id == "Hopper-v5":
+        # z_low < qpos[1] < z_high, angle_low < qpos[2] < angle_high and
+        # state_low < (qpos ⊕ qvel)[2:] < state_high, strict, on the unclipped velocities
+        state_low, state_high = config["healthy_state_range"]
+        low = [config["healthy_z_range"][0]] + [state_low] * (nq + nv - 2)
+        high = [config["healthy_z_range"][1]] + [state_high] * (nq + nv - 2)
+        angle_low, angle_high = config["healthy_angle_range"]
+        low[1], high[1] = max(state_low, angle_low), min(state_high, angle_high)
+        if low[1] > high[1]:  # empty intersection: never healthy (strict bounds with low == high)
+            high[1] = low[1]
+        terms["survive"] = HealthyReward(
+            config["healthy_reward"],
+            index=list(range(1, nq + nv)),
+            low=low,
+            high=high,
+            terminate_when_unhealthy=terminate,
+        )
+    elif env_id == "Walker2d-v5":
+        (z_low, z_high), (angle_low, angle_high) = config["healthy_z_range"], config["healthy_angle_range"]
+        terms["survive"] = HealthyReward(
+            config["healthy_reward"],
+            index=[1, 2],
+            low=[z_low, angle_low],
+            high=[z_high, angle_high],
+            terminate_when_unhealthy=terminate,
+        )
+    return terms
+
+
+def _build_task(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> GoallessTask:
+    layout = _layout(env_id, facts)
+    state_space = Box.unbounded(sum(layout.values()), labels=_labels(layout))
+    spec = EnvSpec(state_space, Box(facts.action_low, facts.action_high))
+    return GoallessTask(spec, CompoundReward(_terms(env_id, config, facts)))
+
+
+# ------------------------------------------------------------------------------- public API
+def locomotion_task(env_id: str, **gym_kwargs: Any) -> GoallessTask:
+    """Return the task that reproduces the reward and termination of a Gymnasium MuJoCo v5 locomotion env.
+
+    A :class:`~torchtasks.tasks.GoallessTask` with a :class:`~torchtasks.rewards.CompoundReward`
+    whose terms are named like Gymnasium's ``info["reward_*"]``: ``forward``
+    (:class:`~torchtasks.rewards.ForwardVelocityReward` on ``qpos[0]``, or
+    :class:`~torchtasks.rewards.terms.VelocityReward` on ``x_velocity`` for Ant and Humanoid),
+    ``ctrl`` (:class:`~torchtasks.rewards.terms.ControlCostReward`), ``contact`` (Ant, Humanoid:
+    :class:`~torchtasks.rewards.terms.ContactCostReward`) and ``survive`` (Hopper, Walker2d, Ant,
+    Humanoid: :class:`~torchtasks.rewards.terms.HealthyReward`, a failure when unhealthy and
+    ``terminate_when_unhealthy``). The task's state is the concatenation of the info entries
+    :func:`locomotion_state_layout` lists (see the module docstring); the step reward is evaluated
+    on the state after the step (``TaskTransform(reward_on="next")``).
+
+    The env is made once (``gymnasium.make``) to read ``dt``, the model sizes and the action bounds,
+    so keywords such as ``frame_skip`` or ``xml_file`` are honoured.
+
+    Args:
+        env_id: one of :data:`SUPPORTED_ENV_IDS`.
+        **gym_kwargs: the env's Gymnasium keyword arguments (``forward_reward_weight``,
+            ``ctrl_cost_weight``, ``contact_cost_weight``, ``healthy_reward``, ``healthy_z_range``,
+            ``healthy_state_range``, ``healthy_angle_range``, ``contact_force_range``,
+            ``contact_cost_range``, ``terminate_when_unhealthy``, ``frame_skip``, ...); defaults
+            are Gymnasium v5's. Unknown keywords raise ``TypeError``; weights must be finite (cost
+            weights non-negative) and ranges ``(low, high)`` pairs with ``low <= high``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.envs.locomotion import locomotion_task
+        >>> task = locomotion_task("Walker2d-v5", healthy_reward=2.0)
+        >>> task.term_names
+        ('forward', 'ctrl', 'survive')
+        >>> start = torch.zeros(1, 9, dtype=torch.float64); start[:, 1] = 1.25
+        >>> moved = start.clone(); moved[:, 0] = 0.008  # 8 mm forward in one 8 ms step
+        >>> action = torch.zeros(1, 6, dtype=torch.float64)
+        >>> terms, reward, memory = task.step_reward_terms(moved, action, task.reset(start))
+        >>> reward, task.has_failed(moved, memory)
+        (tensor([3.], dtype=torch.float64), tensor([False]))
+    """
+    config = _config(env_id, gym_kwargs)
+    return _build_task(env_id, config, _model_facts(env_id, gym_kwargs))
+
+
+def locomotion_state_layout(env_id: str, **gym_kwargs: Any) -> dict[str, int]:
+    """Return the info entries that make up the task's state: ``{info key: size}``, in order.
+
+    Example:
+        >>> from torchtasks.envs.locomotion import locomotion_state_layout
+        >>> locomotion_state_layout("Hopper-v5")
+        {'qpos': 6, 'qvel': 6}
+        >>> locomotion_state_layout("Ant-v5")
+        {'x_velocity': 1, 'qpos': 15, 'qvel': 14, 'cfrc_ext': 84}
+    """
+    _config(env_id, gym_kwargs)
+    return _layout(env_id, _model_facts(env_id, gym_kwargs))
+
+
+class MujocoStateInfo(gymnasium.Wrapper):
+    """Add copies of MuJoCo state arrays to ``info`` at every reset and step.
+
+    Gymnasium's info lacks some of what an exact reproduction of the reward needs: Hopper's health
+    check reads the unclipped velocities (the observation clips them to ±10), Walker2d's, Ant's and
+    Humanoid's read ``qpos`` entries that are not in info, and Ant's and Humanoid's contact costs read
+    all external contact forces. For each name in ``fields`` this wrapper adds
+    ``info[name] = env.unwrapped.data.<name>.flatten()`` (a float64 copy) to the info returned by
+    the wrapped env's ``reset`` and ``step``. It only reads ``env.unwrapped``; observations,
+    rewards and termination flags pass through unchanged and existing info entries are kept.
+
+    Args:
+        env: a Gymnasium MuJoCo env (possibly wrapped).
+        fields: names of ``mujoco.MjData`` arrays to add, e.g. ``("qpos", "qvel", "cfrc_ext")``.
+
+    Example:
+        >>> import gymnasium
+        >>> from torchtasks.envs.locomotion import MujocoStateInfo
+        >>> env = MujocoStateInfo(gymnasium.make("Hopper-v5"), fields=("qpos", "qvel"))
+        >>> observation, info = env.reset(seed=0)
+        >>> info["qpos"].shape, info["qvel"].dtype, bool(info["qpos"][0] == info["x_position"])
+        ((6,), dtype('float64'), True)
+    """
+
+    def __init__(self, env: gymnasium.Env, fields: tuple[str, ...] = _ADDED_INFO_KEYS) -> None:
+        super().__init__(env)
+        if isinstance(fields, str):
+            raise TypeError(f"fields must be a tuple of names, got the string {fields!r}")
+        fields = tuple(fields)
+        data = getattr(env.unwrapped, "data", None)
+        if data is None:
+            raise TypeError(f"env must be a Gymnasium MuJoCo env (with unwrapped.data), got {env!r}")
+        for field in fields:
+            if not isinstance(field, str) or not isinstance(getattr(data, field, None), np.ndarray):
+                raise ValueError(f"fields must name arrays of mujoco.MjData, got {field!r}")
+        self.fields = fields
+
+    def _with_state(self, info: dict[str, Any]) -> dict[str, Any]:
+        data = self.env.unwrapped.data
+        added = {field: np.array(getattr(data, field), dtype=np.float64).ravel() for field in self.fields}
+        return {**info, **added}
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        observation, info = self.env.reset(seed=seed, options=options)
+        return observation, self._with_state(info)
+
+    def step(self, action: Any) -> tuple[Any, Any, bool, bool, dict[str, Any]]:
+        observation, reward, terminated, truncated, info = self.env.step(action)
+        return observation, reward, terminated, truncated, self._with_state(info)
+
+
+class Float64InfoReader(default_info_dict_reader):
+    """TorchRL info-dict reader that writes info entries as float64 ``[size]`` tensors.
+
+    TorchRL's :class:`~torchrl.envs.gym_like.default_info_dict_reader` with float64 specs, except
+    that every value is reshaped to its spec's shape ``[size]`` (Gymnasium's scalar entries such as
+    ``x_position`` become ``[1]``, so they can be concatenated into a task state) and cast to
+    float64. Entries missing from an info dict (``x_velocity`` at reset) are written as zeros,
+    as TorchRL's reader does. Register it with ``env.set_info_dict_reader(reader)``.
+
+    Args:
+        layout: ``{info key: size}`` of the entries to read.
+
+    Example:
+        >>> import numpy as np
+        >>> from tensordict import TensorDict
+        >>> from torchtasks.envs.locomotion import Float64InfoReader
+        >>> reader = Float64InfoReader({"x_velocity": 1, "qpos": 2})
+        >>> td = reader({"qpos": np.array([0.5, 1.0])}, TensorDict())
+        >>> td["x_velocity"], td["qpos"]
+        (tensor([0.], dtype=torch.float64), tensor([0.5000, 1.0000], dtype=torch.float64))
+    """
+
+    def __init__(self, layout: Mapping[str, int]) -> None:
+        if not isinstance(layout, Mapping) or not layout:
+            raise TypeError(f"layout must be a non-empty mapping {{info key: size}}, got {layout!r}")
+        for key, size in layout.items():
+            if not isinstance(key, str):
+                raise TypeError(f"layout keys must be strings, got {key!r}")
+            if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+                raise ValueError(f"layout sizes must be positive ints, got {size!r} for {key!r}")
+        self.layout = dict(layout)
+        spec = Composite(
+            {key: Unbounded(shape=(size,), dtype=torch.float64) for key, size in self.layout.items()}, shape=()
+        )
+        super().__init__(keys=list(self.layout), spec=spec)
+
+    def __call__(self, info_dict: dict[str, Any], tensordict: TensorDictBase) -> TensorDictBase:
+        device = tensordict.device
+        for key, size in self.layout.items():
+            value = info_dict.get(key)
+            if value is None:
+                tensor = torch.zeros(size, dtype=torch.float64, device=device)
+            else:
+                tensor = torch.as_tensor(np.asarray(value, dtype=np.float64).reshape(size), device=device)
+            tensordict.set(key, tensor)
+        return tensordict
+
+
+def make_gymnasium_env(env_id: str, **gym_kwargs: Any) -> gymnasium.Env:
+    """Return ``gymnasium.make(env_id, **gym_kwargs)`` wrapped in the :class:`MujocoStateInfo` the preset needs.
+
+    Only the info entries of :func:`locomotion_state_layout` that Gymnasium lacks are added (none for
+    HalfCheetah and Swimmer, which are returned as made). The env checker is disabled.
+
+    Example:
+        >>> from torchtasks.envs.locomotion import make_gymnasium_env
+        >>> env = make_gymnasium_env("Walker2d-v5")
+        >>> sorted(env.reset(seed=0)[1])
+        ['qpos', 'x_position', 'z_distance_from_origin']
+    """
+    _config(env_id, gym_kwargs)
+    gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
+    fields = tuple(key for key in _layout(env_id, _ModelFacts.of(gym_env)) if key in _ADDED_INFO_KEYS)
+    return MujocoStateInfo(gym_env, fields) if fields else gym_env
+
+
+def make_base_env(
+    env_id: str, gym_kwargs: Mapping[str, Any] | None = None, device: torch.device | str | None = None
+) -> EnvBase:
+    """Return the TorchRL ``GymWrapper`` of :func:`make_gymnasium_env` with the task's info entries registered.
+
+    A module-level constructor, so ``functools.partial(make_base_env, env_id, gym_kwargs)`` can be
+    sent to spawned ``ParallelEnv`` workers. The observation is Gymnasium's; the entries of
+    :func:`locomotion_state_layout` are read from info by a :class:`Float64InfoReader`.
+
+    Example:
+        >>> from torchtasks.envs.locomotion import make_base_env
+        >>> env = make_base_env("Swimmer-v5")
+        >>> env.reset()["x_position"].dtype, env.observation_spec["observation"].shape
+        (torch.float64, torch.Size([8]))
+    """
+    from torchrl.envs.libs.gym import GymWrapper
+
+    gym_kwargs = {} if gym_kwargs is None else dict(gym_kwargs)
+    gym_env = make_gymnasium_env(env_id, **gym_kwargs)
+    env = GymWrapper(gym_env, device=device)
+    env.set_info_dict_reader(Float64InfoReader(_layout(env_id, _ModelFacts.of(gym_env))))
+    return env
+
+
+def gymnasium_env(
+    env_id: str,
+    *,
+    num_envs: int = 1,
+    seed: int | None = None,
+    device: torch.device | str | None = None,
+    **gym_kwargs: Any,
+) -> TransformedEnv:
+    """Return a TorchRL env of a Gymnasium MuJoCo v5 locomotion env whose reward comes from :func:`locomotion_task`.
+
+    ``TransformedEnv(base, Compose(StepCounter(1000), TaskTransform(task, state_key=[...]), RewardSum()))``
+    where ``base`` is :func:`make_base_env` (``num_envs == 1``) or a ``ParallelEnv`` of ``num_envs``
+    of them (built in spawned workers from a ``functools.partial`` of :func:`make_base_env`). The
+    policy's ``"observation"`` is Gymnasium's, unchanged; the task's state entries
+    (:func:`locomotion_state_layout`) are float64 root entries read from info. ``"reward"`` is the
+    task reward, ``"success"``/``"failure"`` the task flags (failure = unhealthy with
+    ``terminate_when_unhealthy``), ``("task_reward", name)`` the named terms and ``RewardSum``
+    writes ``"episode_reward"`` and the per-term episode sums.
+
+    Args:
+        env_id: one of :data:`SUPPORTED_ENV_IDS`.
+        num_envs: number of environments (``> 1``: a ``ParallelEnv``, which handles partial resets).
+        seed: seed passed to ``env.set_seed``: TorchRL then calls the Gymnasium env's
+            ``reset(seed=seed)`` once, so plain Gymnasium is reproduced by ``reset(seed=seed)``
+            followed by one ``reset()`` per TorchRL reset. ``None``: unseeded.
+        device: device of the TorchRL env and the task.
+        **gym_kwargs: the env's Gymnasium keyword arguments, used by both Gymnasium and the task
+            (see :func:`locomotion_task`).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.envs.locomotion import gymnasium_env
+        >>> env = gymnasium_env("Hopper-v5", seed=0)
+        >>> rollout = env.rollout(5, break_when_any_done=False)
+        >>> rollout["next", "reward"].shape, rollout["next", "task_reward", "survive"][:, 0]
+        (torch.Size([5, 1]), tensor([1., 1., 1., 1., 1.]))
+    """
+    config = _config(env_id, gym_kwargs)
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+        raise TypeError(f"seed must be an int or None, got {seed!r}")
+    facts = _model_facts(env_id, gym_kwargs)
+    task = _build_task(env_id, config, facts)
+    if device is not None:
+        task = task.to(device)
+    create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
+    base = create_env() if num_envs == 1 else ParallelEnv(num_envs, create_env, device=device)
+    transform = Compose(
+        StepCounter(MAX_EPISODE_STEPS),
+        TaskTransform(task, state_key=list(_layout(env_id, facts))),
+        RewardSum(),
+    )
+    env = TransformedEnv(base, transform)
+    if seed is not None:
+        env.set_seed(int(seed))
+    return env

@@ -1,0 +1,302 @@
+"""Small, general reward terms: velocity, control cost, healthy reward and contact cost.
+
+Each term is one :class:`~torchtasks.rewards.RewardFunction` with one job, meant to be a named term
+of a :class:`~torchtasks.rewards.CompoundReward` (as Gymnasium's MuJoCo locomotion envs log
+``info["reward_forward" | "reward_ctrl" | "reward_contact" | "reward_survive"]``). Costs are
+returned as negative rewards. All terms are stateless, batched over any leading dims, follow the
+dtype and device of their inputs and contain no Python branching on tensor values.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import torch
+
+from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_index, check_input
+from torchtasks.rewards.base import RewardFunction
+
+__all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
+
+
+def _check_weight(value: object, name: str) -> float:
+    """Return a finite, non-negative weight as a float."""
+    weight = check_finite_scalar(value, name)
+    if weight < 0:
+        raise ValueError(f"{name} must be non-negative, got {weight}")
+    return weight
+
+
+def _check_pair(value: object, name: str) -> tuple[float, float]:
+    """Return a ``(low, high)`` pair of floats (infinite allowed, NaN and ``low > high`` rejected)."""
+    if isinstance(value, (str, bytes)):
+        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}")
+    try:
+        low, high = (float(v) for v in value)  # type: ignore[union-attr]
+    except (TypeError, ValueError) as error:
+        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}") from error
+    if math.isnan(low) or math.isnan(high):
+        raise ValueError(f"{name} must not contain NaN, got {value!r}")
+    if low > high:
+        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
+    return low, high
+
+
+def _check_state_entry(state: torch.Tensor, index: int, owner: str) -> None:
+    """Raise unless ``index`` addresses an entry of ``state``'s last dimension (a shape check)."""
+    size = state.shape[-1]
+    if not -size <= index < size:
+        raise ValueError(f"{owner}: index {index} is out of range for a state of shape {tuple(state.shape)}")
+
+
+class VelocityReward(RewardFunction):
+    """A weighted velocity read from the state: ``weight · state[index]``.
+
+    For envs whose state carries the velocity itself (e.g. Gymnasium's ``info["x_velocity"]``);
+    use :class:`~torchtasks.rewards.ForwardVelocityReward` to finite-difference a position instead.
+    Linear, hence differentiable; ignores the action.
+
+    Args:
+        weight: the finite factor ``w`` (Gymnasium's ``forward_reward_weight``).
+        index: position of the velocity in the state's last dimension (negative counts from the end).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import VelocityReward
+        >>> VelocityReward(weight=1.25, index=0)(torch.tensor([[2.0, 9.0], [-1.0, 9.0]]), None)
+        tensor([ 2.5000, -1.2500])
+    """
+
+    uses_action = False
+
+    def __init__(self, weight: float = 1.0, index: int = 0) -> None:
+        super().__init__()
+        self._register_scalar("weight", check_finite_scalar(weight, "weight"))
+        self.index = check_index(index, "index")
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        check_input(error_state, "error_state")
+        _check_state_entry(error_state, self.index, type(self).__name__)
+        return cast_like(self.weight, error_state) * error_state[..., self.index]
+
+    def extra_repr(self) -> str:
+        return f"weight={float(self.weight)}, index={self.index}"
+
+
+class ControlCostReward(RewardFunction):
+    """The negative quadratic control cost ``-weight · Σ_i a_i²`` of the action.
+
+    Gymnasium's ``reward_ctrl`` of the MuJoCo locomotion envs. Ignores the state (only its batch
+    shape is checked against the action's); differentiable in the action.
+
+    Args:
+        weight: the finite, non-negative factor ``w`` (Gymnasium's ``ctrl_cost_weight``).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import ControlCostReward
+        >>> ControlCostReward(weight=0.1)(torch.zeros(2, 5), torch.tensor([[1.0, 2.0], [0.0, -1.0]]))
+        tensor([-0.5000, -0.1000])
+    """
+
+    def __init__(self, weight: float = 0.1) -> None:
+        super().__init__()
+        self._register_scalar("weight", _check_weight(weight, "weight"))
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        self._check_inputs(error_state, error_action)
+        return -(cast_like(self.weight, error_action) * (error_action * error_action).sum(dim=-1))
+
+    def extra_repr(self) -> str:
+        return f"weight={float(self.weight)}"
+
+
+class HealthyReward(RewardFunction):
+    """A reward paid only while the state is healthy: ``healthy_reward · is_healthy(state)``.
+
+    ``is_healthy`` holds when every selected entry ``state[index[k]]`` lies in its range
+    ``(low[k], high[k])`` — strict bounds by default, inclusive with ``inclusive=True`` — and, with
+    ``check_finite=True``, is finite (needed with inclusive infinite bounds, which ``±inf`` would
+    pass). NaN is never healthy. With ``terminate_when_unhealthy`` the reward can fail:
+    :meth:`has_failed` is ``~is_healthy`` and a :class:`~torchtasks.tasks.GoallessTask` ends the
+    episode as a failure (Gymnasium's ``terminated``). The value is piecewise constant, so its
+    gradient is zero almost everywhere.
+
+    Args:
+        healthy_reward: the finite reward per healthy step (Gymnasium's ``healthy_reward``).
+        index: the state entries checked (a non-negative int or a non-empty sequence of distinct ones).
+        low, high: the bounds of the checked entries, scalars or one per entry of ``index``
+            (``±inf`` leaves a side unchecked); ``low <= high`` elementwise.
+        inclusive: compare with ``<=`` instead of ``<``.
+        check_finite: also require the selected entries to be finite.
+        terminate_when_unhealthy: whether an unhealthy state is a failure.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import HealthyReward
+        >>> reward = HealthyReward(5.0, index=[1], low=1.0, high=2.0, terminate_when_unhealthy=True)
+        >>> state = torch.tensor([[0.0, 1.4], [0.0, 0.9], [0.0, 2.0]])
+        >>> reward(state, None), reward.has_failed(state)
+        (tensor([5., 0., 0.]), tensor([False,  True,  True]))
+    """
+
+    uses_action = False
+
+    def __init__(
+        self,
+        healthy_reward: float = 1.0,
+        *,
+        index: int | Sequence[int],
+        low: float | Sequence[float] = -math.inf,
+        high: float | Sequence[float] = math.inf,
+        inclusive: bool = False,
+        check_finite: bool = False,
+        terminate_when_unhealthy: bool = False,
+    ) -> None:
+        super().__init__()
+        self._register_scalar("healthy_reward", check_finite_scalar(healthy_reward, "healthy_reward"))
+        indices = [index] if isinstance(index, int) and not isinstance(index, bool) else index
+        if isinstance(indices, (str, bytes)) or not isinstance(indices, Sequence):
+            raise TypeError(f"index must be an int or a sequence of ints, got {index!r}")
+        indices = [check_index(i, "index") for i in indices]
+        if not indices:
+            raise ValueError("index must select at least one state entry, got an empty sequence")
+        if len(set(indices)) != len(indices):
+            raise ValueError(f"index must not contain duplicates, got {indices}")
+        if min(indices) < 0:
+            raise ValueError(f"index entries must be non-negative, got {indices}")
+        bounds = []
+        for name, value in (("low", low), ("high", high)):
+            bound = as_constant(value, name, ndim=(0, 1))
+            if bound.ndim == 1 and bound.numel() != len(indices):
+                raise ValueError(
+                    f"{name} must be a scalar or have {len(indices)} entries (one per index), got {bound.numel()}"
+                )
+            bounds.append(bound.expand(len(indices)).clone())
+        if (bounds[0] > bounds[1]).any():
+            raise ValueError(
+                f"low must be <= high elementwise, got low={bounds[0].tolist()}, high={bounds[1].tolist()}"
+            )
+        for name, flag in (
+            ("inclusive", inclusive),
+            ("check_finite", check_finite),
+            ("terminate_when_unhealthy", terminate_when_unhealthy),
+        ):
+            if not isinstance(flag, bool):
+                raise TypeError(f"{name} must be a bool, got {flag!r}")
+        self.register_buffer("index", torch.tensor(indices, dtype=torch.long))
+        self.register_buffer("low", bounds[0])
+        self.register_buffer("high", bounds[1])
+        self._min_size = max(indices) + 1
+        self.inclusive = inclusive
+        self.check_finite = check_finite
+        self.terminate_when_unhealthy = terminate_when_unhealthy
+        self.can_fail = terminate_when_unhealthy
+
+    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        """Return ``bool[*B]``: whether every selected entry of ``state`` is in its range."""
+        check_input(state, "state")
+        if state.shape[-1] < self._min_size:
+            raise ValueError(
+                f"HealthyReward: index {self.index.tolist()} is out of range for a state of shape {tuple(state.shape)}"
+            )
+        selected = state.index_select(-1, self.index.to(state.device))
+        low = cast_like(self.low, selected)
+        high = cast_like(self.high, selected)
+        if self.inclusive:
+            healthy = ((selected >= low) & (selected <= high)).all(dim=-1)
+        else:
+            healthy = ((selected > low) & (selected < high)).all(dim=-1)
+        if self.check_finite:
+            healthy = healthy & torch.isfinite(selected).all(dim=-1)
+        return healthy
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        healthy = self.is_healthy(error_state)
+        return cast_like(self.healthy_reward, error_state) * healthy.to(error_state.dtype)
+
+    def has_failed(self, state: torch.Tensor) -> torch.Tensor:
+        if not self.terminate_when_unhealthy:
+            return super().has_failed(state)
+        return ~self.is_healthy(state)
+
+    def extra_repr(self) -> str:
+        return (
+            f"healthy_reward={float(self.healthy_reward)}, index={self.index.tolist()}, "
+            f"inclusive={self.inclusive}, check_finite={self.check_finite}, "
+            f"terminate_when_unhealthy={self.terminate_when_unhealthy}"
+        )
+
+
+class ContactCostReward(RewardFunction):
+    """The negative contact cost ``-clip(weight · Σ_i clip(f_i, *force_range)², *cost_range)``.
+
+    ``f = state[..., start:stop]`` are external contact forces (e.g. MuJoCo's flattened
+    ``cfrc_ext``). Each force is clipped to ``force_range`` before squaring (Gymnasium's Ant) and
+    the weighted sum is clipped to ``cost_range`` (Gymnasium's Humanoid); infinite bounds disable
+    a clip. Differentiable in the forces wherever no clip is active.
+
+    Args:
+        weight: the finite, non-negative factor ``w`` (Gymnasium's ``contact_cost_weight``).
+        start, stop: the slice of the state holding the forces (``stop=None``: to the end).
+        force_range: ``(low, high)`` each force is clipped to.
+        cost_range: ``(low, high)`` the weighted cost is clipped to.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import ContactCostReward
+        >>> forces = torch.tensor([[0.0, 3.0, -0.5]])
+        >>> ContactCostReward(0.5, start=1, force_range=(-1.0, 1.0))(forces, None)
+        tensor([-0.6250])
+        >>> ContactCostReward(0.5, start=1, cost_range=(float("-inf"), 2.0))(forces, None)
+        tensor([-2.])
+    """
+
+    uses_action = False
+
+    def __init__(
+        self,
+        weight: float = 5e-4,
+        *,
+        start: int = 0,
+        stop: int | None = None,
+        force_range: tuple[float, float] = (-math.inf, math.inf),
+        cost_range: tuple[float, float] = (-math.inf, math.inf),
+    ) -> None:
+        super().__init__()
+        self._register_scalar("weight", _check_weight(weight, "weight"))
+        self.start = check_index(start, "start")
+        self.stop = None if stop is None else check_index(stop, "stop")
+        if self.start < 0 or (self.stop is not None and self.stop <= self.start):
+            raise ValueError(f"start and stop must satisfy 0 <= start < stop, got start={start}, stop={stop}")
+        force_low, force_high = _check_pair(force_range, "force_range")
+        cost_low, cost_high = _check_pair(cost_range, "cost_range")
+        self._register_scalar("force_low", force_low)
+        self._register_scalar("force_high", force_high)
+        self._register_scalar("cost_low", cost_low)
+        self._register_scalar("cost_high", cost_high)
+
+    def contact_forces(self, state: torch.Tensor) -> torch.Tensor:
+        """Return the unclipped forces ``state[..., start:stop]`` (``[*B, n_forces]``)."""
+        check_input(state, "state")
+        end = state.shape[-1] if self.stop is None else self.stop
+        if end > state.shape[-1] or self.start >= state.shape[-1]:
+            raise ValueError(
+                f"ContactCostReward: the slice [{self.start}:{self.stop}] is beyond a state of shape "
+                f"{tuple(state.shape)}"
+            )
+        return state[..., self.start : end]
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        forces = self.contact_forces(error_state)
+        forces = forces.clamp(cast_like(self.force_low, forces), cast_like(self.force_high, forces))
+        cost = cast_like(self.weight, forces) * (forces * forces).sum(dim=-1)
+        return -cost.clamp(cast_like(self.cost_low, cost), cast_like(self.cost_high, cost))
+
+    def extra_repr(self) -> str:
+        return (
+            f"weight={float(self.weight)}, start={self.start}, stop={self.stop}, "
+            f"force_range=({float(self.force_low)}, {float(self.force_high)}), "
+            f"cost_range=({float(self.cost_low)}, {float(self.cost_high)})"
+        )
