@@ -163,7 +163,10 @@ class TaskTransform(Transform):
         if "_max_steps" in self.__dict__:
             return
         max_steps = self._explicit_max_steps
-        container = self.container
+        try:
+            container = self.container
+        except (AttributeError, ValueError):  # not in an env (e.g. a replay buffer's transform)
+            container = None
         if container is not None and getattr(container, "transform", None) is not None:
             transforms = _flat_transforms(container.transform)
             position = next((i for i, t in enumerate(transforms) if t is self), None)
@@ -254,8 +257,21 @@ class TaskTransform(Transform):
 
     def _read_state(self, tensordict: TensorDictBase) -> torch.Tensor:
         if len(self.state_keys) == 1:
-            return tensordict.get(self.state_keys[0])
-        return torch.cat([tensordict.get(key) for key in self.state_keys], dim=-1)
+            state = tensordict.get(self.state_keys[0], None)
+            if state is None:
+                self._missing_state(tensordict)
+            return state
+        parts = [tensordict.get(key, None) for key in self.state_keys]
+        if any(part is None for part in parts):
+            self._missing_state(tensordict)
+        return torch.cat(parts, dim=-1)
+
+    def _missing_state(self, tensordict: TensorDictBase) -> None:
+        raise KeyError(
+            f"TaskTransform: the state key(s) {self.state_keys} are missing from the data; available keys are "
+            f"{sorted(map(str, tensordict.keys(True, True)))}. Pass state_key=... naming the entry that holds "
+            "the task's state."
+        )
 
     def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor) -> torch.Tensor:
         max_steps = self.max_steps

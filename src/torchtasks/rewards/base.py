@@ -82,6 +82,22 @@ class RewardFunction(nn.Module):
         check_input(error_action, "error_action", action_size)
         check_same_batch(error_state, error_action, "error_state", "error_action")
 
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        """The value without input validation (tasks call it after validating sizes once).
+
+        Subclasses override it with their maths and validate in :meth:`forward`; the default
+        simply calls the module.
+        """
+        return self(error_state, error_action)
+
+    def _step(
+        self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
+    ) -> tuple[torch.Tensor, TensorDict]:
+        """:meth:`step` without input validation."""
+        if self.stateful:
+            return self.step(state, action, memory)
+        return self._value(state, action), memory
+
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         """Return fresh memory for a batch of episodes starting in ``init_state`` (``[*B, n]``)."""
         return empty_memory(init_state)

@@ -76,6 +76,11 @@ class CompoundReward(RewardFunction):
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return _sum_in_order(self.terms(error_state, error_action))
 
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        if self.stateful:
+            raise TypeError("this CompoundReward has stateful terms: use step(state, action, memory)")
+        return _sum_in_order({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
+
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         memory = empty_memory(init_state)
         for name in self._stateful_names:
@@ -96,6 +101,29 @@ class CompoundReward(RewardFunction):
             else:
                 values[name] = reward(state, action)
         return values, memory
+
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
+    ) -> tuple[dict[str, torch.Tensor], TensorDict]:
+        """:meth:`step_terms` without input validation."""
+        values: dict[str, torch.Tensor] = {}
+        if not self._stateful_names:
+            for name, reward in self.rewards.items():
+                values[name] = reward._value(state, action)
+            return values, memory
+        entries = dict(memory.items())
+        for name, reward in self.rewards.items():
+            if reward.stateful:
+                values[name], entries[name] = reward._step(state, action, memory.get(name))
+            else:
+                values[name] = reward._value(state, action)
+        return values, TensorDict._new_unsafe(entries, batch_size=memory.batch_size)
+
+    def _step(
+        self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
+    ) -> tuple[torch.Tensor, TensorDict]:
+        values, memory = self._step_terms(state, action, memory)
+        return _sum_in_order(values), memory
 
     def step(
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict

@@ -33,6 +33,9 @@ class ConstantReward(RewardFunction):
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         check_input(error_state, "error_state")
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return error_state.new_full(error_state.shape[:-1], self.value)
 
     def extra_repr(self) -> str:

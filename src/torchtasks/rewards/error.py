@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import torch
+from torch import nn
 
 from torchtasks._checks import as_constant, cast_like, check_finite_scalar
 from torchtasks.rewards.base import RewardFunction
@@ -85,10 +86,17 @@ class _QuadraticCost(RewardFunction):
     def cost(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         """Return ``e_sᵀ Q e_s + e_aᵀ R e_a`` per environment."""
         self._check_inputs(error_state, error_action, self.state_size, self.action_size)
+        return self._cost(error_state, error_action)
+
+    def _cost(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         cost = quadratic_form(self.Q, error_state)
         if self.uses_action:
             cost = cost + quadratic_form(self.R, error_action)
         return cost
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        self._check_inputs(error_state, error_action, self.state_size, self.action_size)
+        return self._value(error_state, error_action)
 
 
 class QuadraticErrorReward(_QuadraticCost):
@@ -110,8 +118,8 @@ class QuadraticErrorReward(_QuadraticCost):
         tensor([-5.9000])
     """
 
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        return -self.cost(error_state, error_action)
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return -self._cost(error_state, error_action)
 
 
 class ExpQuadraticErrorReward(_QuadraticCost):
@@ -131,8 +139,8 @@ class ExpQuadraticErrorReward(_QuadraticCost):
         tensor([1., 1., 1.])
     """
 
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        return torch.exp(-self.cost(error_state, error_action))
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return torch.exp(-self._cost(error_state, error_action))
 
 
 class ScaledExpQuadraticErrorReward(_QuadraticCost):
@@ -187,8 +195,10 @@ class ScaledExpQuadraticErrorReward(_QuadraticCost):
         self.min_reward = min_reward
         self.register_buffer("state_bound", state_space.bound_abs_high)
         self.register_buffer("action_bound", action_space.bound_abs_high)
-        if float(self._worst_case_cost().detach()) == 0.0:
+        worst_case = self._worst_case_cost().detach()
+        if float(worst_case) == 0.0:
             raise ValueError("the worst-case cost s_maxᵀQs_max + a_maxᵀRa_max is 0: the reward cannot be scaled")
+        self.register_buffer("_c_max", -math.log(min_reward) / worst_case)
 
     def _worst_case_cost(self) -> torch.Tensor:
         """``s_maxᵀQs_max + a_maxᵀRa_max``; infinite where an unbounded entry has a positive weight.
@@ -208,12 +218,14 @@ class ScaledExpQuadraticErrorReward(_QuadraticCost):
 
     @property
     def c_max(self) -> torch.Tensor:
-        """The scale ``-ln(min_reward) / C_max`` (0 for infinite bounds)."""
-        return -math.log(self.min_reward) / self._worst_case_cost()
+        """The scale ``-ln(min_reward) / C_max`` (0 for infinite bounds); follows learnable weights."""
+        if isinstance(self.Q, nn.Parameter):
+            return -math.log(self.min_reward) / self._worst_case_cost()
+        return self._c_max
 
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         scale = cast_like(self.c_max, error_state)
-        return torch.exp(-scale * self.cost(error_state, error_action))
+        return torch.exp(-scale * self._cost(error_state, error_action))
 
 
 class AbsoluteErrorReward(RewardFunction):
@@ -254,6 +266,9 @@ class AbsoluteErrorReward(RewardFunction):
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         self._check_inputs(error_state, error_action, self.state_size, self.action_size)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         value = (error_state.abs() * cast_like(self.q, error_state)).sum(dim=-1)
         if self.uses_action:
             value = value + (error_action.abs() * cast_like(self.r, error_action)).sum(dim=-1)

@@ -85,9 +85,22 @@ class _ForwardProgressReward(RewardFunction):
     ) -> tuple[dict[str, torch.Tensor], TensorDict]:
         """Return ``({term: value[*B]}, memory)``: the named terms and the advanced memory."""
         self._check_step(state, action, memory)
+        return self._step_terms(state, action, memory)
+
+    def _step_terms(
+        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict
+    ) -> tuple[dict[str, torch.Tensor], TensorDict]:
         values = self.terms_of(state, action, memory)
-        new_memory = TensorDict({"x_last": self._x(state).clone()}, batch_size=memory.batch_size)
+        new_memory = TensorDict._new_unsafe({"x_last": self._x(state).clone()}, batch_size=memory.batch_size)
         return values, new_memory
+
+    def _step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
+        values, memory = self._step_terms(state, action, memory)
+        iterator = iter(values.values())
+        total = next(iterator)
+        for value in iterator:
+            total = total + value
+        return total, memory
 
     def step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self.step_terms(state, action, memory)

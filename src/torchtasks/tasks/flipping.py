@@ -121,7 +121,7 @@ class FlippingTask(RewardTask):
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
         target, error = self._closest_target(state, memory)
-        value = self.reward(error.unsqueeze(-1), -action)
+        value = self.reward._value(error.unsqueeze(-1), -action)
         held = memory.get("held")
         flipped = error.abs() <= self.angle_tol
         entries = dict(memory.items())

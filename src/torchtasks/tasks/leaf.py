@@ -69,8 +69,8 @@ class RewardTask(Task):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         inputs = self._reward_inputs(state, action, memory)
         if not self.reward.stateful:
-            return self.reward(*inputs), memory
-        value, reward_memory = self.reward.step(*inputs, memory.get("reward"))
+            return self.reward._value(*inputs), memory
+        value, reward_memory = self.reward._step(*inputs, memory.get("reward"))
         entries = dict(memory.items())
         entries["reward"] = reward_memory
         return value, make_memory(entries, memory.batch_size)
@@ -91,10 +91,11 @@ class RewardTask(Task):
             reward, memory = self._step_reward(state, action, memory, remaining_steps)
             return {}, reward, memory
         inputs = self._reward_inputs(state, action, memory)
+        step_terms = getattr(self.reward, "_step_terms", self.reward.step_terms)
         if not self.reward.stateful:
-            terms, _ = self.reward.step_terms(*inputs, memory)
+            terms, _ = step_terms(*inputs, memory)
         else:
-            terms, reward_memory = self.reward.step_terms(*inputs, memory.get("reward"))
+            terms, reward_memory = step_terms(*inputs, memory.get("reward"))
             entries = dict(memory.items())
             entries["reward"] = reward_memory
             memory = make_memory(entries, memory.batch_size)
