@@ -267,6 +267,12 @@ class TaskTransform(Transform):
         return torch.cat(parts, dim=-1)
 
     def _missing_state(self, tensordict: TensorDictBase) -> None:
+        try:
+            parent = self.parent
+        except (AttributeError, ValueError):
+            parent = None
+        if parent is not None:  # the spec check says which keys the env offers
+            self._state_spec_size(parent.full_observation_spec)
         raise KeyError(
             f"TaskTransform: the state key(s) {self.state_keys} are missing from the data; available keys are "
             f"{sorted(map(str, tensordict.keys(True, True)))}. Pass state_key=... naming the entry that holds "
