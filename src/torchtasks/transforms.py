@@ -305,7 +305,7 @@ class TaskTransform(Transform):
             step_reward, memory = task._step_reward(source, action, memory, remaining)
         success = task._has_succeeded(next_state, memory)
         failure = task._has_failed(next_state, memory)
-        final, memory = task._final_reward(next_state, memory, remaining, ended | success | failure)
+        final, memory = task._final_reward(next_state, memory, remaining, ended | success | failure, (success, failure))
         return step_reward, final, terms, success, failure, memory
 
     def _evaluator(self) -> Callable[..., Any]:

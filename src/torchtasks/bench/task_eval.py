@@ -28,8 +28,9 @@ def task_step(
 ) -> tuple[torch.Tensor, torch.Tensor, TensorDictBase]:
     """One task step as the transform runs it: step reward, success/failure, final reward (all on ``state``)."""
     reward, memory = task._step_reward(state, action, memory, remaining)
-    done = task._has_succeeded(state, memory) | task._has_failed(state, memory) | truncated
-    final, memory = task._final_reward(state, memory, remaining, done)
+    flags = (task._has_succeeded(state, memory), task._has_failed(state, memory))
+    done = flags[0] | flags[1] | truncated
+    final, memory = task._final_reward(state, memory, remaining, done, flags)
     return reward + final, done, memory
 
 

@@ -243,7 +243,8 @@ class Task(nn.Module):
         done = success | failure
         if truncated is not None:
             done = done | truncated
-        final, memory = self._final_reward(next_state, memory, self._as_remaining(remaining_steps, state), done)
+        remaining = self._as_remaining(remaining_steps, state)
+        final, memory = self._final_reward(next_state, memory, remaining, done, (success, failure))
         return reward + final, success, failure, memory
 
     # ------------------------------------------------------------------- implementation
@@ -275,15 +276,29 @@ class Task(nn.Module):
         return self._has_succeeded(state, memory) | self._has_failed(state, memory)
 
     def _compute_final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        """This task's own final reward (Pyrado's ``compute_final_rew``): 0 by default."""
+        """This task's own final reward (Pyrado's ``compute_final_rew``): 0 by default.
+
+        ``flags`` optionally carries ``(success, failure)`` already computed for this task on
+        ``state`` and ``memory``, so they are not evaluated twice in a step.
+        """
         return state.new_zeros(state.shape[:-1]), memory
 
     def _final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        return self._compute_final_reward(state, memory, remaining_steps, done)
+        return self._compute_final_reward(state, memory, remaining_steps, done, flags)
 
 
 class TaskWrapper(Task):
@@ -359,10 +374,18 @@ class TaskWrapper(Task):
         return self.wrapped_task._is_done(state, memory.get("wrapped"))
 
     def _final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        own, memory = self._compute_final_reward(state, memory, remaining_steps, done)
-        inner_reward, inner = self.wrapped_task._final_reward(state, memory.get("wrapped"), remaining_steps, done)
+        # a wrapper's success and failure are its wrapped task's, so the flags pass down unchanged
+        own, memory = self._compute_final_reward(state, memory, remaining_steps, done, flags)
+        inner_reward, inner = self.wrapped_task._final_reward(
+            state, memory.get("wrapped"), remaining_steps, done, flags
+        )
         return own + inner_reward, self._replace(memory, wrapped=inner)
 
 

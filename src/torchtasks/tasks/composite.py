@@ -65,23 +65,31 @@ class CompositeTask(Task):
             entries[key] = task._reset(init_state, overrides)
         return make_memory(entries, init_state.shape[:-1])
 
+    @staticmethod
     def _finish(
-        self,
         i: int,
-        task: Task,
-        state: torch.Tensor,
-        newly_done: torch.Tensor,
-        memory: TensorDictBase,
+        active: torch.Tensor,
+        success: torch.Tensor,
+        failure: torch.Tensor,
         succeeded: list[torch.Tensor],
         failed: list[torch.Tensor],
-    ) -> None:
-        """Record how sub-task ``i`` ended where ``newly_done`` (success checked first)."""
-        success = task._has_succeeded(state, memory)
+    ) -> torch.Tensor:
+        """Record how sub-task ``i`` ended where it is active and done (success checked first).
+
+        Returns the mask of environments where the sub-task has just finished.
+        """
+        newly_done = active & (success | failure)
         succeeded[i] = succeeded[i] | (newly_done & success)
         failed[i] = failed[i] | (newly_done & ~success)
+        return newly_done
 
     def _compute_final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         """Sum of the sub-tasks' own final rewards, judged on the final state (Pyrado's order)."""
         total = state.new_zeros(state.shape[:-1])

@@ -131,11 +131,17 @@ class FinalRewardTask(TaskWrapper):
         return magnitude
 
     def _compute_final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         inner = memory.get("wrapped")
-        failed = self.wrapped_task._has_failed(state, inner)
-        succeeded = self.wrapped_task._has_succeeded(state, inner)
+        if flags is None:
+            flags = (self.wrapped_task._has_succeeded(state, inner), self.wrapped_task._has_failed(state, inner))
+        succeeded, failed = flags
         magnitude = self._magnitudes(state, inner, remaining_steps)
         zero = state.new_zeros(state.shape[:-1])
         on_success = zero if self.mode.always_negative else zero + magnitude
@@ -190,7 +196,12 @@ class BestStateFinalRewardTask(TaskWrapper):
         return self._replace(memory, wrapped=inner, best=best)
 
     def _compute_final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         paid = memory.get("paid")
         best = memory.get("best").to(state.dtype)

@@ -109,6 +109,11 @@ class MaskedTask(Task):
         return self.wrapped_task._is_done(self._state(state), memory)
 
     def _compute_final_reward(
-        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done)
+        return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done, flags)

@@ -83,9 +83,9 @@ class ParallelTasks(CompositeTask):
         # second pass: sub-tasks that are done on this state
         for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
             sub_memory = stepped[i]
-            newly_done = active[i] & task._is_done(state, sub_memory)
-            self._finish(i, task, state, newly_done, sub_memory, succeeded, failed)
-            final, sub_memory = task._final_reward(state, sub_memory, remaining_steps, newly_done)
+            flags = (task._has_succeeded(state, sub_memory), task._has_failed(state, sub_memory))
+            newly_done = self._finish(i, active[i], *flags, succeeded, failed)
+            final, sub_memory = task._final_reward(state, sub_memory, remaining_steps, newly_done, flags)
             total = total + torch.where(newly_done, final, zero)
             if held is not None:
                 value, after_hold = task._step_reward(state, action, sub_memory, remaining_steps)

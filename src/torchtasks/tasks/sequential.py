@@ -103,8 +103,8 @@ class SequentialTasks(CompositeTask):
             old_memory = memory.get(key)
             value, sub_memory = task._step_reward(state, action, old_memory, remaining_steps)
             total = total + torch.where(active, value, zero)
-            newly_done = active & task._is_done(state, sub_memory)
-            self._finish(i, task, state, newly_done, sub_memory, succeeded, failed)
+            flags = (task._has_succeeded(state, sub_memory), task._has_failed(state, sub_memory))
+            newly_done = self._finish(i, active, *flags, succeeded, failed)
             if held is not None:
                 value, after_hold = task._step_reward(state, action, sub_memory, torch.zeros_like(remaining_steps))
                 held[i] = torch.where(newly_done, value, held[i])
