@@ -26,9 +26,12 @@ from torchtasks.rewards import (
     CartPoleSwingUpReward,
     CompoundReward,
     ConstantReward,
+    ContactCostReward,
+    ControlCostReward,
     CosineReward,
     ExpQuadraticErrorReward,
     ForwardVelocityReward,
+    HealthyReward,
     HumanoidForwardReward,
     QuadraticErrorReward,
     RewardFunction,
@@ -36,6 +39,7 @@ from torchtasks.rewards import (
     ShiftedCosineReward,
     StateFunctionReward,
     SwingUpReward,
+    VelocityReward,
 )
 from torchtasks.spaces import Box
 
@@ -204,6 +208,21 @@ CASES = [
         "state_function",
         lambda: StateFunctionReward(rosenbrock, negate=True),
         lambda s, a: -np_rosenbrock(s),
+        uses_action=False,
+    ),
+    Case("velocity", lambda: VelocityReward(1.25, index=2), lambda s, a: 1.25 * s[..., 2], uses_action=False),
+    Case("control_cost", lambda: ControlCostReward(0.3), lambda s, a: -0.3 * (a**2).sum(-1)),
+    Case(
+        "healthy",
+        lambda: HealthyReward(5.0, index=[0, 2], low=[-0.5, -1.0], high=[0.5, 1.0], terminate_when_unhealthy=True),
+        lambda s, a: 5.0 * ((np.abs(s[..., 0]) < 0.5) & (np.abs(s[..., 2]) < 1.0)),
+        uses_action=False,
+        differentiable=False,
+    ),
+    Case(
+        "contact_cost",
+        lambda: ContactCostReward(0.5, start=1, force_range=(-0.8, 0.8), cost_range=(-math.inf, 0.3)),
+        lambda s, a: -np.minimum(0.5 * (np.clip(s[..., 1:], -0.8, 0.8) ** 2).sum(-1), 0.3),
         uses_action=False,
     ),
     Case(

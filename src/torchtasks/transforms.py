@@ -323,8 +323,15 @@ class TaskTransform(Transform):
         return state
 
     def _transition(
-        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase, *, write_memory: bool = True
+        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase, *, offline: bool = False
     ) -> TensorDictBase:
+        """Evaluate the task on one batch of transitions and write its outputs into ``next_tensordict``.
+
+        Online (in an env step) the env's ``done``/``terminated`` are its own. Offline (stored
+        transitions, possibly relabelled) the stored flags already include the task's old verdict,
+        so only the part the task did not cause (truncation, the env's own termination) is kept,
+        and the stored next memory is left as it was.
+        """
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
         action = tensordict.get(self.action_key)
@@ -332,11 +339,22 @@ class TaskTransform(Transform):
             action = action.to(state.dtype)
         memory = tensordict.get(self.memory_key)
         done = next_tensordict.get("done")
+        terminated = next_tensordict.get("terminated", None)
+        if offline:
+            old_success = next_tensordict.get(self.success_key, None)
+            old_failure = next_tensordict.get(self.failure_key, None)
+            if old_success is not None and old_failure is not None:
+                by_task = old_success | old_failure
+                done = done & ~by_task
+                terminated = None if terminated is None else terminated & ~by_task
         remaining = self._remaining(next_tensordict, state)
         step_reward, final, terms, success, failure, memory = self._evaluator()(
             state, action, next_state, memory, remaining, done.reshape(state.shape[:-1])
         )
-        reward_dtype = self.__dict__.get("_reward_dtype", state.dtype)
+        reward_dtype = self.__dict__.get("_reward_dtype")
+        if reward_dtype is None:
+            stored = next_tensordict.get(self.reward_key, None)
+            reward_dtype = state.dtype if stored is None else stored.dtype
         shape = done.shape
         next_tensordict.set(self.reward_key, (step_reward + final).reshape(shape).to(reward_dtype))
         success = success.reshape(shape)
@@ -344,11 +362,10 @@ class TaskTransform(Transform):
         ended = success | failure
         next_tensordict.set(self.success_key, success)
         next_tensordict.set(self.failure_key, failure)
-        terminated = next_tensordict.get("terminated", None)
         if terminated is not None:
             next_tensordict.set("terminated", terminated | ended)
         next_tensordict.set("done", done | ended)
-        if write_memory:
+        if not offline:
             next_tensordict.set(self.memory_key, memory)
         if self.log_terms:
             values = [step_reward, final, *(terms[name] for name in self.task.term_names)]
@@ -383,10 +400,12 @@ class TaskTransform(Transform):
         ``tensordict`` holds transitions as collected: the state, action and task memory at the
         root and the next state (and ``done``, and ``step_count`` for time-dependent tasks) under
         ``"next"``. The reward, success, failure, done flags and the reward breakdown under
-        ``"next"`` are rewritten; the stored next memory is left as it was.
+        ``"next"`` are rewritten; the stored next memory is left as it was. An episode end that the
+        stored success/failure flags attribute to the task is re-judged (a relabelled goal may
+        change it); truncation and the env's own termination are kept.
         """
         next_tensordict = tensordict.get("next")
-        self._transition(tensordict, next_tensordict, write_memory=False)
+        self._transition(tensordict, next_tensordict, offline=True)
         return tensordict
 
     def reward_fn(self, tensordict: TensorDictBase) -> torch.Tensor:
@@ -396,7 +415,7 @@ class TaskTransform(Transform):
         """
         data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, "next", strict=False)
         next_data = tensordict.get("next").copy()
-        self._transition(data, next_data, write_memory=False)
+        self._transition(data, next_data, offline=True)
         return next_data.get(self.reward_key)
 
     def __repr__(self) -> str:

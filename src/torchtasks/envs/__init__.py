@@ -1,5 +1,28 @@
 """Ready environments: a batched torch pendulum (and, with the ``mujoco`` extra, Gymnasium presets)."""
 
+from typing import Any
+
 from torchtasks.envs.pendulum import PendulumEnv, pendulum_dynamics, swing_up_task
 
-__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task"]
+#: Gymnasium MuJoCo v5 locomotion presets (torchtasks.envs.locomotion), imported on first access so
+#: that ``import torchtasks.envs`` works without the ``mujoco`` extra (gymnasium, mujoco)
+_LOCOMOTION = (
+    "SUPPORTED_ENV_IDS",
+    "Float64InfoReader",
+    "MujocoStateInfo",
+    "gymnasium_env",
+    "locomotion_state_layout",
+    "locomotion_task",
+    "make_base_env",
+    "make_gymnasium_env",
+)
+
+__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION]
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LOCOMOTION:
+        from torchtasks.envs import locomotion
+
+        return getattr(locomotion, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -18,6 +18,7 @@ from torchtasks.rewards.error import (
 from torchtasks.rewards.locomotion import AntForwardReward, ForwardVelocityReward, HumanoidForwardReward
 from torchtasks.rewards.state_function import StateFunctionReward
 from torchtasks.rewards.swing_up import CartPoleSwingUpReward, SwingUpReward
+from torchtasks.rewards.terms import ContactCostReward, ControlCostReward, HealthyReward, VelocityReward
 
 __all__ = [
     "AbsoluteErrorReward",
@@ -25,9 +26,12 @@ __all__ = [
     "CartPoleSwingUpReward",
     "CompoundReward",
     "ConstantReward",
+    "ContactCostReward",
+    "ControlCostReward",
     "CosineReward",
     "ExpQuadraticErrorReward",
     "ForwardVelocityReward",
+    "HealthyReward",
     "HumanoidForwardReward",
     "QuadraticErrorReward",
     "RewardFunction",
@@ -35,4 +39,5 @@ __all__ = [
     "ShiftedCosineReward",
     "StateFunctionReward",
     "SwingUpReward",
+    "VelocityReward",
 ]

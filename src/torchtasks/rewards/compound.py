@@ -13,6 +13,18 @@ from torchtasks.rewards.base import RewardFunction, empty_memory
 __all__ = ["CompoundReward"]
 
 
+class _TermModules(nn.ModuleDict):
+    """An ``nn.ModuleDict`` whose keys may be names of ``nn.Module`` attributes (``forward``, ``train``, ...).
+
+    ``nn.ModuleDict`` refuses such keys because it also exposes its entries as attributes; the terms
+    of a :class:`CompoundReward` are only looked up by item (``terms[name]``), so a term may be named
+    ``forward`` like Gymnasium's ``info["reward_forward"]``. Names are validated by the caller.
+    """
+
+    def __setitem__(self, key: str, module: nn.Module) -> None:
+        self._modules[key] = module
+
+
 def _sum_in_order(values: Mapping[str, torch.Tensor]) -> torch.Tensor:
     """Sum the terms left to right (the order Pyrado adds them in)."""
     iterator = iter(values.values())
@@ -60,7 +72,7 @@ class CompoundReward(RewardFunction):
                 raise ValueError(f"term names must be identifiers, got {name!r}")
             if not isinstance(reward, RewardFunction):
                 raise TypeError(f"term {name!r} must be a RewardFunction, got {type(reward).__name__}")
-        self.rewards = nn.ModuleDict(dict(items))
+        self.rewards = _TermModules(dict(items))
         self.stateful = any(reward.stateful for reward in self.rewards.values())
         self.can_fail = any(reward.can_fail for reward in self.rewards.values())
         self.uses_action = any(reward.uses_action for reward in self.rewards.values())
