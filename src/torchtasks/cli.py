@@ -9,7 +9,10 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-__all__ = ["catalogue", "main"]
+__all__ = ["PARITY_TOLERANCE", "catalogue", "main"]
+
+#: largest absolute reward difference to Gymnasium that ``torchtasks check`` accepts
+PARITY_TOLERANCE = 1e-5
 
 _SECTIONS = (
     ("Reward functions", "torchtasks.rewards"),
@@ -69,7 +72,15 @@ def _cmd_check(args: argparse.Namespace) -> int:
     env_ids = args.env_ids
     rows = [check_parity(env_id, seeds=tuple(range(args.seeds)), steps=args.steps) for env_id in env_ids]
     print(format_parity_table(rows))
-    mismatched = [row for row in rows if not row.get("ok", True)]
+    mismatched = [
+        row["env"]
+        for row in rows
+        if row["max_abs_reward_diff"] > PARITY_TOLERANCE
+        or row["termination_mismatches"]
+        or row["observation_mismatches"]
+    ]
+    if mismatched:
+        print(f"parity NOT met (reward tolerance {PARITY_TOLERANCE}) for: {', '.join(mismatched)}", file=sys.stderr)
     return 1 if mismatched else 0
 
 
