@@ -350,6 +350,12 @@ class TaskWrapper(Task):
 
     def _after_step(self, reward: torch.Tensor, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
         """Return this wrapper's memory after a step of the wrapped task (``inner`` is its new memory)."""
+        return self._with_inner(memory, inner)
+
+    def _with_inner(self, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
+        """``memory`` with the wrapped task's memory replaced (no copy when it did not change)."""
+        if inner is memory.get("wrapped"):
+            return memory
         return self._replace(memory, wrapped=inner)
 
     def _step_reward(
@@ -386,7 +392,7 @@ class TaskWrapper(Task):
         inner_reward, inner = self.wrapped_task._final_reward(
             state, memory.get("wrapped"), remaining_steps, done, flags
         )
-        return own + inner_reward, self._replace(memory, wrapped=inner)
+        return own + inner_reward, self._with_inner(memory, inner)
 
 
 def all_tasks(task: Task) -> Iterator[Task]:
