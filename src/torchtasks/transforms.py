@@ -182,6 +182,7 @@ class TaskTransform(Transform):
                     max_steps = transform.max_steps
             _check_vector_gym(container.base_env)
         self.__dict__["_max_steps"] = max_steps
+        self.__dict__["_needs_remaining"] = max_steps is not None and self.task.uses_remaining_steps
 
     @property
     def max_steps(self) -> int | None:
@@ -280,9 +281,11 @@ class TaskTransform(Transform):
         )
 
     def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor) -> torch.Tensor:
-        max_steps = self.max_steps
-        if max_steps is None:
+        self._setup()
+        if not self.__dict__["_needs_remaining"]:
+            # no limit (Pyrado passes 0), or no task of the tree reads it: skip the arithmetic
             return torch.zeros((), dtype=torch.long, device=reference.device)
+        max_steps = self.__dict__["_max_steps"]
         step_count = next_tensordict.get("step_count")
         return max_steps - step_count.reshape(reference.shape[:-1])
 

@@ -89,6 +89,11 @@ class Task(nn.Module):
         """Names of the step-reward terms :meth:`step_reward_terms` reports (empty: no breakdown)."""
         return ()
 
+    @property
+    def uses_remaining_steps(self) -> bool:
+        """Whether any task of this tree reads ``remaining_steps`` (time-dependent final rewards)."""
+        return any(child.uses_remaining_steps for child in self.children_tasks())
+
     def all_reset_keys(self) -> set[str]:
         """Names of the reset overrides understood anywhere in this task tree."""
         keys = set(self.reset_keys)

@@ -112,6 +112,10 @@ class FinalRewardTask(TaskWrapper):
         self.mode = mode
         self.factor = abs(check_finite_scalar(factor, "factor"))
 
+    @property
+    def uses_remaining_steps(self) -> bool:
+        return self.mode.time_dependent or super().uses_remaining_steps
+
     def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
         return {"paid": torch.zeros(init_state.shape[:-1], dtype=torch.bool, device=init_state.device)}
 
