@@ -52,6 +52,7 @@ def run_benchmarks(
             names=tuple(cases),
             batches=(1, 8) if tiny else (1, 64, 1024, 16384),
             compile=True,
+            backend="aot_eager" if tiny else "inductor",  # tiny: trace every graph, skip Inductor's codegen
             repeats=1 if tiny else 5,
             min_seconds=0.001 if tiny else 0.1,
             extra_cases={name: case for name, case in cases.items() if case is not None},

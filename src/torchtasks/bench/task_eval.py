@@ -72,12 +72,17 @@ def run_task_benchmark(
     batches: tuple[int, ...] = (1, 64, 1024, 16384),
     *,
     compile: bool = True,
+    backend: str = "inductor",
     config: BenchConfig | None = None,
     repeats: int = 5,
     min_seconds: float = 0.05,
     extra_cases: dict[str, Any] | None = None,
 ) -> list[dict[str, Any]]:
-    """Time one task step per case and batch size; return one row per (case, batch) with times [µs] and ratios."""
+    """Time one task step per case and batch size; return one row per (case, batch) with times [µs] and ratios.
+
+    ``backend`` is the ``torch.compile`` backend of the compiled paths (``"aot_eager"`` traces the
+    same graphs without Inductor's code generation: a fast smoke run).
+    """
     config = config or BenchConfig()
     makers = {"T1": make_t1, "T2": make_t2, "T3": make_t3}
     rows = []
@@ -92,6 +97,7 @@ def run_task_benchmark(
                     makers.get(name),
                     case,
                     compile=compile,
+                    backend=backend,
                     repeats=repeats,
                     min_seconds=min_seconds,
                 )
@@ -107,6 +113,7 @@ def _time_case(
     case: Any,
     *,
     compile: bool,
+    backend: str,
     repeats: int,
     min_seconds: float,
 ) -> dict[str, Any]:
@@ -142,13 +149,13 @@ def _time_case(
         times["fused"] = median_time(lambda: fused_fn(*fused_args), repeats=repeats, min_seconds=min_seconds)
         if compile:
             torch._dynamo.reset()
-            compiled = torch.compile(task_step, fullgraph=True, dynamic=False)
+            compiled = torch.compile(task_step, fullgraph=True, dynamic=False, backend=backend)
             times["compiled"] = median_time(
                 lambda: compiled(task, state, action, truncated, memory, remaining),
                 repeats=repeats,
                 min_seconds=min_seconds,
             )
-            fused_compiled = torch.compile(fused_fn, fullgraph=True, dynamic=False)
+            fused_compiled = torch.compile(fused_fn, fullgraph=True, dynamic=False, backend=backend)
             times["fused_compiled"] = median_time(
                 lambda: fused_compiled(*fused_args), repeats=repeats, min_seconds=min_seconds
             )

@@ -1,0 +1,88 @@
+"""The example scripts run end to end with ``--quick`` and print what they promise.
+
+Each example runs as a subprocess (``sys.executable``, from the repository root), as a user would run
+it. The Ray example starts (and shuts down) its own local Ray cluster; the MuJoCo example needs the
+``mujoco`` extra.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLES = ROOT / "examples"
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
+
+
+def run_example(name: str, *args: str, timeout: float = 180.0) -> str:
+    """Run ``examples/<name> --quick *args``; return its stdout (fail with both streams on a non-zero exit)."""
+    result = subprocess.run(
+        [sys.executable, str(EXAMPLES / name), "--quick", *args],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert result.returncode == 0, (
+        f"{name} exited with {result.returncode}\n--- stdout ---\n{result.stdout}\n--- stderr ---\n{result.stderr}"
+    )
+    return result.stdout
+
+
+def _number(pattern: str, text: str) -> float:
+    match = re.search(pattern, text, flags=re.MULTILINE)
+    assert match is not None, f"no line matching {pattern!r} in:\n{text}"
+    return float(match.group(1))
+
+
+def test_quickstart() -> None:
+    out = run_example("quickstart.py")
+    assert "8 envs x 50 steps" in out
+    for key in ("step", "final", "track", "effort"):
+        assert re.search(rf"mean per-step\s+{key}:", out), key
+    assert "successes:" in out and "mean episode reward of finished episodes" in out
+
+
+@pytest.mark.ray
+@pytest.mark.multiprocess
+def test_distributed_ray() -> None:
+    pytest.importorskip("ray")
+    # Ray start-up (cluster, then two actors importing torch) takes most of the time on a loaded 2-core machine
+    out = run_example("distributed_ray.py", timeout=300.0)
+    assert "Ray collector: 2 workers x 8 pendulums" in out
+    assert _number(r"^frames collected: (\d+)", out) == 2400
+    episodes = _number(r"^episodes ended: (\d+)", out)
+    successes = _number(r"successes: (\d+)", out)
+    assert episodes > 0 and successes > 0
+    for term in ("track", "effort", "step", "final"):
+        assert re.search(rf"^\s+{term}\s+[+-]\d+\.\d+$", out, flags=re.MULTILINE), term
+    # the controller only ends episodes by success, each paid +100 once
+    assert _number(r"^\s+final\s+([+-]\d+\.\d+)$", out) == pytest.approx(100.0 * successes / episodes, abs=1e-3)
+
+
+def test_her_relabel() -> None:
+    out = run_example("her_relabel.py")
+    assert "relabelled rewards equal the task's reward for the new goal: 256 transitions checked" in out
+    assert "per-env goal sampling" in out
+    before = _number(r"successful transitions before relabelling:\s+([\d.]+)%", out)
+    after = _number(r"successful transitions after relabelling:\s+([\d.]+)%", out)
+    assert after > before  # hindsight goals are reached far more often than the sampled ones
+
+
+@pytest.mark.mujoco
+def test_mujoco_locomotion() -> None:
+    if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("gymnasium") is None:
+        pytest.skip("needs the mujoco extra (mujoco, gymnasium)")
+    out = run_example("mujoco_locomotion.py")
+    assert "HalfCheetah-v5: 300 frames" in out
+    for term in ("step", "final", "forward", "ctrl", "reward"):
+        assert re.search(rf"^\| {term} \|", out, flags=re.MULTILINE), term
+    assert _number(r"largest difference to Gymnasium's info terms over 300 steps: (\S+)$", out) < 1e-5
+    assert "RewardSum episode sums match the per-step terms summed by hand" in out
