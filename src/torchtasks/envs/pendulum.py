@@ -55,7 +55,9 @@ class PendulumEnv(EnvBase):
 
     Args:
         batch_size: number of pendulums (any shape).
-        dt: time step [s]; max_torque: torque bound; max_speed: speed bound.
+        dt: time step [s].
+        max_torque: torque bound (the action is clipped to ``±max_torque``).
+        max_speed: speed bound (the angular speed is clipped to ``±max_speed``).
         init_angle, init_speed: half-widths of the uniform initial state distribution.
         device, dtype: where and in which precision the state lives.
         seed: seed of the env's own random generator.

@@ -1,0 +1,129 @@
+"""Sphinx configuration of the torchtasks documentation.
+
+Build with ``make docs`` (``sphinx-build -W --keep-going -b html docs docs/_build/html``): every warning
+is an error. Pages are Markdown (MyST); the API reference is generated from the docstrings
+(Google style, read by ``sphinx.ext.napoleon``). No network access is needed (no intersphinx).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from sphinx.application import Sphinx
+from sphinx.util import logging
+from sphinx.util.inspect import signature as sphinx_signature
+from sphinx.util.inspect import stringify_signature
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+sys.path.insert(0, str(ROOT / "src"))  # build from a checkout even without `pip install -e .`
+
+import torchtasks  # noqa: E402
+
+project = "torchtasks"
+author = "torchtasks developers"
+copyright = "torchtasks developers, BSD-3-Clause"
+release = version = torchtasks.__version__
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.viewcode",
+]
+
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+root_doc = "index"
+# _generated/ holds files that pages include (the benchmark table); they are not pages themselves
+exclude_patterns = ["_build", "_generated", "Thumbs.db", ".DS_Store"]
+
+nitpicky = False
+suppress_warnings: list[str] = []
+
+# --- MyST -------------------------------------------------------------------------------------
+myst_enable_extensions: list[str] = []
+myst_heading_anchors = 3  # [text](page.md#a-heading) links resolve to headings up to level 3
+
+# --- autodoc / napoleon -----------------------------------------------------------------------
+autodoc_default_options = {"members": True, "member-order": "bysource"}
+autodoc_typehints = "signature"
+autodoc_class_signature = "mixed"
+autoclass_content = "class"  # the class docstring says what the constructor takes (Args:)
+napoleon_google_docstring = True
+napoleon_numpy_docstring = False
+napoleon_use_rtype = False
+# RewardFunction documents its class attributes in a "Class attributes:" section (name: description)
+napoleon_custom_sections = [("Class attributes", "params_style")]
+
+# --- HTML -------------------------------------------------------------------------------------
+html_theme = "alabaster"
+html_title = f"torchtasks {release}"
+html_static_path: list[str] = []
+html_theme_options = {
+    "description": "Batched, differentiable tasks and rewards for TorchRL",
+    "fixed_sidebar": True,
+    "page_width": "1100px",
+    "sidebar_width": "240px",
+}
+
+# --- pages that may not exist yet --------------------------------------------------------------
+#: pages listed in the toctree of index.md that other work items write; while a page's file is
+#: missing, its toctree entry is dropped (with a message) instead of failing the build
+OPTIONAL_PAGES = ("training",)
+
+#: the benchmark table the benchmarks page includes (written by the benchmark run, see benchmarks.md)
+BENCHMARK_TABLE = DOCS / "_generated" / "benchmarks_table.md"
+BENCHMARK_INCLUDE = "```{include} _generated/benchmarks_table.md\n```"
+BENCHMARK_MISSING = (
+    "```{note}\nThe benchmark table has not been generated yet: `docs/_generated/benchmarks_table.md` "
+    "does not exist. Run the command above to produce it.\n```"
+)
+
+logger = logging.getLogger(__name__)
+
+
+def _adapt_sources(app: Sphinx, docname: str, source: list[str]) -> None:
+    """Leave out toctree entries of missing optional pages and a missing benchmark table."""
+    if docname == root_doc:
+        for page in OPTIONAL_PAGES:
+            # a dependency on the page (even a missing one) re-reads the index when the page appears
+            app.env.note_dependency(str(DOCS / f"{page}.md"))
+            if not (DOCS / f"{page}.md").exists():
+                logger.info("docs/%s.md does not exist yet: left out of the table of contents", page)
+                source[0] = "\n".join(line for line in source[0].split("\n") if line.strip() != page)
+    elif docname == "benchmarks":
+        # a dependency on the table (even a missing one) rebuilds this page when the table changes
+        app.env.note_dependency(str(BENCHMARK_TABLE))
+        if not BENCHMARK_TABLE.exists():
+            logger.info("%s does not exist yet: the benchmarks page shows a note instead", BENCHMARK_TABLE)
+            source[0] = source[0].replace(BENCHMARK_INCLUDE, BENCHMARK_MISSING)
+
+
+def _constructor_signature(
+    app: Sphinx,
+    what: str,
+    name: str,
+    obj: object,
+    options: object,
+    signature: str | None,
+    return_annotation: str | None,
+) -> tuple[str | None, str | None] | None:
+    """Show a class's ``__init__`` signature where a metaclass hides it (TorchRL's ``EnvBase``)."""
+    if what != "class" or signature != "(*args, **kwargs)" or "__init__" not in vars(obj):
+        return None
+    init = sphinx_signature(obj.__init__, bound_method=True)
+    return stringify_signature(init, show_return_annotation=False, unqualified_typehints=True), return_annotation
+
+
+def _namedtuple_fields(app: Sphinx, what: str, name: str, obj: object, options: object, lines: list[str]) -> None:
+    """Drop the "Alias for field number N" docstrings of NamedTuple fields (FinalRewardMode)."""
+    if what in ("attribute", "property") and len(lines) == 1 and lines[0].startswith("Alias for field number"):
+        lines.clear()
+
+
+def setup(app: Sphinx) -> dict[str, bool]:
+    app.connect("source-read", _adapt_sources)
+    app.connect("autodoc-process-signature", _constructor_signature)
+    app.connect("autodoc-process-docstring", _namedtuple_fields)
+    return {"parallel_read_safe": True, "parallel_write_safe": True}
