@@ -87,7 +87,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
 def _cmd_bench(args: argparse.Namespace) -> int:
     from torchtasks.bench import run_benchmarks
 
-    run_benchmarks(output_dir=Path(args.output), tiny=args.tiny, sections=args.sections)
+    run_benchmarks(output_dir=Path(args.output), tiny=args.tiny, sections=args.sections, threads=args.threads or None)
     return 0
 
 
@@ -116,6 +116,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--tiny", action="store_true", help="a smoke run with tiny sizes (no meaningful timings)")
     bench.add_argument(
         "--sections", nargs="*", default=None, help="subset of sections: tasks, collector, memory (default: all)"
+    )
+    bench.add_argument(
+        "--threads", type=int, default=1, help="torch intra-op threads for the run (0: torch's default; default 1)"
     )
     bench.set_defaults(run=_cmd_bench)
     return parser

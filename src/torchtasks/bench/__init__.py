@@ -33,12 +33,23 @@ def _machine() -> dict[str, Any]:
 
 
 def run_benchmarks(
-    output_dir: str | Path | None = "bench-results", *, tiny: bool = False, sections: list[str] | None = None
+    output_dir: str | Path | None = "bench-results",
+    *,
+    tiny: bool = False,
+    sections: list[str] | None = None,
+    threads: int | None = 1,
 ) -> dict[str, Any]:
     """Run the selected sections and write ``benchmarks.json`` and ``benchmarks.md`` to ``output_dir``.
 
     ``tiny`` runs every code path on tiny sizes (a smoke test: timings are meaningless).
+    ``threads`` sets torch's intra-op threads for the run (default 1: on a 2-core machine a second
+    OpenMP thread competes with the env, the collector and anything else running, and made
+    element-wise ops up to 50x slower in our measurements; ``None`` keeps torch's default).
     """
+    if threads is not None:
+        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+            raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+        torch.set_num_threads(threads)
     from torchtasks.bench.task_eval import memory_bytes_per_env, run_task_benchmark
 
     chosen = tuple(sections) if sections else SECTIONS
