@@ -145,6 +145,9 @@ class TaskTransform(Transform):
         out_keys = [self.reward_key, self.memory_key, self.success_key, self.failure_key]
         super().__init__(in_keys=in_keys, out_keys=out_keys)
         self.task = task
+        # static per task tree: computed once, read every step
+        self._term_names = tuple(task.term_names) if log_terms else ()
+        self._term_keys = [self._key(name) for name in ("step", "final", *self._term_names)] if log_terms else []
 
     # ------------------------------------------------------------------ configuration
     def _key(self, *parts: str) -> NestedKey:
@@ -154,9 +157,7 @@ class TaskTransform(Transform):
     @property
     def term_keys(self) -> list[NestedKey]:
         """Keys of the reward breakdown: step reward, final reward, then the named terms."""
-        if not self.log_terms:
-            return []
-        return [self._key(name) for name in ("step", "final", *self.task.term_names)]
+        return list(self._term_keys)
 
     def _setup(self) -> None:
         """Find the time limit and reject set-ups that cannot work (once, when specs are built)."""
@@ -301,7 +302,7 @@ class TaskTransform(Transform):
         """The task's part of one transition (pure tensor code; compiled with ``compile=True``)."""
         task = self.task
         source = next_state if self.reward_on == "next" else state
-        if self.log_terms and task.term_names:
+        if self._term_names:
             terms, step_reward, memory = task._step_terms(source, action, memory, remaining)
         else:
             terms = {}
@@ -371,8 +372,8 @@ class TaskTransform(Transform):
         if not offline:
             next_tensordict.set(self.memory_key, memory)
         if self.log_terms:
-            values = [step_reward, final, *(terms[name] for name in self.task.term_names)]
-            for key, value in zip(self.term_keys, values, strict=True):
+            values = [step_reward, final, *(terms[name] for name in self._term_names)]
+            for key, value in zip(self._term_keys, values, strict=True):
                 next_tensordict.set(key, value.reshape(shape).to(reward_dtype))
         return next_tensordict
 
