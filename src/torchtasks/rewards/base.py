@@ -2,13 +2,24 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import torch
 from tensordict import TensorDict
 from torch import nn
 
 from torchtasks._checks import as_constant, check_input, check_same_batch
 
-__all__ = ["RewardFunction", "empty_memory"]
+__all__ = ["RewardFunction", "empty_memory", "sum_terms"]
+
+
+def sum_terms(values: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """Sum named reward terms left to right (the order Pyrado adds them in)."""
+    iterator = iter(values.values())
+    total = next(iterator)
+    for value in iterator:
+        total = total + value
+    return total
 
 
 def empty_memory(reference: torch.Tensor) -> TensorDict:

@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from torchtasks.rewards.base import RewardFunction, empty_memory
+from torchtasks.rewards.base import RewardFunction, empty_memory, sum_terms
 
 __all__ = ["CompoundReward"]
 
@@ -23,15 +23,6 @@ class _TermModules(nn.ModuleDict):
 
     def __setitem__(self, key: str, module: nn.Module) -> None:
         self._modules[key] = module
-
-
-def _sum_in_order(values: Mapping[str, torch.Tensor]) -> torch.Tensor:
-    """Sum the terms left to right (the order Pyrado adds them in)."""
-    iterator = iter(values.values())
-    total = next(iterator)
-    for value in iterator:
-        total = total + value
-    return total
 
 
 class CompoundReward(RewardFunction):
@@ -86,12 +77,12 @@ class CompoundReward(RewardFunction):
         return {name: reward(error_state, error_action) for name, reward in self.rewards.items()}
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        return _sum_in_order(self.terms(error_state, error_action))
+        return sum_terms(self.terms(error_state, error_action))
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         if self.stateful:
             raise TypeError("this CompoundReward has stateful terms: use step(state, action, memory)")
-        return _sum_in_order({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
+        return sum_terms({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         memory = empty_memory(init_state)
@@ -135,13 +126,13 @@ class CompoundReward(RewardFunction):
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
     ) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self._step_terms(state, action, memory)
-        return _sum_in_order(values), memory
+        return sum_terms(values), memory
 
     def step(
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
     ) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self.step_terms(state, action, memory)
-        return _sum_in_order(values), memory
+        return sum_terms(values), memory
 
     def has_failed(self, state: torch.Tensor) -> torch.Tensor:
         failed = super().has_failed(state)

@@ -11,7 +11,7 @@ import torch
 from tensordict import TensorDict
 
 from torchtasks._checks import check_finite_scalar, check_index, check_input, check_same_batch
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
 
@@ -96,19 +96,11 @@ class _ForwardProgressReward(RewardFunction):
 
     def _step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self._step_terms(state, action, memory)
-        iterator = iter(values.values())
-        total = next(iterator)
-        for value in iterator:
-            total = total + value
-        return total, memory
+        return sum_terms(values), memory
 
     def step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
-        values, memory = self.step_terms(state, action, memory)
-        iterator = iter(values.values())
-        total = next(iterator)
-        for value in iterator:
-            total = total + value
-        return total, memory
+        self._check_step(state, action, memory)
+        return self._step(state, action, memory)
 
     def forward(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:
         return self.step(state, action, memory)

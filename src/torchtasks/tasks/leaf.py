@@ -7,7 +7,7 @@ from typing import Any
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, sum_terms
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import make_memory
@@ -99,11 +99,7 @@ class RewardTask(Task):
             entries = dict(memory.items())
             entries["reward"] = reward_memory
             memory = make_memory(entries, memory.batch_size)
-        values = iter(terms.values())
-        total = next(values)
-        for value in values:
-            total = total + value
-        return terms, total, memory
+        return terms, sum_terms(terms), memory
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
