@@ -1,0 +1,96 @@
+"""The training examples run end to end in ``--quick`` mode and write their learning curves.
+
+``examples/train_swingup_ppo.py`` (PPO) and ``examples/differentiable_shaping.py`` (analytic
+policy gradients) are run as scripts, as a user would, in a temporary output directory. The
+quick runs take a few seconds each; they check the code paths (training, evaluation, JSON, PNG,
+the PPO comparison), not the learning.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+TIMEOUT_S = 120  # a quick run takes < 60 s on the 2-core CI machine, even when it is busy
+
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
+
+RUN_FIELDS = {
+    "method",
+    "config",
+    "seed",
+    "target",
+    "curve",
+    "time_to_target_s",
+    "frames_to_target",
+    "total_frames",
+    "total_seconds",
+    "final_success_rate",
+    "final_episode_reward",
+    "machine_start",
+    "machine_end",
+}
+POINT_FIELDS = {"iteration", "frames", "seconds", "eval_success_rate", "eval_episode_reward", "eval_episode_length"}
+
+
+def run_example(script: str, output: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``examples/<script> --quick --output <output> <args>`` and fail with its output if it fails."""
+    command = [sys.executable, str(EXAMPLES / script), "--quick", "--output", str(output), *args]
+    result = subprocess.run(command, cwd=output, capture_output=True, text=True, timeout=TIMEOUT_S, check=False)
+    assert result.returncode == 0, f"{' '.join(command)} failed:\n{result.stdout}\n{result.stderr}"
+    return result
+
+
+def load_run(path: Path) -> dict[str, Any]:
+    """Read a run record and check the fields every training example writes."""
+    assert path.is_file(), f"{path} was not written"
+    record = json.loads(path.read_text())
+    assert RUN_FIELDS <= record.keys(), f"missing fields: {RUN_FIELDS - record.keys()}"
+    assert record["curve"], "the learning curve is empty"
+    for point in record["curve"]:
+        assert POINT_FIELDS <= point.keys(), f"missing curve fields: {POINT_FIELDS - point.keys()}"
+        assert 0.0 <= point["eval_success_rate"] <= 1.0
+    frames = [point["frames"] for point in record["curve"]]
+    assert frames == sorted(frames) and frames[-1] == record["total_frames"] > 0
+    return record
+
+
+@pytest.fixture(scope="module")
+def ppo_output(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The output directory of one quick PPO run."""
+    output = tmp_path_factory.mktemp("ppo")
+    run_example("train_swingup_ppo.py", output, "--seed", "1")
+    return output
+
+
+def test_ppo_quick_writes_curve_json_and_png(ppo_output: Path) -> None:
+    record = load_run(ppo_output / "swingup_ppo_curve.json")
+    assert record["method"] == "PPO"
+    assert record["seed"] == 1
+    assert record["target"] == 0.8
+    assert {"train_success_rate", "train_episode_reward"} <= record["curve"][-1].keys()
+    assert (ppo_output / "swingup_ppo_curve.png").stat().st_size > 0
+
+
+def test_differentiable_shaping_quick_writes_curve_and_comparison(ppo_output: Path, tmp_path: Path) -> None:
+    ppo_json = ppo_output / "swingup_ppo_curve.json"
+    result = run_example("differentiable_shaping.py", tmp_path, "--ppo-json", str(ppo_json))
+    record = load_run(tmp_path / "differentiable_shaping_curve.json")
+    assert record["method"] == "analytic gradients"
+    assert "loss" in record["curve"][-1]
+    assert record["ppo"]["frames_to_target"] == json.loads(ppo_json.read_text())["frames_to_target"]
+    assert (tmp_path / "differentiable_shaping_curve.png").stat().st_size > 0
+    assert "PPO (" in result.stdout
+
+
+def test_differentiable_shaping_quick_without_ppo_run(tmp_path: Path) -> None:
+    result = run_example("differentiable_shaping.py", tmp_path)
+    record = load_run(tmp_path / "differentiable_shaping_curve.json")
+    assert "ppo" not in record
+    assert "no PPO run" in result.stdout
