@@ -78,6 +78,9 @@ class VelocityReward(RewardFunction):
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         check_input(error_state, "error_state")
         _check_state_entry(error_state, self.index, type(self).__name__)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return cast_like(self.weight, error_state) * error_state[..., self.index]
 
     def extra_repr(self) -> str:
@@ -106,6 +109,9 @@ class ControlCostReward(RewardFunction):
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         self._check_inputs(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return -(cast_like(self.weight, error_action) * (error_action * error_action).sum(dim=-1))
 
     def extra_repr(self) -> str:
