@@ -1,4 +1,4 @@
-"""Shared fixtures (kept minimal: no options or hooks that change global behaviour)."""
+"""Shared fixtures (kept minimal; the one autouse fixture only restores global torch state)."""
 
 from __future__ import annotations
 
@@ -13,3 +13,22 @@ from golden import load_golden
 def golden() -> dict[str, Any]:
     """The decoded Pyrado golden data (``tests/data/pyrado_golden.json``); treat it as read-only."""
     return load_golden()
+
+
+@pytest.fixture(autouse=True)
+def _restore_torch_threads(request: pytest.FixtureRequest):
+    """Keep torch's global thread count from leaking between tests.
+
+    Multi-process collectors and envs change it, also from finalizers that run whenever garbage is
+    collected; dynamo refuses a trace during which it changes. Collect their garbage right after such
+    tests and restore the count after every test.
+    """
+    import gc
+
+    import torch
+
+    threads = torch.get_num_threads()
+    yield
+    if request.node.get_closest_marker("multiprocess") is not None:
+        gc.collect()
+    torch.set_num_threads(threads)

@@ -46,10 +46,18 @@ def run_benchmarks(
     OpenMP thread competes with the env, the collector and anything else running, and made
     element-wise ops up to 50x slower in our measurements; ``None`` keeps torch's default).
     """
+    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
+        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    previous = torch.get_num_threads()
     if threads is not None:
-        if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
-            raise ValueError(f"threads must be a positive int or None, got {threads!r}")
         torch.set_num_threads(threads)
+    try:
+        return _run(output_dir, tiny=tiny, sections=sections)
+    finally:
+        torch.set_num_threads(previous)
+
+
+def _run(output_dir: str | Path | None, *, tiny: bool, sections: list[str] | None) -> dict[str, Any]:
     from torchtasks.bench.task_eval import memory_bytes_per_env, run_task_benchmark
 
     chosen = tuple(sections) if sections else SECTIONS
