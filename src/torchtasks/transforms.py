@@ -290,51 +290,52 @@ class TaskTransform(Transform):
         step_count = next_tensordict.get("step_count")
         return max_steps - step_count.reshape(reference.shape[:-1])
 
-    def _evaluate(
-        self,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        next_state: torch.Tensor,
-        memory: TensorDictBase,
-        remaining: torch.Tensor,
-        ended: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor, dict[str, torch.Tensor], torch.Tensor, torch.Tensor, TensorDictBase]:
-        """The task's part of one transition (pure tensor code; compiled with ``compile=True``)."""
-        task = self.task
-        source = next_state if self.reward_on == "next" else state
-        if self._term_names:
-            terms, step_reward, memory = task._step_terms(source, action, memory, remaining)
-        else:
-            terms = {}
-            step_reward, memory = task._step_reward(source, action, memory, remaining)
-        success = task._has_succeeded(next_state, memory)
-        failure = task._has_failed(next_state, memory)
-        final, memory = task._final_reward(next_state, memory, remaining, ended | success | failure, (success, failure))
-        return step_reward, final, terms, success, failure, memory
-
     def _evaluator(self) -> Callable[..., Any]:
+        """The task's transition function (:meth:`Task._transition`), compiled with ``compile=True``."""
         if not self.compile:
-            return self._evaluate
-        compiled = self.__dict__.get("_compiled_evaluate")
+            return self.task._transition
+        compiled = self.__dict__.get("_compiled_transition")
         if compiled is None:
-            compiled = torch.compile(self._evaluate, fullgraph=True, dynamic=False)
-            self.__dict__["_compiled_evaluate"] = compiled
+            compiled = torch.compile(self.task._transition, fullgraph=True, dynamic=False)
+            self.__dict__["_compiled_transition"] = compiled
         return compiled
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        state.pop("_compiled_evaluate", None)
+        state.pop("_compiled_transition", None)
         return state
+
+    def _episode_end_flags(
+        self, next_tensordict: TensorDictBase, batch: torch.Size, offline: bool
+    ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Return ``(terminated, truncated)`` of the env itself (without the task's verdict), shaped ``[*B]``.
+
+        Online the env's flags are its own. Offline (stored transitions, possibly relabelled) the
+        stored ``terminated`` already includes the task's old success and failure: only what the
+        task did not cause is kept (the env's own termination and the truncation), so the task
+        judges the episode end anew.
+        """
+        done = next_tensordict.get("done")
+        terminated = next_tensordict.get("terminated", None)
+        truncated = next_tensordict.get("truncated", None)
+        if truncated is None and terminated is not None:
+            truncated = done & ~terminated
+        if terminated is None:
+            terminated = done
+        if offline:
+            old_success = next_tensordict.get(self.success_key, None)
+            old_failure = next_tensordict.get(self.failure_key, None)
+            if old_success is not None and old_failure is not None:
+                terminated = terminated & ~(old_success | old_failure)
+        return terminated.reshape(batch), None if truncated is None else truncated.reshape(batch)
 
     def _transition(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase, *, offline: bool = False
     ) -> TensorDictBase:
         """Evaluate the task on one batch of transitions and write its outputs into ``next_tensordict``.
 
-        Online (in an env step) the env's ``done``/``terminated`` are its own. Offline (stored
-        transitions, possibly relabelled) the stored flags already include the task's old verdict,
-        so only the part the task did not cause (truncation, the env's own termination) is kept,
-        and the stored next memory is left as it was.
+        The evaluation is :meth:`Task._transition`, the function behind :meth:`Task.transition`.
+        Offline, the stored next memory is left as it was.
         """
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
@@ -342,33 +343,22 @@ class TaskTransform(Transform):
         if action.dtype != state.dtype:
             action = action.to(state.dtype)
         memory = tensordict.get(self.memory_key)
-        done = next_tensordict.get("done")
-        terminated = next_tensordict.get("terminated", None)
-        if offline:
-            old_success = next_tensordict.get(self.success_key, None)
-            old_failure = next_tensordict.get(self.failure_key, None)
-            if old_success is not None and old_failure is not None:
-                by_task = old_success | old_failure
-                done = done & ~by_task
-                terminated = None if terminated is None else terminated & ~by_task
+        shape = next_tensordict.get("done").shape
+        env_terminated, truncated = self._episode_end_flags(next_tensordict, state.shape[:-1], offline)
         remaining = self._remaining(next_tensordict, state)
-        step_reward, final, terms, success, failure, memory = self._evaluator()(
-            state, action, next_state, memory, remaining, done.reshape(state.shape[:-1])
+        reward, step_reward, final, success, failure, terminated, done, memory, terms = self._evaluator()(
+            state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
         )
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
             stored = next_tensordict.get(self.reward_key, None)
             reward_dtype = state.dtype if stored is None else stored.dtype
-        shape = done.shape
-        next_tensordict.set(self.reward_key, (step_reward + final).reshape(shape).to(reward_dtype))
-        success = success.reshape(shape)
-        failure = failure.reshape(shape)
-        ended = success | failure
-        next_tensordict.set(self.success_key, success)
-        next_tensordict.set(self.failure_key, failure)
-        if terminated is not None:
-            next_tensordict.set("terminated", terminated | ended)
-        next_tensordict.set("done", done | ended)
+        next_tensordict.set(self.reward_key, reward.reshape(shape).to(reward_dtype))
+        next_tensordict.set(self.success_key, success.reshape(shape))
+        next_tensordict.set(self.failure_key, failure.reshape(shape))
+        if "terminated" in next_tensordict.keys():
+            next_tensordict.set("terminated", terminated.reshape(shape))
+        next_tensordict.set("done", done.reshape(shape))
         if not offline:
             next_tensordict.set(self.memory_key, memory)
         if self.log_terms:

@@ -10,14 +10,21 @@ per-environment memory is an explicit TensorDict, passed in and returned::
     done = task.is_done(state, memory)                    # success | failure
     final, memory = task.final_reward(state, memory, remaining_steps, done)
 
-The public methods validate their inputs (shapes, dtypes; never values) and call the private
-``_``-methods, which composite tasks call on their children without validating again.
+and, for a whole transition at once (each quantity evaluated once)::
+
+    out = task.transition(state, action, next_state, memory, remaining_steps,
+                          terminated=None, truncated=None, reward_on="next")
+
+The public methods validate their inputs (shapes, dtypes, the memory's layout; never values) and
+call the private ``_``-methods, which composite tasks call on their children without validating
+again. :meth:`Task._transition` is the one implementation of a transition: the
+:class:`~torchtasks.transforms.TaskTransform` (online, offline and compiled) runs it too.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from typing import Any
+from typing import Any, Literal
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -25,13 +32,35 @@ from torch import nn
 
 from torchtasks._checks import cast_like, check_input, check_same_batch
 from torchtasks.spaces import EnvSpec
-from torchtasks.tasks.memory import make_memory
+from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
+from torchtasks.tasks.output import TaskOutput
 
-__all__ = ["Task", "TaskWrapper", "all_tasks"]
+__all__ = ["Task", "TaskOutput", "TaskWrapper", "all_tasks"]
+
+RewardOn = Literal["next", "state"]
+
+#: what :meth:`Task._transition` returns, in this order
+TransitionTuple = tuple[
+    torch.Tensor,  # reward
+    torch.Tensor,  # step_reward
+    torch.Tensor,  # final_reward
+    torch.Tensor,  # success
+    torch.Tensor,  # failure
+    torch.Tensor,  # terminated
+    torch.Tensor,  # done
+    TensorDictBase,  # memory
+    dict[str, torch.Tensor],  # terms
+]
 
 
-def _false(state: torch.Tensor) -> torch.Tensor:
-    return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
+def _check_flag_argument(flag: object, name: str, batch: torch.Size) -> None:
+    if flag is None:
+        return
+    if not isinstance(flag, torch.Tensor) or flag.dtype != torch.bool:
+        got = f"a {flag.dtype} tensor" if isinstance(flag, torch.Tensor) else type(flag).__name__
+        raise TypeError(f"{name} must be None or a bool tensor of shape {tuple(batch)}, got {got}")
+    if flag.shape != batch:
+        raise ValueError(f"{name} must have the batch shape {tuple(batch)}, got {tuple(flag.shape)}")
 
 
 class Task(nn.Module):
@@ -109,6 +138,16 @@ class Task(nn.Module):
         check_input(action, "action", self.action_size)
         check_same_batch(state, action, "state", "action")
 
+    @property
+    def memory_layout(self) -> MemoryLayout:
+        """The keys of this task's memory (nested for the memory of sub-tasks), fixed by the task tree."""
+        layout = self.__dict__.get("_memory_layout")
+        if layout is None:
+            probe = torch.zeros(1, self.state_size, dtype=self.state_low.dtype, device=self.state_low.device)
+            layout = memory_layout(self._reset(probe, {}))
+            self.__dict__["_memory_layout"] = layout
+        return layout
+
     def _check_memory(self, state: torch.Tensor, memory: TensorDictBase) -> None:
         if not isinstance(memory, TensorDictBase):
             raise TypeError(f"memory must be the TensorDict returned by reset(), got {type(memory).__name__}")
@@ -117,6 +156,34 @@ class Task(nn.Module):
                 f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
                 f"{tuple(state.shape[:-1])}; call reset() with a state of the same batch shape"
             )
+        check_memory_layout(memory, self.memory_layout, type(self).__name__)
+
+    def _check_transition(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        next_state: torch.Tensor,
+        memory: TensorDictBase,
+        terminated: torch.Tensor | None,
+        truncated: torch.Tensor | None,
+        reward_on: str,
+    ) -> None:
+        """Validate the arguments of :meth:`transition` (shapes, dtypes and the memory's layout; once per call)."""
+        self._check_state(state)
+        self._check_action(state, action)
+        check_input(next_state, "next_state", self.state_size)
+        if next_state.shape != state.shape:
+            raise ValueError(
+                f"next_state must have the shape of state {tuple(state.shape)}, got {tuple(next_state.shape)}"
+            )
+        if next_state.dtype != state.dtype:
+            raise TypeError(f"next_state must have the dtype of state ({state.dtype}), got {next_state.dtype}")
+        self._check_memory(state, memory)
+        batch = state.shape[:-1]
+        _check_flag_argument(terminated, "terminated", batch)
+        _check_flag_argument(truncated, "truncated", batch)
+        if reward_on not in ("next", "state"):
+            raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
     @staticmethod
     def _as_remaining(remaining_steps: int | torch.Tensor, state: torch.Tensor) -> torch.Tensor:
@@ -228,29 +295,97 @@ class Task(nn.Module):
         self._check_done(done, state)
         return self._final_reward(state, memory, self._as_remaining(remaining_steps, state), done)
 
-    def forward(
+    def transition(
         self,
         state: torch.Tensor,
         action: torch.Tensor,
         next_state: torch.Tensor,
         memory: TensorDictBase,
         remaining_steps: int | torch.Tensor = 0,
+        *,
+        terminated: torch.Tensor | None = None,
         truncated: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, TensorDictBase]:
-        """Evaluate one whole transition in Pyrado's order: step reward on ``state``, the rest on ``next_state``.
+        reward_on: RewardOn = "next",
+    ) -> TaskOutput:
+        """Evaluate one transition ``(s_t, a_t, s_{t+1})`` for a batch of environments: the one call per step.
 
-        Returns ``(reward, success, failure, memory)`` where ``reward`` includes the final reward
-        of environments whose episode ends (success, failure, or ``truncated``).
+        The step reward is evaluated on ``next_state`` (``reward_on="next"``, the Gymnasium
+        convention) or on ``state`` (``"state"``, Pyrado's order); success, failure and the final
+        reward on ``next_state``. The episode ends where the task succeeds or fails, where the
+        env's own ``terminated`` holds, or where ``truncated`` holds (a time limit); the final
+        reward is paid there, once per episode. Each quantity is evaluated once, and the numbers
+        equal those of the fine-grained calls (:meth:`step_reward`, :meth:`has_succeeded`,
+        :meth:`has_failed`, :meth:`final_reward`) made in that order.
+
+        Args:
+            state: ``s_t``, ``[*B, n]`` (float32 or float64).
+            action: ``a_t``, ``[*B, m]``.
+            next_state: ``s_{t+1}``, the shape and dtype of ``state``.
+            memory: the task memory from :meth:`reset` or the previous call's ``out.memory``.
+            remaining_steps: steps left before the time limit (int, or an int tensor broadcastable
+                to ``[*B]``; 0 when there is no limit, as in Pyrado). Only time-dependent final
+                rewards read it.
+            terminated: the env's own termination, ``bool[*B]``, or None.
+            truncated: truncation (time limit), ``bool[*B]``, or None.
+            reward_on: ``"next"`` or ``"state"``: the state the step reward is evaluated on.
+
+        Returns:
+            a :class:`TaskOutput` (reward, step and final reward, flags, memory, named terms).
+
+        Example:
+            >>> import functools, torch
+            >>> from torchtasks.rewards import QuadraticErrorReward
+            >>> from torchtasks.spaces import Box, EnvSpec
+            >>> from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
+            >>> spec = EnvSpec(Box([-1.0], [1.0]), 1)
+            >>> task = FinalRewardTask(DesiredStateTask(spec, [0.5], QuadraticErrorReward([1.0], [0.0]),
+            ...     success=functools.partial(proximity_succeeded, threshold=0.1)), factor=10.0)
+            >>> state = torch.zeros(3, 1)
+            >>> memory = task.reset(state)
+            >>> next_state = torch.tensor([[0.5], [2.0], [0.0]])
+            >>> out = task.transition(state, torch.zeros(3, 1), next_state, memory)
+            >>> out.reward
+            tensor([ 10.0000, -12.2500,  -0.2500])
+            >>> out.success, out.failure, out.done
+            (tensor([ True, False, False]), tensor([False,  True, False]), tensor([ True,  True, False]))
         """
-        reward, memory = self.step_reward(state, action, memory, remaining_steps)
+        self._check_transition(state, action, next_state, memory, terminated, truncated, reward_on)
+        remaining = self._as_remaining(remaining_steps, state)
+        values = self._transition(state, action, next_state, memory, remaining, terminated, truncated, reward_on)
+        return TaskOutput(*values)
+
+    forward = transition
+
+    def _transition(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        next_state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+        truncated: torch.Tensor | None = None,
+        reward_on: RewardOn = "next",
+        with_terms: bool = True,
+    ) -> TransitionTuple:
+        """The one implementation of a transition, without checks (pure tensor code; compiles with fullgraph).
+
+        ``with_terms=False`` skips the named terms (returned empty) where nobody reads them.
+        """
+        source = next_state if reward_on == "next" else state
+        if with_terms and self.term_names:
+            terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps)
+        else:
+            terms = {}
+            step_reward, memory = self._step_reward(source, action, memory, remaining_steps)
         success = self._has_succeeded(next_state, memory)
         failure = self._has_failed(next_state, memory)
-        done = success | failure
-        if truncated is not None:
-            done = done | truncated
-        remaining = self._as_remaining(remaining_steps, state)
-        final, memory = self._final_reward(next_state, memory, remaining, done, (success, failure))
-        return reward + final, success, failure, memory
+        ended = success | failure
+        if terminated is not None:
+            ended = ended | terminated
+        done = ended if truncated is None else ended | truncated
+        final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
+        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms
 
     # ------------------------------------------------------------------- implementation
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
