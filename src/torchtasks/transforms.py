@@ -285,7 +285,7 @@ class TaskTransform(Transform):
         self._setup()
         if not self.__dict__["_needs_remaining"]:
             # no limit (Pyrado passes 0), or no task of the tree reads it: skip the arithmetic
-            return torch.zeros((), dtype=torch.long, device=reference.device)
+            return self.task.no_remaining_steps
         max_steps = self.__dict__["_max_steps"]
         step_count = next_tensordict.get("step_count")
         return max_steps - step_count.reshape(reference.shape[:-1])

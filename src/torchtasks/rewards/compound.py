@@ -8,6 +8,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction, empty_memory, sum_terms
 
 __all__ = ["CompoundReward"]
@@ -99,7 +100,7 @@ class CompoundReward(RewardFunction):
             memory = memory.copy()
         for name, reward in self.rewards.items():
             if reward.stateful:
-                values[name], sub_memory = reward.step(state, action, memory.get(name))
+                values[name], sub_memory = reward.step(state, action, read(memory, name))
                 memory.set(name, sub_memory)
             else:
                 values[name] = reward(state, action)
@@ -114,10 +115,10 @@ class CompoundReward(RewardFunction):
             for name, reward in self.rewards.items():
                 values[name] = reward._value(state, action)
             return values, memory
-        entries = dict(memory.items())
+        entries = copy_entries(memory)
         for name, reward in self.rewards.items():
             if reward.stateful:
-                values[name], entries[name] = reward._step(state, action, memory.get(name))
+                values[name], entries[name] = reward._step(state, action, read(memory, name))
             else:
                 values[name] = reward._value(state, action)
         return values, TensorDict._new_unsafe(entries, batch_size=memory.batch_size)

@@ -11,6 +11,7 @@ import torch
 from tensordict import TensorDict
 
 from torchtasks._checks import check_finite_scalar, check_index, check_input, check_same_batch
+from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
@@ -70,7 +71,7 @@ class _ForwardProgressReward(RewardFunction):
 
     def _common_terms(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         x = self._x(state)
-        velocity = (x - memory.get("x_last")) / self.dt
+        velocity = (x - read(memory, "x_last")) / self.dt
         return {
             "forward": self.forward_reward_weight * velocity,
             "ctrl": -self.ctrl_cost_weight * (action * action).sum(dim=-1),

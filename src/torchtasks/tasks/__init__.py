@@ -8,6 +8,7 @@ from torchtasks.tasks.flipping import FlippingTask
 from torchtasks.tasks.goalless import ConditionTask, DesiredSpaceTask, GoallessTask, OptimizationTask
 from torchtasks.tasks.leaf import RewardTask
 from torchtasks.tasks.masked import MaskedTask
+from torchtasks.tasks.output import TaskOutput
 from torchtasks.tasks.parallel import ParallelTasks
 from torchtasks.tasks.sequential import SequentialTasks
 from torchtasks.tasks.success import never_succeeded, proximity_succeeded
@@ -29,6 +30,7 @@ __all__ = [
     "RewardTask",
     "SequentialTasks",
     "Task",
+    "TaskOutput",
     "TaskWrapper",
     "all_tasks",
     "never_succeeded",

@@ -31,7 +31,8 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
 from torchtasks._checks import cast_like, check_input, check_same_batch
-from torchtasks.spaces import EnvSpec
+from torchtasks._memory import copy_entries, read
+from torchtasks.spaces import EnvSpec, rows_outside
 from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
 
@@ -97,6 +98,8 @@ class Task(nn.Module):
         self.register_buffer("state_low", spec.state_space.low.clone())
         self.register_buffer("state_high", spec.state_space.high.clone())
         self._state_bounded = spec.state_space.is_bounded
+        # the remaining steps handed to trees that do not read them (follows the task's device)
+        self.register_buffer("no_remaining_steps", torch.zeros((), dtype=torch.long), persistent=False)
 
     # ----------------------------------------------------------------------------- properties
     @property
@@ -185,11 +188,20 @@ class Task(nn.Module):
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
-    @staticmethod
-    def _as_remaining(remaining_steps: int | torch.Tensor, state: torch.Tensor) -> torch.Tensor:
+    def _static_facts(self) -> tuple[bool, bool]:
+        """``(has named terms, reads remaining steps)`` of this task tree: fixed at construction, cached."""
+        facts = self.__dict__.get("_facts")
+        if facts is None:
+            facts = (bool(self.term_names), self.uses_remaining_steps)
+            self.__dict__["_facts"] = facts
+        return facts
+
+    def _as_remaining(self, remaining_steps: int | torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         if isinstance(remaining_steps, bool):
             raise TypeError("remaining_steps must be an int or an integer tensor, got a bool")
         if isinstance(remaining_steps, int):
+            if not self._static_facts()[1]:  # nobody reads it: no tensor to build
+                return self.no_remaining_steps
             return torch.tensor(remaining_steps, device=state.device)
         if not isinstance(remaining_steps, torch.Tensor):
             raise TypeError(f"remaining_steps must be an int or a tensor, got {type(remaining_steps).__name__}")
@@ -373,7 +385,7 @@ class Task(nn.Module):
         ``with_terms=False`` skips the named terms (returned empty) where nobody reads them.
         """
         source = next_state if reward_on == "next" else state
-        if with_terms and self.term_names:
+        if with_terms and self._static_facts()[0]:
             terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps)
         else:
             terms = {}
@@ -407,10 +419,8 @@ class Task(nn.Module):
 
     def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         if not self._state_bounded:
-            return torch.isnan(state).any(dim=-1)
-        low = cast_like(self.state_low, state)
-        high = cast_like(self.state_high, state)
-        return ~((state >= low) & (state <= high)).all(dim=-1)
+            return torch.isnan(state).count_nonzero(dim=-1) != 0
+        return rows_outside(state, cast_like(self.state_low, state), cast_like(self.state_high, state))
 
     def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self._has_succeeded(state, memory) | self._has_failed(state, memory)
@@ -452,7 +462,7 @@ class TaskWrapper(Task):
 
     Example:
         >>> from torchtasks.rewards import ConstantReward
-        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.spaces import EnvSpec, rows_outside
         >>> from torchtasks.tasks import GoallessTask, TaskWrapper
         >>> wrapper = TaskWrapper(GoallessTask(EnvSpec(2, 1), ConstantReward(1.0)))
         >>> wrapper.wrapped_task.__class__.__name__
@@ -484,7 +494,7 @@ class TaskWrapper(Task):
     @staticmethod
     def _replace(memory: TensorDictBase, **entries: Any) -> TensorDictBase:
         """Return a shallow copy of ``memory`` with ``entries`` replaced."""
-        values = dict(memory.items())
+        values = copy_entries(memory)
         values.update(entries)
         return make_memory(values, memory.batch_size)
 
@@ -494,30 +504,30 @@ class TaskWrapper(Task):
 
     def _with_inner(self, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
         """``memory`` with the wrapped task's memory replaced (no copy when it did not change)."""
-        if inner is memory.get("wrapped"):
+        if inner is read(memory, "wrapped"):
             return memory
         return self._replace(memory, wrapped=inner)
 
     def _step_reward(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        reward, inner = self.wrapped_task._step_reward(state, action, memory.get("wrapped"), remaining_steps)
+        reward, inner = self.wrapped_task._step_reward(state, action, read(memory, "wrapped"), remaining_steps)
         return reward, self._after_step(reward, memory, inner)
 
     def _step_terms(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        terms, reward, inner = self.wrapped_task._step_terms(state, action, memory.get("wrapped"), remaining_steps)
+        terms, reward, inner = self.wrapped_task._step_terms(state, action, read(memory, "wrapped"), remaining_steps)
         return terms, reward, self._after_step(reward, memory, inner)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_succeeded(state, memory.get("wrapped"))
+        return self.wrapped_task._has_succeeded(state, read(memory, "wrapped"))
 
     def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_failed(state, memory.get("wrapped"))
+        return self.wrapped_task._has_failed(state, read(memory, "wrapped"))
 
     def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._is_done(state, memory.get("wrapped"))
+        return self.wrapped_task._is_done(state, read(memory, "wrapped"))
 
     def _final_reward(
         self,
@@ -530,7 +540,7 @@ class TaskWrapper(Task):
         # a wrapper's success and failure are its wrapped task's, so the flags pass down unchanged
         own, memory = self._compute_final_reward(state, memory, remaining_steps, done, flags)
         inner_reward, inner = self.wrapped_task._final_reward(
-            state, memory.get("wrapped"), remaining_steps, done, flags
+            state, read(memory, "wrapped"), remaining_steps, done, flags
         )
         return own + inner_reward, self._with_inner(memory, inner)
 
@@ -543,7 +553,7 @@ def all_tasks(task: Task) -> Iterator[Task]:
 
     Example:
         >>> from torchtasks.rewards import ConstantReward
-        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.spaces import EnvSpec, rows_outside
         >>> from torchtasks.tasks import FinalRewardTask, GoallessTask, all_tasks
         >>> task = FinalRewardTask(GoallessTask(EnvSpec(1, 1), ConstantReward(0.0)))
         >>> [type(t).__name__ for t in all_tasks(task)]

@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
+from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import make_memory, where_memory
 
@@ -93,9 +94,9 @@ class CompositeTask(Task):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         """Sum of the sub-tasks' own final rewards, judged on the final state (Pyrado's order)."""
         total = state.new_zeros(state.shape[:-1])
-        entries = dict(memory.items())
+        entries = copy_entries(memory)
         for key, task in zip(self._keys, self.tasks, strict=True):
-            value, entries[key] = task._compute_final_reward(state, memory.get(key), remaining_steps, done)
+            value, entries[key] = task._compute_final_reward(state, read(memory, key), remaining_steps, done)
             total = total + value
         return total, make_memory(entries, memory.batch_size)
 

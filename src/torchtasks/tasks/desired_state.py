@@ -10,6 +10,7 @@ import torch
 from tensordict import TensorDictBase
 
 from torchtasks._checks import as_constant, cast_like
+from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.leaf import RewardTask
@@ -93,7 +94,7 @@ class DesiredStateTask(RewardTask):
 
     def state_error(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         """Return ``state_des - state`` (``[*B, n]``)."""
-        return memory.get("state_des") - state
+        return read(memory, "state_des") - state
 
     def _reward_inputs(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase
@@ -169,7 +170,7 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
         self.register_buffer("wrap_mask", mask)
 
     def state_error(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        error = memory.get("state_des") - state
+        error = read(memory, "state_des") - state
         period = cast_like(self.modulation, error)
         wrapped = error - period * torch.floor((error + 0.5 * period) / period)
         return torch.where(self.wrap_mask, wrapped, error)

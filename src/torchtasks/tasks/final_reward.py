@@ -7,7 +7,8 @@ from typing import NamedTuple
 import torch
 from tensordict import TensorDictBase
 
-from torchtasks._checks import check_finite_scalar
+from torchtasks._checks import cast_like, check_finite_scalar
+from torchtasks._memory import read
 from torchtasks.tasks.base import Task, TaskWrapper
 
 __all__ = ["BestStateFinalRewardTask", "FinalRewardMode", "FinalRewardTask"]
@@ -111,6 +112,12 @@ class FinalRewardTask(TaskWrapper):
             raise ValueError(f"unsupported combination of FinalRewardMode flags: {mode}")
         self.mode = mode
         self.factor = abs(check_finite_scalar(factor, "factor"))
+        # the values paid on success and on failure when they depend on neither the state nor the time:
+        # 0-d constants, so a step makes no Python-scalar tensor ops
+        on_success = 0.0 if mode.always_negative else self.factor
+        on_failure = 0.0 if mode.always_positive else -self.factor
+        self.register_buffer("success_value", torch.tensor(on_success, dtype=torch.float64), persistent=False)
+        self.register_buffer("failure_value", torch.tensor(on_failure, dtype=torch.float64), persistent=False)
 
     @property
     def uses_remaining_steps(self) -> bool:
@@ -119,11 +126,16 @@ class FinalRewardTask(TaskWrapper):
     def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
         return {"paid": torch.zeros(init_state.shape[:-1], dtype=torch.bool, device=init_state.device)}
 
-    def _magnitudes(
+    def _outcome_values(
         self, state: torch.Tensor, inner: TensorDictBase, remaining_steps: torch.Tensor
-    ) -> torch.Tensor | float:
-        """Return the size of the reward before its sign: ``k``, ``rem``, ``k·r_s`` or ``rem·r_s``."""
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Return the final reward on success and on failure (0-d constants, or ``[*B]`` when they vary).
+
+        Magnitudes before the sign: ``k``, ``rem``, ``k·r_s`` or ``rem·r_s`` (see :class:`FinalRewardMode`).
+        """
         mode = self.mode
+        if not (mode.time_dependent or mode.state_dependent):
+            return cast_like(self.success_value, state), cast_like(self.failure_value, state)
         if mode.time_dependent:
             magnitude: torch.Tensor | float = remaining_steps.to(state.dtype)
         else:
@@ -132,7 +144,9 @@ class FinalRewardTask(TaskWrapper):
             zero_action = state.new_zeros((*state.shape[:-1], self.action_size))
             step_value, _ = self.wrapped_task._step_reward(state, zero_action, inner, remaining_steps)
             magnitude = magnitude * step_value.abs()
-        return magnitude
+        zero = state.new_zeros(())
+        magnitude = zero + magnitude
+        return (zero if mode.always_negative else magnitude), (zero if mode.always_positive else -magnitude)
 
     def _compute_final_reward(
         self,
@@ -142,17 +156,16 @@ class FinalRewardTask(TaskWrapper):
         done: torch.Tensor,
         flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        inner = memory.get("wrapped")
+        inner = read(memory, "wrapped")
         if flags is None:
             flags = (self.wrapped_task._has_succeeded(state, inner), self.wrapped_task._has_failed(state, inner))
         succeeded, failed = flags
-        magnitude = self._magnitudes(state, inner, remaining_steps)
-        zero = state.new_zeros(state.shape[:-1])
-        on_success = zero if self.mode.always_negative else zero + magnitude
-        on_failure = zero if self.mode.always_positive else zero - magnitude
+        on_success, on_failure = self._outcome_values(state, inner, remaining_steps)
+        zero = torch.zeros((), dtype=state.dtype, device=state.device)
         value = torch.where(failed, on_failure, torch.where(succeeded, on_success, zero))
-        paid = memory.get("paid")
-        value = torch.where(done & ~paid, value, zero)
+        paid = read(memory, "paid")
+        # pay where the episode ends and nothing was paid yet (for bools, done > paid is done & ~paid)
+        value = torch.where(done > paid, value, zero)
         return value, self._replace(memory, paid=paid | done)
 
 
@@ -195,7 +208,7 @@ class BestStateFinalRewardTask(TaskWrapper):
         }
 
     def _after_step(self, reward: torch.Tensor, memory: TensorDictBase, inner: TensorDictBase) -> TensorDictBase:
-        best = memory.get("best")
+        best = read(memory, "best")
         best = torch.where(reward > best, reward.to(best.dtype), best)
         return self._replace(memory, wrapped=inner, best=best)
 
@@ -207,7 +220,7 @@ class BestStateFinalRewardTask(TaskWrapper):
         done: torch.Tensor,
         flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        paid = memory.get("paid")
-        best = memory.get("best").to(state.dtype)
+        paid = read(memory, "paid")
+        best = read(memory, "best").to(state.dtype)
         value = torch.where(done & ~paid, best * self.factor, state.new_zeros(state.shape[:-1]))
         return value, self._replace(memory, paid=paid | done)

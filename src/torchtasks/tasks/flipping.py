@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDictBase
 
 from torchtasks._checks import check_finite_scalar
+from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.leaf import RewardTask
@@ -108,7 +109,7 @@ class FlippingTask(RewardTask):
 
     def _closest_target(self, state: torch.Tensor, memory: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor]:
         """Return ``(target, wrapped error)`` of the target closer to the state."""
-        last = memory.get("last_angle")
+        last = read(memory, "last_angle")
         angle = state[..., 0]
         up = last + self.angle_delta
         down = last - self.angle_delta
@@ -122,10 +123,10 @@ class FlippingTask(RewardTask):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         target, error = self._closest_target(state, memory)
         value = self.reward._value(error.unsqueeze(-1), -action)
-        held = memory.get("held")
+        held = read(memory, "held")
         flipped = error.abs() <= self.angle_tol
-        entries = dict(memory.items())
-        entries["last_angle"] = torch.where(flipped, target, memory.get("last_angle"))
+        entries = copy_entries(memory)
+        entries["last_angle"] = torch.where(flipped, target, read(memory, "last_angle"))
         entries["held"] = torch.where(flipped, held + value, held)
         if not self.endless:
             entries["flipped"] = flipped
@@ -136,4 +137,4 @@ class FlippingTask(RewardTask):
             return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
         # a flip recorded by this step's reward (post-step timing) counts, as does a state at a target
         _, error = self._closest_target(state, memory)
-        return memory.get("flipped") | (error.abs() <= self.angle_tol)
+        return read(memory, "flipped") | (error.abs() <= self.angle_tol)

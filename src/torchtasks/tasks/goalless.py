@@ -11,7 +11,7 @@ from torchtasks._checks import cast_like
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.constant import ConstantReward
 from torchtasks.rewards.state_function import StateFunctionReward
-from torchtasks.spaces import Box, EnvSpec
+from torchtasks.spaces import Box, EnvSpec, rows_outside
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.desired_state import check_flag
 from torchtasks.tasks.leaf import RewardTask
@@ -53,9 +53,7 @@ class DesiredSpaceTask(RewardTask):
         self.register_buffer("space_high", space_des.high.clone())
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        low = cast_like(self.space_low, state)
-        high = cast_like(self.space_high, state)
-        return ((state >= low) & (state <= high)).all(dim=-1)
+        return ~rows_outside(state, cast_like(self.space_low, state), cast_like(self.space_high, state))
 
 
 class GoallessTask(RewardTask):

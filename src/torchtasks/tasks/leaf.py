@@ -7,6 +7,7 @@ from typing import Any
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction, sum_terms
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.base import Task
@@ -70,8 +71,8 @@ class RewardTask(Task):
         inputs = self._reward_inputs(state, action, memory)
         if not self.reward.stateful:
             return self.reward._value(*inputs), memory
-        value, reward_memory = self.reward._step(*inputs, memory.get("reward"))
-        entries = dict(memory.items())
+        value, reward_memory = self.reward._step(*inputs, read(memory, "reward"))
+        entries = copy_entries(memory)
         entries["reward"] = reward_memory
         return value, make_memory(entries, memory.batch_size)
 
@@ -95,8 +96,8 @@ class RewardTask(Task):
         if not self.reward.stateful:
             terms, _ = step_terms(*inputs, memory)
         else:
-            terms, reward_memory = step_terms(*inputs, memory.get("reward"))
-            entries = dict(memory.items())
+            terms, reward_memory = step_terms(*inputs, read(memory, "reward"))
+            entries = copy_entries(memory)
             entries["reward"] = reward_memory
             memory = make_memory(entries, memory.batch_size)
         return terms, sum_terms(terms), memory

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import NamedTuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+
+from torchtasks._memory import make_memory, read
 
 __all__ = ["MemoryLayout", "check_memory_layout", "make_memory", "memory_layout", "where_memory"]
 
@@ -21,15 +22,6 @@ class MemoryLayout(NamedTuple):
         """The layout as nested braces, e.g. ``{paid, wrapped: {state_des}}``."""
         parts = [f"{key}: {self.nested[key].describe()}" if key in self.nested else key for key in sorted(self.keys)]
         return "{" + ", ".join(parts) + "}"
-
-
-def make_memory(entries: Mapping[str, torch.Tensor | TensorDictBase], batch_size: torch.Size) -> TensorDict:
-    """Return a TensorDict of ``entries`` with ``batch_size`` (entries are trusted to have it).
-
-    Task code builds memory many times per step; this skips TensorDict's per-entry validation,
-    which the tasks guarantee by construction.
-    """
-    return TensorDict._new_unsafe(dict(entries), batch_size=batch_size)
 
 
 def _expand_condition(condition: torch.Tensor, value: torch.Tensor) -> torch.Tensor:
@@ -47,7 +39,7 @@ def where_memory(condition: torch.Tensor, new: TensorDictBase, old: TensorDictBa
         return new
     entries: dict[str, torch.Tensor | TensorDictBase] = {}
     for key, value in new.items():
-        other = old.get(key)
+        other = read(old, key)
         if isinstance(value, TensorDictBase):
             entries[key] = where_memory(condition, value, other)
         else:
@@ -80,7 +72,7 @@ def _mismatch(memory: TensorDictBase, layout: MemoryLayout, path: tuple[str, ...
             details.append(f"unexpected key(s) {extra}")
         return f"{where} has {' and '.join(details)}"
     for key, sub in layout.nested.items():
-        value = memory.get(key)
+        value = read(memory, key)
         if not isinstance(value, TensorDictBase):
             return f"{where}[{key!r}] must be a TensorDict (the memory of a sub-task), got {type(value).__name__}"
         found = _mismatch(value, sub, (*path, key))
@@ -93,7 +85,7 @@ def _matches(memory: TensorDictBase, layout: MemoryLayout) -> bool:
     if _top_keys(memory) != layout.keys:
         return False
     for key, sub in layout.nested.items():
-        value = memory.get(key)
+        value = read(memory, key)
         if not isinstance(value, TensorDictBase) or not _matches(value, sub):
             return False
     return True

@@ -7,6 +7,7 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDictBase
 
+from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.memory import make_memory
@@ -63,18 +64,18 @@ class ParallelTasks(CompositeTask):
     def _step_reward(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        succeeded = list(memory.get("succeeded").unbind(-1))
-        failed = list(memory.get("failed").unbind(-1))
-        held = list(memory.get("held").unbind(-1)) if self.hold_reward_when_done else None
+        succeeded = list(read(memory, "succeeded").unbind(-1))
+        failed = list(read(memory, "failed").unbind(-1))
+        held = list(read(memory, "held").unbind(-1)) if self.hold_reward_when_done else None
         zero = state.new_zeros(state.shape[:-1])
         total = zero
-        entries = dict(memory.items())
+        entries = copy_entries(memory)
         # first pass: step rewards of the active sub-tasks (and held rewards of done ones)
         active: list[torch.Tensor] = []
         stepped: list[TensorDictBase] = []
         for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
             is_active = ~(succeeded[i] | failed[i])
-            value, sub_memory = task._step_reward(state, action, memory.get(key), remaining_steps)
+            value, sub_memory = task._step_reward(state, action, read(memory, key), remaining_steps)
             total = total + torch.where(is_active, value, zero)
             if held is not None:
                 total = total + torch.where(is_active, zero, held[i])
@@ -91,7 +92,7 @@ class ParallelTasks(CompositeTask):
                 value, after_hold = task._step_reward(state, action, sub_memory, remaining_steps)
                 held[i] = torch.where(newly_done, value, held[i])
                 sub_memory = self._gate(newly_done, after_hold, sub_memory)
-            entries[key] = self._gate(active[i], sub_memory, memory.get(key))
+            entries[key] = self._gate(active[i], sub_memory, read(memory, key))
         entries["succeeded"] = torch.stack(succeeded, dim=-1)
         entries["failed"] = torch.stack(failed, dim=-1)
         if held is not None:
@@ -99,9 +100,9 @@ class ParallelTasks(CompositeTask):
         return total, make_memory(entries, memory.batch_size)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        succeeded = memory.get("succeeded")
+        succeeded = read(memory, "succeeded")
         return succeeded.any(dim=-1) if self.easily_satisfied else succeeded.all(dim=-1)
 
     def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        failed = memory.get("failed")
+        failed = read(memory, "failed")
         return failed.all(dim=-1) if self.allow_failures else failed.any(dim=-1)

@@ -8,6 +8,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
+from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.memory import make_memory
@@ -87,20 +88,20 @@ class SequentialTasks(CompositeTask):
     def _step_reward(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        index = memory.get("index")
-        succeeded = list(memory.get("succeeded").unbind(-1))
-        failed = list(memory.get("failed").unbind(-1))
-        held = list(memory.get("held").unbind(-1)) if self.hold_reward_when_done else None
+        index = read(memory, "index")
+        succeeded = list(read(memory, "succeeded").unbind(-1))
+        failed = list(read(memory, "failed").unbind(-1))
+        held = list(read(memory, "held").unbind(-1)) if self.hold_reward_when_done else None
         zero = state.new_zeros(state.shape[:-1])
         total = zero
         if held is not None:
             for i in range(self.num_tasks):
                 total = total + torch.where(succeeded[i] | failed[i], held[i], zero)
         new_index = index
-        entries = dict(memory.items())
+        entries = copy_entries(memory)
         for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
             active = (index == i) & ~(succeeded[i] | failed[i])
-            old_memory = memory.get(key)
+            old_memory = read(memory, key)
             value, sub_memory = task._step_reward(state, action, old_memory, remaining_steps)
             total = total + torch.where(active, value, zero)
             flags = (task._has_succeeded(state, sub_memory), task._has_failed(state, sub_memory))
@@ -121,4 +122,4 @@ class SequentialTasks(CompositeTask):
         return total, make_memory(entries, memory.batch_size)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return memory.get("succeeded").all(dim=-1)
+        return read(memory, "succeeded").all(dim=-1)
