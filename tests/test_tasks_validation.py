@@ -875,3 +875,42 @@ def test_memory_does_not_alias_the_callers_tensors(name):
     action.add_(1.0)
     for key, value in memory_leaves(snapshot).items():
         assert torch.equal(memory.get(key), value), ("step", key)
+
+
+@pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
+def test_half_precision_is_refused_by_tasks_rewards_and_the_transform(dtype):
+    from torchrl.envs import Compose, DTypeCastTransform, TransformedEnv
+
+    from torchtasks.envs import PendulumEnv
+    from torchtasks.transforms import TaskTransform
+
+    task = FinalRewardTask(DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 1.0], [0.1])))
+    state = torch.zeros(3, 2)
+    memory = task.reset(state)
+    with pytest.raises(TypeError, match=r"state must be a float32 or float64 tensor .*half precision"):
+        task.transition(state.to(dtype), torch.zeros(3, 1), state.to(dtype), memory)
+    with pytest.raises(TypeError, match=r"next_state must be a float32 or float64"):
+        task.transition(state, torch.zeros(3, 1), state.to(dtype), memory)
+    with pytest.raises(TypeError, match=r"action must be a float32 or float64"):
+        task.step_reward(state, torch.zeros(3, 1, dtype=dtype), memory)
+    with pytest.raises(TypeError, match=r"error_state must be a float32 or float64"):
+        QuadraticErrorReward([1.0, 1.0])(state.to(dtype), None)
+    cast = DTypeCastTransform(torch.float32, dtype, in_keys=["observation"])
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(cast, TaskTransform(task)))
+    with pytest.raises(TypeError, match=r"TaskTransform: the state entries \['observation'\] have dtype"):
+        env.reset()
+
+
+def test_memory_of_another_task_tree_names_the_missing_and_unexpected_keys():
+    goal = functools.partial(proximity_succeeded, threshold=0.1)
+    leaf = [DesiredStateTask(EnvSpec(1, 1), [float(g)], ConstantReward(-1.0), goal) for g in range(3)]
+    two, three = ParallelTasks(leaf[:2]), ParallelTasks(leaf)
+    state = torch.zeros(4, 1)
+    with pytest.raises(ValueError, match=r"unexpected key\(s\) \['task2'\].*expects the layout"):
+        two.transition(state, torch.zeros(4, 1), state, three.reset(state))
+    memory = FinalRewardTask(leaf[0]).reset(state)
+    del memory["wrapped", "state_des"]
+    with pytest.raises(ValueError, match=r"memory\[\('wrapped',\)\] has missing key\(s\) \['state_des'\]"):
+        FinalRewardTask(leaf[0]).transition(state, torch.zeros(4, 1), state, memory)
+    with pytest.raises(ValueError, match=r"missing key\(s\) \['paid', 'wrapped'\]"):
+        FinalRewardTask(leaf[0]).has_succeeded(state, two.reset(state))

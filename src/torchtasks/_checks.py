@@ -12,6 +12,10 @@ import torch
 
 FLOAT64 = torch.float64
 
+#: floating dtypes that states, actions and errors may have (half precision is refused: an 11-bit
+#: mantissa cannot hold rewards, bounds and thresholds faithfully, e.g. 1000.0 + 0.3 == 1000.0)
+SUPPORTED_FLOATS = (torch.float32, torch.float64)
+
 
 def as_constant(value: object, name: str, *, ndim: Sequence[int] | None = None) -> torch.Tensor:
     """Return ``value`` as a float64 tensor (a constant of the model), rejecting NaN.
@@ -50,8 +54,9 @@ def check_input(x: object, name: str, size: int | None = None) -> torch.Tensor:
     """Check that ``x`` is a floating tensor ``[*B, size]`` and return it."""
     if not isinstance(x, torch.Tensor):
         raise TypeError(f"{name} must be a torch.Tensor of shape [*B, {size or 'n'}], got {type(x).__name__}")
-    if not x.is_floating_point():
-        raise TypeError(f"{name} must be a floating-point tensor, got dtype {x.dtype}")
+    if x.dtype not in SUPPORTED_FLOATS:
+        detail = "half precision is not supported; " if x.is_floating_point() else ""
+        raise TypeError(f"{name} must be a float32 or float64 tensor ({detail}cast it first), got dtype {x.dtype}")
     if x.ndim == 0:
         raise ValueError(f"{name} must have shape [*B, {size or 'n'}], got a 0-d tensor")
     if size is not None and x.shape[-1] != size:

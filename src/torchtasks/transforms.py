@@ -12,6 +12,7 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs.transforms import Compose, StepCounter, Transform
 from torchrl.envs.utils import make_composite_from_td
 
+from torchtasks._checks import SUPPORTED_FLOATS
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import where_memory
 
@@ -210,6 +211,11 @@ class TaskTransform(Transform):
                 )
             size += spec.shape[-1]
             dtype = spec.dtype if dtype is None else torch.promote_types(dtype, spec.dtype)
+        if dtype not in SUPPORTED_FLOATS:
+            raise TypeError(
+                f"TaskTransform: the state entries {self.state_keys} have dtype {dtype}; tasks evaluate float32 or "
+                "float64 states (cast the observation first, e.g. with torchrl's DTypeCastTransform)"
+            )
         if size != self.task.state_size:
             raise ValueError(
                 f"TaskTransform: the task reads states of size {self.task.state_size} but {self.state_keys} "
