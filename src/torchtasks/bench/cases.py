@@ -25,10 +25,10 @@ __all__ = ["BenchConfig", "make_t1", "make_t2", "make_t3"]
 class BenchConfig:
     """Sizes and constants shared by the task, the numpy loop and the hand-fused function."""
 
-    state_size: int = 6
-    action_size: int = 3
-    bound: float = 1.0
-    threshold: float = 0.25
+    state_size: int = 17
+    action_size: int = 6
+    bound: float = 3.0
+    threshold: float = 0.05
     factor: float = 100.0
     goals: tuple[float, ...] = (0.0, 0.4, -0.4)
 

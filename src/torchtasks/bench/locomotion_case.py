@@ -55,7 +55,10 @@ class HalfCheetahCase:
 
     def build(
         self, batch: int
-    ) -> tuple[Task, torch.Tensor, torch.Tensor, Callable[..., Any], tuple[Any, ...], Callable[[], object]]:
+    ) -> tuple[
+        Task, torch.Tensor, torch.Tensor, torch.Tensor, Callable[..., Any], tuple[Any, ...], Callable[[], object]
+    ]:
+        """``(task, state, action, next_state, fused function, its arguments, Pyrado loop step)``."""
         task = self.task()
         generator = torch.Generator().manual_seed(batch)
         x0 = torch.rand(batch, 1, generator=generator)
@@ -64,7 +67,7 @@ class HalfCheetahCase:
         truncated = torch.zeros(batch, dtype=torch.bool)
         x_last = x0[..., 0].clone()
         memory = task.reset(x0)
-        reward, _ = task.step_reward(state, action, memory)
+        reward = task.transition(x0, action, state, memory).reward
         expected, _, _ = fused_halfcheetah(state, action, truncated, x_last)
         if not torch.allclose(reward, expected, rtol=1e-5, atol=1e-5):
             raise AssertionError("T4: the hand-fused function does not compute what the task computes")
@@ -79,4 +82,4 @@ class HalfCheetahCase:
                 env.is_done(state_np[i])
             return rewards
 
-        return task, state, action, fused_halfcheetah, (state, action, truncated, x_last), loop_step
+        return task, x0, action, state, fused_halfcheetah, (state, action, truncated, x_last), loop_step
