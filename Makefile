@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: setup demo test lint docs bench clean
+.PHONY: setup demo test check-base-install lint docs bench clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -16,11 +16,15 @@ $(STAMP): pyproject.toml constraints.txt
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/torchtasks demo
+	$(BIN)/torchtasks demo --output runs/demo
 
 test: $(STAMP)
 	$(BIN)/ruff check src tests examples benchmarks
 	$(BIN)/python -m pytest -q -n 2 --dist loadgroup
+
+# the base install (no extras) in a fresh temporary venv: core import, `torchtasks list`, `torchtasks demo --quick`
+check-base-install:
+	bash .ci/check_base_install.sh $(PY)
 
 docs: $(STAMP)
 	$(BIN)/sphinx-build -W --keep-going -b html docs docs/_build/html

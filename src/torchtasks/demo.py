@@ -1,9 +1,18 @@
 """The ``torchtasks demo``: a swing-up task on the batched torch pendulum inside a TorchRL Collector.
 
 A classical controller (energy pumping, then a PD controller near the top; no learning) drives 64
-pendulums; the task decides rewards, successes and episode ends. The demo prints per-term episode
-rewards, success/failure/truncation counts and frames per second, and saves a PNG plot of the
-per-term rewards over time.
+pendulums; the task decides rewards, successes and episode ends. Gaussian noise is added to the
+controller's torque, decaying linearly from ``noise`` to 0 over the first three quarters of the run
+(like an agent's exploration noise), so the run shows the task's signals follow the quality of
+control: episode return and success rate rise, the per-term returns move apart.
+
+The demo prints per-term episode returns, success/failure/truncation counts and frames per second,
+and writes to ``output_dir`` (default ``runs/demo``, relative to the current folder):
+
+- ``torchtasks_demo.json``: the summary and, per collected batch, the frames collected so far, the
+  noise, the number of finished episodes and their mean return, success rate and per-term returns;
+- ``torchtasks_demo.png`` (needs matplotlib, the ``plot`` extra): those curves against frames
+  collected, in three panels (episode return; success rate and noise; per-term episode returns).
 """
 
 from __future__ import annotations
@@ -80,7 +89,15 @@ def make_swing_up_env(num_envs: int = 64, max_steps: int = 200, seed: int = 0) -
 
 @dataclass
 class DemoResult:
-    """What the demo measured."""
+    """What the demo measured.
+
+    ``curves`` holds one value per collected batch: ``"frames"`` (collected so far), ``"noise"`` (the
+    standard deviation of the action noise during the batch), ``"episodes"`` (finished in the batch),
+    and ``"return"``, ``"success_rate"`` and ``"episode_<term>"``: means over the episodes finished in
+    the last ``max_steps`` steps (one episode length; it averages out episodes that started together
+    and ends together), ``None`` before the first ``max_steps`` steps (when only quick successes can
+    have finished) and when no episode finished.
+    """
 
     frames: int
     seconds: float
@@ -89,8 +106,11 @@ class DemoResult:
     failures: int
     truncations: int
     episode_terms: dict[str, float]
-    term_curves: dict[str, list[float]] = field(default_factory=dict)
+    curves: dict[str, list[float | None]] = field(default_factory=dict)
+    noise: float = 0.0
+    metrics_path: Path | None = None
     plot_path: Path | None = None
+    plot_note: str | None = None
 
     @property
     def frames_per_second(self) -> float:
@@ -98,77 +118,190 @@ class DemoResult:
         return self.frames / self.seconds
 
 
+class _NoisyTorque(nn.Module):
+    """The controller's torque plus Gaussian noise of standard deviation ``scale`` (set between batches), clipped."""
+
+    def __init__(self, controller: SwingUpController) -> None:
+        super().__init__()
+        self.controller = controller
+        self.scale = 0.0
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        torque = self.controller(observation)
+        if self.scale > 0:
+            torque = torque + self.scale * torch.randn_like(torque)
+        limit = self.controller.max_torque
+        return torque.clamp(-limit, limit)
+
+
+#: the fraction of the run over which the action noise decays to 0 (the rest runs noise-free)
+NOISE_DECAY_FRACTION = 0.75
+
+#: the episode length of the demo's env (``StepCounter(MAX_STEPS)``: truncation)
+MAX_STEPS = 200
+
+
 def run_demo(
     total_frames: int = 64_000,
     num_envs: int = 64,
-    frames_per_batch: int = 3_200,
-    output_dir: str | Path = ".",
+    frames_per_batch: int = 1_600,
+    output_dir: str | Path | None = "runs/demo",
     progress: bool = True,
     seed: int = 0,
+    noise: float = 5.0,
 ) -> DemoResult:
-    """Collect ``total_frames`` with the swing-up controller and summarise the task's outputs.
+    """Collect ``total_frames`` with the noisy swing-up controller and summarise the task's outputs.
+
+    ``noise`` is the standard deviation of the torque noise at the start (the torque limit is 2); it
+    decays linearly to 0 at ``NOISE_DECAY_FRACTION`` of the run. The files go to ``output_dir``
+    (created if needed; ``None``: nothing is written).
 
     Example:
         >>> result = run_demo(total_frames=640, num_envs=8, frames_per_batch=320, output_dir=None, progress=False)
-        >>> result.frames
-        640
+        >>> result.frames, len(result.curves["return"])
+        (640, 2)
     """
     torch.manual_seed(seed)
-    env = make_swing_up_env(num_envs=num_envs, seed=seed)
-    policy = TensorDictModule(SwingUpController(), in_keys=["observation"], out_keys=["action"])
+    env = make_swing_up_env(num_envs=num_envs, max_steps=MAX_STEPS, seed=seed)
+    actor = _NoisyTorque(SwingUpController())
+    policy = TensorDictModule(actor, in_keys=["observation"], out_keys=["action"])
     collector = Collector(
         env, policy, frames_per_batch=frames_per_batch, total_frames=total_frames, auto_register_policy_transforms=False
     )
+    # per batch: finished episodes, their summed return, successes and summed terms
+    window: list[tuple[int, float, int, dict[str, float]]] = []
+    window_batches = max(1, math.ceil(MAX_STEPS * num_envs / frames_per_batch))
+    keys = ("frames", "noise", "episodes", "return", "success_rate", *(f"episode_{name}" for name in TERMS))
+    curves: dict[str, list[float | None]] = {key: [] for key in keys}
     sums = dict.fromkeys(TERMS, 0.0)
-    curves: dict[str, list[float]] = {name: [] for name in TERMS}
     frames = episodes = successes = failures = truncations = 0
+
+    def noise_at(frames_done: int) -> float:
+        return noise * max(0.0, 1.0 - frames_done / (NOISE_DECAY_FRACTION * total_frames))
+
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=total_frames, unit="frames", desc="swing-up demo")
+    actor.scale = noise_at(0)
     start = time.perf_counter()
     for batch in collector:
+        scale = actor.scale
         nxt = batch["next"]
         ended = nxt["done"]
-        episodes += int(ended.sum())
-        successes += int(nxt["success"].sum())
+        ended_now, succeeded = int(ended.sum()), int(nxt["success"][ended].sum())
+        terms = {name: float(nxt["task_reward", f"episode_{name}"][ended].sum()) for name in TERMS}
+        episodes += ended_now
+        successes += succeeded
         failures += int(nxt["failure"].sum())
         truncations += int((nxt["truncated"] & ~nxt["success"] & ~nxt["failure"]).sum())
-        for name in TERMS:
-            sums[name] += float(nxt["task_reward", f"episode_{name}"][ended].sum())
-            curves[name].append(float(nxt["task_reward", name].mean()))
         frames += batch.numel()
+        for name in TERMS:
+            sums[name] += terms[name]
+        window = [*window, (ended_now, float(nxt["episode_reward"][ended].sum()), succeeded, terms)][-window_batches:]
+        count = sum(entry[0] for entry in window)
+        full = len(window) == window_batches and count > 0
+
+        def mean(total: float, count: int = count, full: bool = full) -> float | None:
+            return total / count if full else None
+
+        curves["frames"].append(frames)
+        curves["noise"].append(scale)
+        curves["episodes"].append(ended_now)
+        curves["return"].append(mean(sum(entry[1] for entry in window)))
+        curves["success_rate"].append(mean(sum(entry[2] for entry in window)))
+        for name in TERMS:
+            curves[f"episode_{name}"].append(mean(sum(entry[3][name] for entry in window)))
+        actor.scale = noise_at(frames)
         if bar is not None:
+            rate = curves["success_rate"][-1]
+            bar.set_postfix(noise=f"{scale:.1f}", success="-" if rate is None else f"{rate:.0%}", refresh=False)
             bar.update(batch.numel())
     seconds = time.perf_counter() - start
     collector.shutdown()
     if bar is not None:
         bar.close()
     episode_terms = {name: value / max(episodes, 1) for name, value in sums.items()}
-    result = DemoResult(frames, seconds, episodes, successes, failures, truncations, episode_terms, curves)
+    result = DemoResult(frames, seconds, episodes, successes, failures, truncations, episode_terms, curves, noise)
     if output_dir is not None:
-        result.plot_path = _plot(curves, frames_per_batch, Path(output_dir) / "torchtasks_demo.png")
+        _write_outputs(result, Path(output_dir))
     return result
 
 
-def _plot(curves: dict[str, list[float]], frames_per_batch: int, path: Path) -> Path:
-    import matplotlib
+def _write_outputs(result: DemoResult, folder: Path) -> None:
+    """Write ``torchtasks_demo.json`` and, with matplotlib, ``torchtasks_demo.png`` into ``folder``."""
+    import json
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = {
+        "frames": result.frames,
+        "seconds": result.seconds,
+        "frames_per_second": result.frames_per_second,
+        "episodes": result.episodes,
+        "successes": result.successes,
+        "failures": result.failures,
+        "truncations": result.truncations,
+        "episode_terms": result.episode_terms,
+        "noise": {"start": result.noise, "decay_fraction": NOISE_DECAY_FRACTION},
+        "max_steps": MAX_STEPS,
+    }
+    result.metrics_path = folder / "torchtasks_demo.json"
+    result.metrics_path.write_text(json.dumps({"summary": summary, "curves": result.curves}, indent=1) + "\n")
+    try:
+        from matplotlib.figure import Figure
+    except ImportError:
+        from torchtasks._optional import install_hint
 
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure, axis = plt.subplots(figsize=(7, 4))
-    for name, values in curves.items():
-        axis.plot([frames_per_batch * (i + 1) for i in range(len(values))], values, label=name)
-    axis.set_xlabel("frames collected")
-    axis.set_ylabel("mean reward per step")
-    axis.set_title("Swing-up task: per-term rewards")
-    axis.legend()
-    figure.tight_layout()
+        result.plot_note = f"no plot: matplotlib is not installed ({install_hint('plot')} for torchtasks_demo.png)"
+        return
+    result.plot_path = _plot(result, Figure, folder / "torchtasks_demo.png")
+
+
+def _plot(result: DemoResult, figure_class: type, path: Path) -> Path:
+    """Three panels against frames collected: episode return, success rate (and noise), per-term returns."""
+
+    def values(key: str) -> list[float]:
+        return [math.nan if value is None else value for value in result.curves[key]]
+
+    frames = result.curves["frames"]
+    figure = figure_class(figsize=(8, 9), layout="constrained")
+    axes = figure.subplots(3, 1, sharex=True)
+
+    axes[0].plot(frames, values("return"), color="tab:blue", linewidth=2)
+    axes[0].set_ylabel("mean episode return")
+    axes[0].set_title("Episode return (task reward + final reward)")
+
+    axes[1].plot(frames, values("success_rate"), color="tab:green", linewidth=2, label="success rate")
+    axes[1].set_ylim(-0.05, 1.05)
+    axes[1].set_ylabel("success rate")
+    axes[1].set_title("Success rate, and the controller's action noise")
+    noise_axis = axes[1].twinx()
+    noise_axis.plot(frames, values("noise"), color="tab:gray", linestyle="--", label="action noise σ (right axis)")
+    noise_axis.set_ylabel("action noise σ (torque)", color="tab:gray")
+    noise_axis.set_ylim(bottom=0)
+    handles = axes[1].get_legend_handles_labels()[0] + noise_axis.get_legend_handles_labels()[0]
+    axes[1].legend(handles=handles, loc="lower right")
+
+    axes[2].plot(frames, values("episode_track"), color="tab:red", linewidth=2, label="track (angle, speed error)")
+    axes[2].plot(frames, values("episode_final"), color="tab:orange", linewidth=2, label="final (success bonus)")
+    axes[2].axhline(0.0, color="black", linewidth=0.5)
+    axes[2].set_ylabel("mean episode return per term")
+    axes[2].set_title("Per-term episode returns")
+    axes[2].set_xlabel("frames collected")
+    effort_axis = axes[2].twinx()
+    effort_axis.plot(frames, values("episode_effort"), color="tab:purple", linewidth=2, label="effort (right axis)")
+    effort_axis.set_ylabel("effort (torque cost)", color="tab:purple")
+    handles = axes[2].get_legend_handles_labels()[0] + effort_axis.get_legend_handles_labels()[0]
+    axes[2].legend(handles=handles, loc="lower right")
+
+    for axis in axes:
+        axis.grid(alpha=0.3)
+    figure.suptitle(
+        f"torchtasks demo: swing-up task, {result.frames:,} frames\n"
+        f"means over the episodes finished in the last {MAX_STEPS} steps (one episode length)"
+    )
     figure.savefig(path, dpi=100)
-    plt.close(figure)
     return path
 
 
@@ -177,14 +310,13 @@ def format_result(result: DemoResult) -> str:
     rows = [
         ("frames", f"{result.frames}"),
         ("frames/s", f"{result.frames_per_second:,.0f}"),
+        ("action noise σ", f"{result.noise:g} → 0"),
         ("episodes ended", f"{result.episodes}"),
         ("successes", f"{result.successes}"),
         ("failures", f"{result.failures}"),
         ("truncations", f"{result.truncations}"),
     ]
     rows += [(f"mean episode reward: {name}", f"{value:+.3f}") for name, value in result.episode_terms.items()]
-    if result.plot_path is not None:
-        rows.append(("plot", str(result.plot_path)))
     width = max(len(name) for name, _ in rows)
     lines = [f"| {'quantity':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]
     lines += [f"| {name:<{width}} | {value} |" for name, value in rows]

@@ -14,9 +14,15 @@ import time
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
-import gymnasium
 import numpy as np
 import torch
+
+from torchtasks._optional import missing_extra
+
+try:
+    import gymnasium
+except ImportError as _error:
+    raise missing_extra("mujoco", "torchtasks.parity (torchtasks check)", _error) from _error
 
 from torchtasks.envs.locomotion import _config, gymnasium_env
 

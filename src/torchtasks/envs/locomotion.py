@@ -41,17 +41,15 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-import gymnasium
 import numpy as np
 import torch
-from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
-from gymnasium.envs.registration import load_env_creator
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
 from torchtasks._checks import check_finite_scalar
+from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
 from torchtasks.rewards.locomotion import ForwardVelocityReward
@@ -66,6 +64,15 @@ from torchtasks.rewards.terms import (
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks.goalless import GoallessTask
 from torchtasks.transforms import TaskTransform
+
+# the 'mujoco' extra: without it, importing this module raises an error naming the extra to install
+try:
+    import gymnasium
+    import mujoco  # noqa: F401  (before gymnasium.envs.mujoco, which raises a non-ImportError without it)
+    from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+    from gymnasium.envs.registration import load_env_creator
+except ImportError as _error:
+    raise missing_extra("mujoco", "torchtasks.envs.locomotion (the Gymnasium MuJoCo presets)", _error) from _error
 
 __all__ = [
     "SUPPORTED_ENV_IDS",
