@@ -90,7 +90,7 @@ BAD_STEP_INPUTS = {
         r"state must have shape \[\*B, 4\]",
     ),
     "0-d state": (lambda: _step(state=torch.tensor(1.0)), ValueError, r"state must have shape"),
-    "integer state": (lambda: _step(state=torch.zeros(3, 4, dtype=torch.long)), TypeError, r"state must be a floating"),
+    "integer state": (lambda: _step(state=torch.zeros(3, 4, dtype=torch.long)), TypeError, r"state must be a float32"),
     "state not a tensor": (lambda: _step(state=[[0.0] * 4] * 3), TypeError, r"state must be a torch.Tensor"),
     "integer action": (lambda: _step(action=torch.zeros(3, 2, dtype=torch.long)), TypeError, r"action must be a float"),
     "init_state of the wrong size": (

@@ -483,27 +483,12 @@ def test_final_reward_is_paid_once_per_episode() -> None:
     assert out.final_reward.tolist() == [10.0, 0.0, 0.0]
 
 
-def _uses_forward_progress_reward(task: Task) -> bool:
-    return any(isinstance(module, (ForwardVelocityReward, AntForwardReward)) for module in task.modules())
-
-
 def _dtype_params() -> list[object]:
     params = []
     for name in sorted(FIXED_CASES):
         for batch in ((), (3,)):
-            marks = []
-            if batch == () and _uses_forward_progress_reward(FIXED_CASES[name]()):
-                marks.append(pytest.mark.xfail(strict=True, reason=DTYPE_BUG))
-            params.append(pytest.param(name, batch, id=f"{name}-{batch}", marks=marks))
+            params.append(pytest.param(name, batch, id=f"{name}-{batch}"))
     return params
-
-
-DTYPE_BUG = (
-    "src bug (rewards/locomotion.py): the forward-progress rewards multiply their 0-d float64 constants "
-    "(_register_scalar: forward/ctrl weights in _common_terms, healthy_reward and the contact weight in "
-    "terms_of) into their terms without cast_like; the 'a 0-d constant keeps the input dtype' rule fails when "
-    "the input is 0-d too (batch shape ()), so float32 states give float64 rewards, terms and held rewards"
-)
 
 
 @pytest.mark.parametrize(("name", "batch"), _dtype_params())

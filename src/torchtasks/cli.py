@@ -194,7 +194,7 @@ def _parser() -> argparse.ArgumentParser:
     check.set_defaults(run=_cmd_check)
 
     bench = commands.add_parser("bench", help="run the benchmark suite (Markdown table and JSON)")
-    bench.add_argument("--output", default="bench-results", help="folder of the Markdown and JSON results")
+    bench.add_argument("--output", default="runs/bench", help="folder of the Markdown and JSON results")
     bench.add_argument("--tiny", action="store_true", help="a smoke run with tiny sizes (no meaningful timings)")
     bench.add_argument(
         "--sections", nargs="*", default=None, help="subset of sections: tasks, collector, memory (default: all)"

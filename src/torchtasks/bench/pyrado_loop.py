@@ -124,7 +124,7 @@ class PyradoLoop:
     Example:
         >>> import numpy as np
         >>> loop = PyradoLoop("T1", BenchConfig(), batch=2)
-        >>> loop.step(np.zeros((2, 6)), np.zeros((2, 3)), np.zeros(2, dtype=bool))[0]
+        >>> loop.step(np.zeros((2, 17)), np.zeros((2, 6)), np.zeros(2, dtype=bool))[0]
         array([100., 100.])
     """
 

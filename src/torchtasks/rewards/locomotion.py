@@ -10,7 +10,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from torchtasks._checks import check_finite_scalar, check_index, check_input, check_same_batch
+from torchtasks._checks import cast_like, check_finite_scalar, check_index, check_input, check_same_batch
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction, sum_terms
 
@@ -73,8 +73,8 @@ class _ForwardProgressReward(RewardFunction):
         x = self._x(state)
         velocity = (x - read(memory, "x_last")) / self.dt
         return {
-            "forward": self.forward_reward_weight * velocity,
-            "ctrl": -self.ctrl_cost_weight * (action * action).sum(dim=-1),
+            "forward": cast_like(self.forward_reward_weight, velocity) * velocity,
+            "ctrl": -cast_like(self.ctrl_cost_weight, state) * (action * action).sum(dim=-1),
         }
 
     def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
@@ -194,7 +194,7 @@ class _HealthyForwardReward(_ForwardProgressReward):
     def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         values = self._common_terms(state, action, memory)
         healthy = self.is_healthy(state).to(state.dtype)
-        values["healthy"] = self.healthy_reward * healthy
+        values["healthy"] = cast_like(self.healthy_reward, healthy) * healthy
         values["contact"] = -self._contact_cost(state)
         return values
 
@@ -271,8 +271,9 @@ class AntForwardReward(_HealthyForwardReward):
         return finite & (z >= self.healthy_z_low) & (z <= self.healthy_z_high)
 
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
-        forces = self._contact_forces(state).clamp(self.contact_force_low, self.contact_force_high)
-        return self.contact_cost_weight * (forces * forces).sum(dim=-1)
+        low, high = cast_like(self.contact_force_low, state), cast_like(self.contact_force_high, state)
+        forces = self._contact_forces(state).clamp(low, high)
+        return cast_like(self.contact_cost_weight, state) * (forces * forces).sum(dim=-1)
 
 
 class HumanoidForwardReward(_HealthyForwardReward):
@@ -341,5 +342,5 @@ class HumanoidForwardReward(_HealthyForwardReward):
 
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
         forces = self._contact_forces(state)
-        cost = self.contact_cost_weight * (forces * forces).sum(dim=-1)
-        return cost.clamp(self.contact_cost_low, self.contact_cost_high)
+        cost = cast_like(self.contact_cost_weight, state) * (forces * forces).sum(dim=-1)
+        return cost.clamp(cast_like(self.contact_cost_low, state), cast_like(self.contact_cost_high, state))
