@@ -13,6 +13,7 @@ from torchrl.envs.transforms import Compose, StepCounter, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS
+from torchtasks._memory import td_get, td_set
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import where_memory
 
@@ -25,6 +26,12 @@ def _flat_transforms(transform: Transform) -> list[Transform]:
     if isinstance(transform, Compose):
         return [leaf for child in transform.transforms for leaf in _flat_transforms(child)]
     return [transform]
+
+
+def _as_entry(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
+    """``value`` reshaped to the env's ``[*B, 1]`` entry shape, in the spec's dtype (no cast when it already is)."""
+    value = value.reshape(shape)
+    return value if value.dtype == dtype else value.to(dtype)
 
 
 def _check_vector_gym(base_env: Any) -> None:
@@ -265,11 +272,11 @@ class TaskTransform(Transform):
 
     def _read_state(self, tensordict: TensorDictBase) -> torch.Tensor:
         if len(self.state_keys) == 1:
-            state = tensordict.get(self.state_keys[0], None)
+            state = td_get(tensordict, self.state_keys[0])
             if state is None:
                 self._missing_state(tensordict)
             return state
-        parts = [tensordict.get(key, None) for key in self.state_keys]
+        parts = [td_get(tensordict, key) for key in self.state_keys]
         if any(part is None for part in parts):
             self._missing_state(tensordict)
         return torch.cat(parts, dim=-1)
@@ -313,27 +320,29 @@ class TaskTransform(Transform):
 
     def _episode_end_flags(
         self, next_tensordict: TensorDictBase, batch: torch.Size, offline: bool
-    ) -> tuple[torch.Tensor, torch.Tensor | None]:
-        """Return ``(terminated, truncated)`` of the env itself (without the task's verdict), shaped ``[*B]``.
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None, bool]:
+        """Return ``(done, terminated, truncated, has_terminated)``: the env's own end flags, the last two ``[*B]``.
 
         Online the env's flags are its own. Offline (stored transitions, possibly relabelled) the
         stored ``terminated`` already includes the task's old success and failure: only what the
-        task did not cause is kept (the env's own termination and the truncation), so the task
+        task did not cause (the env's own termination and the truncation) is kept, so the task
         judges the episode end anew.
         """
-        done = next_tensordict.get("done")
-        terminated = next_tensordict.get("terminated", None)
-        truncated = next_tensordict.get("truncated", None)
-        if truncated is None and terminated is not None:
+        done = td_get(next_tensordict, "done")
+        terminated = td_get(next_tensordict, "terminated")
+        truncated = td_get(next_tensordict, "truncated")
+        has_terminated = terminated is not None
+        if truncated is None and has_terminated:
             truncated = done & ~terminated
-        if terminated is None:
+        if not has_terminated:
             terminated = done
         if offline:
-            old_success = next_tensordict.get(self.success_key, None)
-            old_failure = next_tensordict.get(self.failure_key, None)
+            old_success = td_get(next_tensordict, self.success_key)
+            old_failure = td_get(next_tensordict, self.failure_key)
             if old_success is not None and old_failure is not None:
                 terminated = terminated & ~(old_success | old_failure)
-        return terminated.reshape(batch), None if truncated is None else truncated.reshape(batch)
+        truncated = None if truncated is None else truncated.reshape(batch)
+        return done, terminated.reshape(batch), truncated, has_terminated
 
     def _transition(
         self, tensordict: TensorDictBase, next_tensordict: TensorDictBase, *, offline: bool = False
@@ -345,32 +354,34 @@ class TaskTransform(Transform):
         """
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
-        action = tensordict.get(self.action_key)
+        action = td_get(tensordict, self.action_key)
         if action.dtype != state.dtype:
             action = action.to(state.dtype)
-        memory = tensordict.get(self.memory_key)
-        shape = next_tensordict.get("done").shape
-        env_terminated, truncated = self._episode_end_flags(next_tensordict, state.shape[:-1], offline)
+        memory = td_get(tensordict, self.memory_key)
+        done, env_terminated, truncated, has_terminated = self._episode_end_flags(
+            next_tensordict, state.shape[:-1], offline
+        )
         remaining = self._remaining(next_tensordict, state)
-        reward, step_reward, final, success, failure, terminated, done, memory, terms = self._evaluator()(
+        reward, step_reward, final, success, failure, terminated, done_now, memory, terms = self._evaluator()(
             state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
         )
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
-            stored = next_tensordict.get(self.reward_key, None)
+            stored = td_get(next_tensordict, self.reward_key)
             reward_dtype = state.dtype if stored is None else stored.dtype
-        next_tensordict.set(self.reward_key, reward.reshape(shape).to(reward_dtype))
-        next_tensordict.set(self.success_key, success.reshape(shape))
-        next_tensordict.set(self.failure_key, failure.reshape(shape))
-        if "terminated" in next_tensordict.keys():
-            next_tensordict.set("terminated", terminated.reshape(shape))
-        next_tensordict.set("done", done.reshape(shape))
+        shape = done.shape
+        td_set(next_tensordict, self.reward_key, _as_entry(reward, shape, reward_dtype))
+        td_set(next_tensordict, self.success_key, success.reshape(shape))
+        td_set(next_tensordict, self.failure_key, failure.reshape(shape))
+        if has_terminated:
+            td_set(next_tensordict, "terminated", terminated.reshape(shape))
+        td_set(next_tensordict, "done", done_now.reshape(shape))
         if not offline:
-            next_tensordict.set(self.memory_key, memory)
+            td_set(next_tensordict, self.memory_key, memory)
         if self.log_terms:
             values = [step_reward, final, *(terms[name] for name in self._term_names)]
             for key, value in zip(self._term_keys, values, strict=True):
-                next_tensordict.set(key, value.reshape(shape).to(reward_dtype))
+                td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
         return next_tensordict
 
     # ------------------------------------------------------------------- TorchRL hooks
