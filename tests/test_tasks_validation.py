@@ -689,9 +689,9 @@ def test_best_state_keeps_minus_inf_until_a_step_and_ignores_nan():
     task = BestStateFinalRewardTask(inner, factor=2.0)
     memory = task.reset(torch.zeros(3, 1, dtype=F64))
     assert torch.equal(memory["best"], _t([-math.inf] * 3))
-    # env0 ends before any step: it pays -inf·2
+    # env0 ends before any step: no best state, so it pays 0 (Pyrado paid -inf·2; no reward is infinite here)
     value, memory = task.final_reward(torch.zeros(3, 1, dtype=F64), memory, 0, torch.tensor([True, False, False]))
-    assert torch.equal(value, _t([-math.inf, 0.0, 0.0]))
+    assert torch.equal(value, _t([0.0, 0.0, 0.0]))
     nan = math.nan
     # env1 sees rewards 1, NaN, 0.5 -> best 1; env2 sees NaN, -3, -4 -> best stays -inf after NaN, then -3
     expected_best = [[-math.inf, 1.0, -math.inf], [-math.inf, 1.0, -3.0], [-math.inf, 1.0, -3.0]]

@@ -201,7 +201,7 @@ def _with(
     return lambda: TransformedEnv(base(), Compose(StepCounter(max_steps), transform()))
 
 
-def run_collector_benchmark(*, tiny: bool = False, repeats: int = 3) -> list[dict[str, Any]]:
+def run_collector_benchmark(*, tiny: bool = False, repeats: int = 5) -> list[dict[str, Any]]:
     """Frames/s ratios of TaskTransform(T1) against the identity and the hand-written minimal transform."""
     rows = []
     cheetah_size, cheetah_actions = 17, 6

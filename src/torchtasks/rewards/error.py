@@ -269,7 +269,7 @@ class AbsoluteErrorReward(RewardFunction):
         return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        value = (error_state.abs() * cast_like(self.q, error_state)).sum(dim=-1)
+        value = error_state.abs() @ cast_like(self.q, error_state)
         if self.uses_action:
-            value = value + (error_action.abs() * cast_like(self.r, error_action)).sum(dim=-1)
+            value = value + error_action.abs() @ cast_like(self.r, error_action)
         return -value

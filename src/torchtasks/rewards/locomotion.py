@@ -12,7 +12,7 @@ from tensordict import TensorDict
 
 from torchtasks._checks import cast_like, check_finite_scalar, check_index, check_input, check_same_batch
 from torchtasks._memory import read
-from torchtasks.rewards.base import RewardFunction, sum_terms
+from torchtasks.rewards.base import RewardFunction, squared_sum, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
 
@@ -74,7 +74,7 @@ class _ForwardProgressReward(RewardFunction):
         velocity = (x - read(memory, "x_last")) / self.dt
         return {
             "forward": cast_like(self.forward_reward_weight, velocity) * velocity,
-            "ctrl": -cast_like(self.ctrl_cost_weight, state) * (action * action).sum(dim=-1),
+            "ctrl": -cast_like(self.ctrl_cost_weight, state) * squared_sum(action),
         }
 
     def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
@@ -273,7 +273,7 @@ class AntForwardReward(_HealthyForwardReward):
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
         low, high = cast_like(self.contact_force_low, state), cast_like(self.contact_force_high, state)
         forces = self._contact_forces(state).clamp(low, high)
-        return cast_like(self.contact_cost_weight, state) * (forces * forces).sum(dim=-1)
+        return cast_like(self.contact_cost_weight, state) * squared_sum(forces)
 
 
 class HumanoidForwardReward(_HealthyForwardReward):
@@ -342,5 +342,5 @@ class HumanoidForwardReward(_HealthyForwardReward):
 
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
         forces = self._contact_forces(state)
-        cost = cast_like(self.contact_cost_weight, state) * (forces * forces).sum(dim=-1)
+        cost = cast_like(self.contact_cost_weight, state) * squared_sum(forces)
         return cost.clamp(cast_like(self.contact_cost_low, state), cast_like(self.contact_cost_high, state))

@@ -7,7 +7,7 @@ import math
 import torch
 
 from torchtasks._checks import check_index, check_input
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, squared_sum
 
 __all__ = ["CartPoleSwingUpReward", "SwingUpReward"]
 
@@ -73,7 +73,7 @@ class SwingUpReward(RewardFunction):
         theta_sq = _entry(error_state, self.index_theta, "index_theta") ** 2
         pole_cost = self.c_theta_sq * theta_sq + torch.log(theta_sq + self.c_theta_log)
         cart_cost = _entry(error_state, self.index_x, "index_x").abs()
-        action_cost = (error_action * error_action).sum(dim=-1)
+        action_cost = squared_sum(error_action)
         return 10.0 - (self.c_pole * pole_cost + self.c_cart * cart_cost + self.c_act * action_cost)
 
 

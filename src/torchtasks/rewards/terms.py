@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import torch
 
 from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_index, check_input
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, squared_sum
 
 __all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
@@ -112,7 +112,7 @@ class ControlCostReward(RewardFunction):
         return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        return -(cast_like(self.weight, error_action) * (error_action * error_action).sum(dim=-1))
+        return -(cast_like(self.weight, error_action) * squared_sum(error_action))
 
     def extra_repr(self) -> str:
         return f"weight={float(self.weight)}"
@@ -297,7 +297,7 @@ class ContactCostReward(RewardFunction):
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         forces = self.contact_forces(error_state)
         forces = forces.clamp(cast_like(self.force_low, forces), cast_like(self.force_high, forces))
-        cost = cast_like(self.weight, forces) * (forces * forces).sum(dim=-1)
+        cost = cast_like(self.weight, forces) * squared_sum(forces)
         return -cost.clamp(cast_like(self.cost_low, cost), cast_like(self.cost_high, cost))
 
     def extra_repr(self) -> str:

@@ -174,7 +174,9 @@ class BestStateFinalRewardTask(TaskWrapper):
 
     Memory: the best step reward so far ``"best"`` (``-inf`` at reset; NaN never replaces it),
     ``"paid"``, and the wrapped task's memory. Paid once, where the episode ends, whatever the
-    outcome (success, failure or time limit).
+    outcome (success, failure or time limit). An episode in which the wrapped task paid no step
+    reward (its best is still ``-inf``, e.g. a sub-task of :class:`SequentialTasks` that never became
+    current) pays 0: no reward is ever infinite. (Pyrado paid ``factor · -inf`` there.)
 
     Args:
         task: the wrapped task.
@@ -222,5 +224,8 @@ class BestStateFinalRewardTask(TaskWrapper):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         paid = read(memory, "paid")
         best = read(memory, "best").to(state.dtype)
-        value = torch.where(done & ~paid, best * self.factor, state.new_zeros(state.shape[:-1]))
+        zero = state.new_zeros(state.shape[:-1])
+        # an episode in which the wrapped task paid no step reward (best still -inf, e.g. a later
+        # sub-task of SequentialTasks that never became current) pays 0, never an infinite reward
+        value = torch.where(done & ~paid & (best > float("-inf")), best * self.factor, zero)
         return value, self._replace(memory, paid=paid | done)

@@ -24,8 +24,12 @@ class SequentialTasks(CompositeTask):
     done on this state it is marked succeeded or failed, its step reward is held (evaluated
     once more with 0 remaining steps), its final reward is paid and the index moves on
     (wrapping to 0 after the last). Goals reached out of order are ignored until they are
-    current. The task succeeds when every sub-task succeeded; it fails when the state leaves the
-    first sub-task's state box (a failed sub-task does not end the episode by itself).
+    current. Where the episode ends, every sub-task that has not finished is judged on the final
+    state, as in Pyrado: its own final reward (e.g. a :class:`FinalRewardTask`'s success or failure
+    value, if the final state meets its goal or leaves its box) is paid then, whether or not it was
+    current; a :class:`BestStateFinalRewardTask` that never became current pays 0. The task
+    succeeds when every sub-task succeeded; it fails when the state leaves the first sub-task's
+    state box (a failed sub-task does not end the episode by itself).
 
     Args:
         tasks: the sub-tasks in order (same state and action sizes).
