@@ -147,6 +147,21 @@ def format_markdown(results: dict[str, Any]) -> str:
                 f"{us.get('fused_compiled', float('nan')):.1f} | {compiled_ratio:.2f}x | "
                 f"{us['numpy_loop']:.1f} | {row['eager_speedup_vs_numpy_loop']:.1f}x |"
             )
+        lean = [row for row in results["tasks"] if "eager_over_fused_lean" in row]
+        if lean:
+            lines += [
+                "",
+                "T1 against a second floor, the hand-fused function written with torchtasks' own op choices "
+                "(`fused_t1_lean`: mat-vec quadratic forms, bounds by clamp and count instead of bool `any`):",
+                "",
+                "| case | batch | eager | lean fused | eager / lean fused |",
+                "|---|---:|---:|---:|---:|",
+            ]
+            lines += [
+                f"| {row['case']} | {row['batch']} | {row['us']['eager']:.1f} | {row['us']['fused_lean']:.1f} | "
+                f"{row['eager_over_fused_lean']:.2f}x |"
+                for row in lean
+            ]
     if "collector" in results:
         lines += [
             "",

@@ -16,7 +16,7 @@ import torch
 from tensordict import TensorDictBase
 
 from torchtasks.bench.cases import BenchConfig, make_t1, make_t2, make_t3
-from torchtasks.bench.fused import FusedConstants, fused_parallel, fused_sequential, fused_t1
+from torchtasks.bench.fused import FusedConstants, fused_parallel, fused_sequential, fused_t1, fused_t1_lean
 from torchtasks.bench.pyrado_loop import PyradoLoop
 from torchtasks.bench.timing import median_time
 from torchtasks.tasks import Task
@@ -65,9 +65,11 @@ def _check_same_maths(name: str, task: Task, constants: FusedConstants, config: 
     memory = task.reset(state)
     expected = task_step(task, state, action, next_state, truncated, memory)
     fn, extra = _fused(name, constants, batch, len(config.goals))
-    got = fn(constants, next_state, action, truncated, *extra)
-    if not (torch.allclose(expected[0], got[0], rtol=1e-5, atol=1e-5) and torch.equal(expected[1], got[1])):
-        raise AssertionError(f"{name}: the hand-fused function does not compute what the task computes")
+    functions = [fn, fused_t1_lean] if name == "T1" else [fn]
+    for function in functions:
+        got = function(constants, next_state, action, truncated, *extra)
+        if not (torch.allclose(expected[0], got[0], rtol=1e-5, atol=1e-5) and torch.equal(expected[1], got[1])):
+            raise AssertionError(f"{name}: {function.__name__} does not compute what the task computes")
 
 
 def run_task_benchmark(
@@ -120,6 +122,7 @@ def _time_case(
     repeats: int,
     min_seconds: float,
 ) -> dict[str, Any]:
+    lean_fn = None
     if case is not None:
         task, state, action, next_state, fused_fn, fused_args, loop_step = case.build(batch)
     else:
@@ -133,6 +136,8 @@ def _time_case(
             _check_same_maths(name, task, constants, config)
         fn, extra = _fused(name, constants, batch, len(config.goals))
         fused_fn, fused_args = fn, (constants, next_state, action, torch.zeros(batch, dtype=torch.bool), *extra)
+        if name == "T1":
+            lean_fn = fused_t1_lean
         loop = PyradoLoop(name, config, batch)
         next_state_np, action_np = next_state.double().numpy(), action.double().numpy()
         truncated_np = np.zeros(batch, dtype=bool)
@@ -150,6 +155,8 @@ def _time_case(
             min_seconds=min_seconds,
         )
         times["fused"] = median_time(lambda: fused_fn(*fused_args), repeats=repeats, min_seconds=min_seconds)
+        if lean_fn is not None:
+            times["fused_lean"] = median_time(lambda: lean_fn(*fused_args), repeats=repeats, min_seconds=min_seconds)
         if compile:
             torch._dynamo.reset()
             compiled = torch.compile(task.transition, fullgraph=True, dynamic=False, backend=backend)
@@ -171,6 +178,8 @@ def _time_case(
         "eager_speedup_vs_numpy_loop": times["numpy_loop"] / times["eager"],
         "eager_over_fused": times["eager"] / times["fused"],
     }
+    if lean_fn is not None:
+        row["eager_over_fused_lean"] = times["eager"] / times["fused_lean"]
     if compile:
         row["compiled_over_fused_compiled"] = times["compiled"] / times["fused_compiled"]
     return row
