@@ -32,7 +32,7 @@ from torch import nn
 
 from torchtasks._checks import cast_like, check_input, check_same_batch
 from torchtasks._memory import copy_entries, read
-from torchtasks.spaces import EnvSpec, rows_outside
+from torchtasks.spaces import Box, EnvSpec, rows_outside
 from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
 
@@ -100,6 +100,17 @@ class Task(nn.Module):
         self._state_bounded = spec.state_space.is_bounded
         # the remaining steps handed to trees that do not read them (follows the task's device)
         self.register_buffer("no_remaining_steps", torch.zeros((), dtype=torch.long), persistent=False)
+
+    def _load_from_state_dict(self, state_dict: dict[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+        # the state box lives in two places (the buffers, for .to()/state_dict(), and self.spec, for
+        # users and the bounds check); after loading new bounds, the spec and the bounds check follow
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        box = self.spec.state_space
+        low = self.state_low.detach().to(dtype=box.low.dtype, device=box.low.device)
+        high = self.state_high.detach().to(dtype=box.high.dtype, device=box.high.device)
+        if not (torch.equal(low, box.low) and torch.equal(high, box.high)):
+            self.spec = EnvSpec(Box(low, high, labels=box.labels), self.spec.action_space)
+        self._state_bounded = self.spec.state_space.is_bounded
 
     # ----------------------------------------------------------------------------- properties
     @property
@@ -462,7 +473,7 @@ class TaskWrapper(Task):
 
     Example:
         >>> from torchtasks.rewards import ConstantReward
-        >>> from torchtasks.spaces import EnvSpec, rows_outside
+        >>> from torchtasks.spaces import Box, EnvSpec, rows_outside
         >>> from torchtasks.tasks import GoallessTask, TaskWrapper
         >>> wrapper = TaskWrapper(GoallessTask(EnvSpec(2, 1), ConstantReward(1.0)))
         >>> wrapper.wrapped_task.__class__.__name__
@@ -553,7 +564,7 @@ def all_tasks(task: Task) -> Iterator[Task]:
 
     Example:
         >>> from torchtasks.rewards import ConstantReward
-        >>> from torchtasks.spaces import EnvSpec, rows_outside
+        >>> from torchtasks.spaces import Box, EnvSpec, rows_outside
         >>> from torchtasks.tasks import FinalRewardTask, GoallessTask, all_tasks
         >>> task = FinalRewardTask(GoallessTask(EnvSpec(1, 1), ConstantReward(0.0)))
         >>> [type(t).__name__ for t in all_tasks(task)]
