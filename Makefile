@@ -11,6 +11,8 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,mujoco,ray]"
+	# test-only reference: dm_control's reward utilities (numpy only; the rest of dm_control needs an older mujoco)
+	$(BIN)/pip install --quiet --no-deps dm-control==1.0.50
 	touch $(STAMP)
 
 setup: $(STAMP)
