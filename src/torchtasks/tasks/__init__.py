@@ -11,6 +11,7 @@ from torchtasks.tasks.masked import MaskedTask
 from torchtasks.tasks.output import TaskOutput
 from torchtasks.tasks.parallel import ParallelTasks
 from torchtasks.tasks.sequential import SequentialTasks
+from torchtasks.tasks.shaping import PotentialShapingTask
 from torchtasks.tasks.success import never_succeeded, proximity_succeeded
 
 __all__ = [
@@ -26,6 +27,7 @@ __all__ = [
     "MaskedTask",
     "OptimizationTask",
     "ParallelTasks",
+    "PotentialShapingTask",
     "RadiallySymmetricDesiredStateTask",
     "RewardTask",
     "SequentialTasks",
