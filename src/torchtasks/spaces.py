@@ -9,6 +9,8 @@ box with an action box; tasks read their bounds from it.
 from __future__ import annotations
 
 import math
+import numbers
+import operator
 from collections.abc import Iterable, Sequence
 
 import torch
@@ -24,7 +26,12 @@ Index = int | str
 
 def _as_bound(value: object, name: str) -> torch.Tensor:
     """Return ``value`` as a 1-D float64 tensor, rejecting NaN."""
-    tensor = torch.as_tensor(value, dtype=torch.float64).detach().clone()
+    try:
+        tensor = torch.as_tensor(value, dtype=torch.float64).detach().clone()
+    except (TypeError, ValueError, RuntimeError) as error:
+        raise TypeError(
+            f"{name} must be a number or a 1-D sequence of numbers, got {value!r} of type {type(value).__name__}"
+        ) from error
     if tensor.ndim == 0:
         tensor = tensor.reshape(1)
     if tensor.ndim != 1:
@@ -48,6 +55,24 @@ def rows_outside(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torc
         tensor([False,  True,  True])
     """
     return torch.clamp(x, low, high).ne(x).count_nonzero(dim=-1) != 0
+
+
+def _is_scalar_array(value: object) -> bool:
+    """Whether ``value`` is a 0-d tensor or array (iterable in type, but not in fact)."""
+    return getattr(value, "ndim", None) == 0
+
+
+def _as_position(item: object) -> int:
+    """Return an integer index (int, NumPy integer, 0-d integer tensor or array); refuse bools and floats."""
+    dtype = getattr(item, "dtype", None)
+    if isinstance(item, bool) or (dtype is not None and str(dtype) in ("bool", "torch.bool")):
+        raise TypeError(f"indices must be ints or labels, got the bool {item!r}")
+    if isinstance(item, torch.Tensor) and item.ndim != 0:
+        raise TypeError(f"indices must be ints or labels, got a tensor of shape {tuple(item.shape)}")
+    try:
+        return operator.index(item)  # type: ignore[arg-type]
+    except TypeError:
+        raise TypeError(f"indices must be ints or labels, got {item!r} of type {type(item).__name__}") from None
 
 
 class Box:
@@ -95,6 +120,9 @@ class Box:
                 raise ValueError(f"labels must have {low_t.numel()} entries (one per dimension), got {len(labels)}")
             if not all(isinstance(label, str) for label in labels):
                 raise TypeError(f"labels must be strings, got {labels!r}")
+            if len(set(labels)) != len(labels):
+                duplicates = sorted({label for label in labels if labels.count(label) > 1})
+                raise ValueError(f"labels must be distinct, got {list(labels)} (repeated: {duplicates})")
         self.labels: tuple[str, ...] | None = labels
 
     @classmethod
@@ -105,7 +133,10 @@ class Box:
             >>> Box.unbounded(2).bound_abs_high
             tensor([inf, inf], dtype=torch.float64)
         """
-        if not isinstance(size, int) or size < 0:
+        if isinstance(size, bool) or not isinstance(size, numbers.Integral):
+            raise TypeError(f"size must be a non-negative int, got {size!r} of type {type(size).__name__}")
+        size = int(size)
+        if size < 0:
             raise ValueError(f"size must be a non-negative int, got {size!r}")
         return cls(torch.full((size,), -math.inf), torch.full((size,), math.inf), labels=labels)
 
@@ -177,31 +208,29 @@ class Box:
     def indices(self, selection: Index | Iterable[Index]) -> list[int]:
         """Resolve ints and labels to a list of integer positions, in the order given.
 
-        Raises ``ValueError`` for unknown labels, out-of-range ints and duplicates.
+        Integers may be Python ints, NumPy integers or 0-d integer tensors; bools and floats are
+        refused (``TypeError``). Raises ``ValueError`` for unknown labels, out-of-range ints and
+        duplicates.
 
         Example:
             >>> Box([0, 0, 0], [1, 1, 1], labels=["a", "b", "c"]).indices(["c", 0])
             [2, 0]
         """
-        if isinstance(selection, (int, str)):
+        if isinstance(selection, str) or not isinstance(selection, Iterable) or _is_scalar_array(selection):
             selection = [selection]
         result: list[int] = []
         for item in selection:
-            if isinstance(item, bool):
-                raise TypeError(f"indices must be ints or labels, got the bool {item!r}")
             if isinstance(item, str):
                 if self.labels is None:
                     raise ValueError(f"cannot select label {item!r}: the box has no labels")
                 if item not in self.labels:
                     raise ValueError(f"unknown label {item!r}; the box has labels {list(self.labels)}")
                 position = self.labels.index(item)
-            elif isinstance(item, int) or (isinstance(item, torch.Tensor) and item.ndim == 0):
-                position = int(item)
+            else:
+                position = _as_position(item)
                 if not -self.size <= position < self.size:
                     raise ValueError(f"index {position} is out of range for a box of size {self.size}")
                 position %= self.size
-            else:
-                raise TypeError(f"indices must be ints or labels, got {item!r} of type {type(item).__name__}")
             if position in result:
                 raise ValueError(f"duplicate entry {item!r} (position {position}) in the selection")
             result.append(position)

@@ -13,6 +13,18 @@ from torchtasks._checks import as_constant, check_input, check_same_batch
 __all__ = ["RewardFunction", "empty_memory", "sum_terms"]
 
 
+def entries(count: int) -> str:
+    """``"1 entry"``, ``"3 entries"``: a size as the task-size messages spell it."""
+    return f"{count} {'entry' if count == 1 else 'entries'}"
+
+
+def index_problem(who: str, name: str, index: int, state_size: int) -> str | None:
+    """Why ``state[..., index]`` cannot be read from a state of ``state_size`` entries (``None`` if it can)."""
+    if -state_size <= index < state_size:
+        return None
+    return f"{who} reads state entry {name}={index}, but the task's state has {entries(state_size)}"
+
+
 def sum_terms(values: Mapping[str, torch.Tensor]) -> torch.Tensor:
     """Sum named reward terms left to right (the order Pyrado adds them in)."""
     iterator = iter(values.values())
@@ -31,6 +43,13 @@ def squared_sum(x: torch.Tensor) -> torch.Tensor:
         tensor([5., 9.])
     """
     return (x * x) @ x.new_ones(x.shape[-1])
+
+
+def check_ignored_action(error_state: torch.Tensor, error_action: object, state_name: str = "error_state") -> None:
+    """Check an action a reward ignores: ``None``, or a floating tensor of the state's batch (any size)."""
+    if error_action is not None:
+        check_input(error_action, "error_action")
+        check_same_batch(error_state, error_action, state_name, "error_action")
 
 
 def empty_memory(reference: torch.Tensor) -> TensorDict:
@@ -59,6 +78,11 @@ class RewardFunction(nn.Module):
             locomotion rewards), which also offer ``step_terms(state, action, memory) ->
             ({name: value}, memory)``.
 
+    Tasks check at construction that a reward fits their state and action sizes with
+    :meth:`check_sizes`; a reward with size-carrying constants (weights of a given length, state
+    indices) says what it needs by overriding :meth:`_size_problem`, and containers (such as
+    :class:`~torchtasks.rewards.CompoundReward`) forward the check to their terms.
+
     Pyrado name: ``RewFcn``.
 
     Example:
@@ -76,6 +100,42 @@ class RewardFunction(nn.Module):
     uses_action: bool = True
     #: names of the terms :meth:`step_terms` returns (empty for single-term rewards)
     term_names: tuple[str, ...] = ()
+
+    def check_sizes(self, state_size: int, action_size: int | None) -> None:
+        """Raise ``ValueError`` unless the reward can read states of ``state_size`` entries and actions
+        of ``action_size`` entries (``None``: no action is passed).
+
+        Tasks call it once at construction, so the step path needs no size checks. Rewards whose
+        needs cannot be known (a :class:`~torchtasks.rewards.StateFunctionReward`) accept any size.
+
+        Example:
+            >>> from torchtasks.rewards import CompoundReward, QuadraticErrorReward
+            >>> CompoundReward({"track": QuadraticErrorReward([1.0], None)}).check_sizes(2, 1)
+            Traceback (most recent call last):
+            ...
+            ValueError: reward CompoundReward: term 'track' (QuadraticErrorReward) expects states of size 1, \
+but the task's state has 2 entries
+        """
+        problem = self._size_problem(state_size, action_size, f"reward {type(self).__name__}")
+        if problem is not None:
+            raise ValueError(problem)
+
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        """Return why the reward cannot read inputs of these sizes, as a sentence about ``who``; ``None`` if it can.
+
+        The default compares ``state_size``/``action_size`` attributes when a reward has them (the
+        error rewards: the sizes of their weights); rewards that index into the state override it.
+        """
+        expected_state = getattr(self, "state_size", None)
+        if expected_state is not None and expected_state != state_size:
+            return f"{who} expects states of size {expected_state}, but the task's state has {entries(state_size)}"
+        expected_action = getattr(self, "action_size", None)
+        if self.uses_action and action_size is not None and expected_action is not None:
+            if expected_action != action_size:
+                return (
+                    f"{who} expects actions of size {expected_action}, but the task's action has {entries(action_size)}"
+                )
+        return None
 
     def _register_constant(self, name: str, value: torch.Tensor, learnable: bool = False) -> None:
         """Register ``value`` as a buffer, or as a parameter when ``learnable``."""
@@ -98,6 +158,7 @@ class RewardFunction(nn.Module):
         """Validate the shapes of a call's inputs (raises ``TypeError``/``ValueError``)."""
         check_input(error_state, "error_state", state_size)
         if not self.uses_action:
+            check_ignored_action(error_state, error_action)
             return
         if error_action is None:
             raise TypeError(f"{type(self).__name__} reads the action: error_action must be a tensor, got None")
@@ -122,6 +183,7 @@ class RewardFunction(nn.Module):
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         """Return fresh memory for a batch of episodes starting in ``init_state`` (``[*B, n]``)."""
+        check_input(init_state, "init_state")
         return empty_memory(init_state)
 
     def step(

@@ -5,9 +5,10 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 
 import torch
-from tensordict import TensorDict
+from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
+from torchtasks._checks import check_input, check_same_batch
 from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction, empty_memory, sum_terms
 
@@ -35,7 +36,8 @@ class CompoundReward(RewardFunction):
             kept under their name.
 
     :meth:`terms` returns the per-term values (stateless terms only); :meth:`step_terms` returns
-    them with memory. :class:`~torchtasks.transforms.TaskTransform` logs them.
+    them with memory. :class:`~torchtasks.transforms.TaskTransform` logs them. A task checks every
+    term against its state and action sizes at construction (:meth:`check_sizes`).
 
     Pyrado name: ``CompoundRewFcn``.
 
@@ -71,6 +73,13 @@ class CompoundReward(RewardFunction):
         self._stateful_names = tuple(name for name, reward in self.rewards.items() if reward.stateful)
         self.term_names = tuple(self.rewards.keys())
 
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        for name, reward in self.rewards.items():
+            problem = reward._size_problem(state_size, action_size, f"{who}: term {name!r} ({type(reward).__name__})")
+            if problem is not None:
+                return problem
+        return None
+
     def terms(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> dict[str, torch.Tensor]:
         """Return ``{name: value[*B]}`` for every term (stateless compounds only)."""
         if self.stateful:
@@ -86,6 +95,7 @@ class CompoundReward(RewardFunction):
         return sum_terms({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
+        check_input(init_state, "init_state")
         memory = empty_memory(init_state)
         for name in self._stateful_names:
             memory.set(name, self.rewards[name].reset(init_state))
@@ -95,8 +105,13 @@ class CompoundReward(RewardFunction):
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
     ) -> tuple[dict[str, torch.Tensor], TensorDict]:
         """Return ``({name: value[*B]}, memory)`` for one step, advancing stateful terms."""
+        check_input(state, "state")
+        if action is not None or self.uses_action:
+            check_input(action, "action")
+            check_same_batch(state, action, "state", "action")
         values: dict[str, torch.Tensor] = {}
         if self._stateful_names:
+            self._check_memory(memory, state)
             memory = memory.copy()
         for name, reward in self.rewards.items():
             if reward.stateful:
@@ -105,6 +120,20 @@ class CompoundReward(RewardFunction):
             else:
                 values[name] = reward(state, action)
         return values, memory
+
+    def _check_memory(self, memory: object, state: torch.Tensor) -> None:
+        """Raise unless ``memory`` holds an entry for every stateful term (what :meth:`reset` returns)."""
+        expected = "memory must be the TensorDict returned by CompoundReward.reset(init_state)"
+        if not isinstance(memory, TensorDictBase):
+            raise TypeError(f"{expected}, got {type(memory).__name__}")
+        missing = [name for name in self._stateful_names if name not in memory.keys()]
+        if missing:
+            raise TypeError(f"{expected}, got one without the entries {missing} of the stateful terms")
+        if memory.batch_size != state.shape[:-1]:
+            raise ValueError(
+                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
+                f"{tuple(state.shape[:-1])}"
+            )
 
     def _step_terms(
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from torchtasks._checks import check_finite_scalar, check_input
+from torchtasks._checks import check_finite_scalar
 from torchtasks.rewards.base import RewardFunction
 
 __all__ = ["ConstantReward"]
@@ -32,7 +32,7 @@ class ConstantReward(RewardFunction):
         self.value = check_finite_scalar(value, "value")
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        check_input(error_state, "error_state")
+        self._check_inputs(error_state, error_action)
         return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 
 from torchtasks._checks import check_index, check_input
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, check_ignored_action, index_problem
 
 __all__ = ["CosineReward", "ShiftedCosineReward"]
 
@@ -33,15 +33,22 @@ class CosineReward(RewardFunction):
         super().__init__()
         self.index = check_index(index, "index")
 
-    def _angle(self, error_state: torch.Tensor) -> torch.Tensor:
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return index_problem(who, "index", self.index, state_size)
+
+    def _check(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> None:
         check_input(error_state, "error_state")
         size = error_state.shape[-1]
         if not -size <= self.index < size:
             raise ValueError(f"index {self.index} is out of range for error_state of shape {tuple(error_state.shape)}")
-        return error_state[..., self.index]
+        check_ignored_action(error_state, error_action)
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        return torch.cos(self._angle(error_state))
+        self._check(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return torch.cos(error_state[..., self.index])
 
     def extra_repr(self) -> str:
         return f"index={self.index}"
@@ -61,5 +68,5 @@ class ShiftedCosineReward(CosineReward):
         tensor([1.])
     """
 
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        return 0.5 * (torch.cos(self._angle(error_state)) + 1.0)
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        return 0.5 * (torch.cos(error_state[..., self.index]) + 1.0)

@@ -12,7 +12,7 @@ from tensordict import TensorDict
 
 from torchtasks._checks import cast_like, check_finite_scalar, check_index, check_input, check_same_batch
 from torchtasks._memory import read
-from torchtasks.rewards.base import RewardFunction, squared_sum, sum_terms
+from torchtasks.rewards.base import RewardFunction, entries, index_problem, squared_sum, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
 
@@ -36,6 +36,8 @@ class _ForwardProgressReward(RewardFunction):
 
     stateful = True
     term_names = ("forward", "ctrl")
+    #: the constructor argument that sets ``x_index`` (named in error messages)
+    _x_index_name = "x_index"
 
     def __init__(self, dt: float, x_index: int, forward_reward_weight: float, ctrl_cost_weight: float) -> None:
         super().__init__()
@@ -43,7 +45,7 @@ class _ForwardProgressReward(RewardFunction):
         if dt <= 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
-        self.x_index = check_index(x_index, "x_index")
+        self.x_index = check_index(x_index, self._x_index_name)
         self._register_scalar(
             "forward_reward_weight", check_finite_scalar(forward_reward_weight, "forward_reward_weight")
         )
@@ -52,22 +54,36 @@ class _ForwardProgressReward(RewardFunction):
             raise ValueError(f"ctrl_cost_weight must be non-negative, got {ctrl_cost_weight}")
         self._register_scalar("ctrl_cost_weight", ctrl_cost_weight)
 
-    def _x(self, state: torch.Tensor) -> torch.Tensor:
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return index_problem(who, self._x_index_name, self.x_index, state_size)
+
+    def _check_state(self, state: torch.Tensor, name: str) -> None:
+        """Check ``state`` and that it holds every entry the reward reads (shape checks only)."""
+        check_input(state, name)
         size = state.shape[-1]
         if not -size <= self.x_index < size:
-            raise ValueError(f"x_index={self.x_index} is out of range for a state of shape {tuple(state.shape)}")
+            raise ValueError(
+                f"{self._x_index_name}={self.x_index} is out of range for {name} of shape {tuple(state.shape)}"
+            )
+
+    def _x(self, state: torch.Tensor) -> torch.Tensor:
         return state[..., self.x_index]
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
-        check_input(init_state, "init_state")
+        self._check_state(init_state, "init_state")
         return TensorDict({"x_last": self._x(init_state).clone()}, batch_size=init_state.shape[:-1])
 
     def _check_step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> None:
-        check_input(state, "state")
+        self._check_state(state, "state")
         check_input(action, "action")
         check_same_batch(state, action, "state", "action")
         if not isinstance(memory, TensorDict) or "x_last" not in memory.keys():
             raise TypeError(f"memory must be the TensorDict returned by {type(self).__name__}.reset(init_state)")
+        if memory.batch_size != state.shape[:-1]:
+            raise ValueError(
+                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
+                f"{tuple(state.shape[:-1])}"
+            )
 
     def _common_terms(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         x = self._x(state)
@@ -79,6 +95,11 @@ class _ForwardProgressReward(RewardFunction):
 
     def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         """Return the named reward terms of one step (costs are negative)."""
+        self._check_step(state, action, memory)
+        return self._terms_of(state, action, memory)
+
+    def _terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
+        """:meth:`terms_of` without input validation."""
         return self._common_terms(state, action, memory)
 
     def step_terms(
@@ -91,7 +112,7 @@ class _ForwardProgressReward(RewardFunction):
     def _step_terms(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict
     ) -> tuple[dict[str, torch.Tensor], TensorDict]:
-        values = self.terms_of(state, action, memory)
+        values = self._terms_of(state, action, memory)
         new_memory = TensorDict._new_unsafe({"x_last": self._x(state).clone()}, batch_size=memory.batch_size)
         return values, new_memory
 
@@ -130,6 +151,8 @@ class ForwardVelocityReward(_ForwardProgressReward):
         >>> value, memory["x_last"]
         (tensor([1.7000]), tensor([0.1000]))
     """
+
+    _x_index_name = "index"
 
     def __init__(
         self, dt: float, index: int = 0, forward_reward_weight: float = 1.0, ctrl_cost_weight: float = 0.1
@@ -172,28 +195,51 @@ class _HealthyForwardReward(_ForwardProgressReward):
         self.z_index = check_index(z_index, "z_index")
         self.contact_forces_start = check_index(contact_forces_start, "contact_forces_start")
 
-    def _z(self, state: torch.Tensor) -> torch.Tensor:
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        problem = super()._size_problem(state_size, action_size, who) or index_problem(
+            who, "z_index", self.z_index, state_size
+        )
+        if problem is None and self.contact_forces_start >= state_size:
+            problem = (
+                f"{who} reads the contact forces from contact_forces_start={self.contact_forces_start}, "
+                f"but the task's state has {entries(state_size)}"
+            )
+        return problem
+
+    def _check_z(self, state: torch.Tensor, name: str) -> None:
+        check_input(state, name)
         if not -state.shape[-1] <= self.z_index < state.shape[-1]:
-            raise ValueError(f"z_index={self.z_index} is out of range for a state of shape {tuple(state.shape)}")
+            raise ValueError(f"z_index={self.z_index} is out of range for {name} of shape {tuple(state.shape)}")
+
+    def _check_state(self, state: torch.Tensor, name: str) -> None:
+        super()._check_state(state, name)
+        self._check_z(state, name)
+        if self.contact_forces_start >= state.shape[-1]:
+            raise ValueError(
+                f"contact_forces_start={self.contact_forces_start} is beyond {name} of shape {tuple(state.shape)}"
+            )
+
+    def _z(self, state: torch.Tensor) -> torch.Tensor:
         return state[..., self.z_index]
 
     def _contact_forces(self, state: torch.Tensor) -> torch.Tensor:
-        if self.contact_forces_start >= state.shape[-1]:
-            raise ValueError(
-                f"contact_forces_start={self.contact_forces_start} is beyond a state of shape {tuple(state.shape)}"
-            )
         return state[..., self.contact_forces_start :]
 
     def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
         """Return ``bool[*B]``: whether the body is in its healthy height range."""
+        self._check_z(state, "state")
+        return self._is_healthy(state)
+
+    def _is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        """:meth:`is_healthy` without input validation."""
         raise NotImplementedError
 
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
         raise NotImplementedError
 
-    def terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
+    def _terms_of(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         values = self._common_terms(state, action, memory)
-        healthy = self.is_healthy(state).to(state.dtype)
+        healthy = self._is_healthy(state).to(state.dtype)
         values["healthy"] = cast_like(self.healthy_reward, healthy) * healthy
         values["contact"] = -self._contact_cost(state)
         return values
@@ -265,7 +311,7 @@ class AntForwardReward(_HealthyForwardReward):
         self._register_scalar("contact_force_low", low)
         self._register_scalar("contact_force_high", high)
 
-    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+    def _is_healthy(self, state: torch.Tensor) -> torch.Tensor:
         z = self._z(state)
         finite = torch.isfinite(state).all(dim=-1)
         return finite & (z >= self.healthy_z_low) & (z <= self.healthy_z_high)
@@ -336,7 +382,7 @@ class HumanoidForwardReward(_HealthyForwardReward):
         self._register_scalar("contact_cost_low", low)
         self._register_scalar("contact_cost_high", high)
 
-    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+    def _is_healthy(self, state: torch.Tensor) -> torch.Tensor:
         z = self._z(state)
         return (z > self.healthy_z_low) & (z < self.healthy_z_high)
 

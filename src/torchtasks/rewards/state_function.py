@@ -6,8 +6,8 @@ from collections.abc import Callable
 
 import torch
 
-from torchtasks._checks import check_input
-from torchtasks.rewards.base import RewardFunction
+from torchtasks._checks import SUPPORTED_FLOATS, check_input
+from torchtasks.rewards.base import RewardFunction, check_ignored_action
 
 __all__ = ["StateFunctionReward"]
 
@@ -15,7 +15,7 @@ __all__ = ["StateFunctionReward"]
 class StateFunctionReward(RewardFunction):
     """Reward from a function of the state: ``-fn(state)`` (``negate=True``) or ``fn(state)``.
 
-    ``fn`` maps ``[*B, n]`` to ``[*B]`` with tensor operations (so the reward stays batched,
+    ``fn`` maps ``[*B, n]`` to a floating ``[*B]`` with tensor operations (so the reward stays batched,
     differentiable and compilable). The action is ignored: call ``reward(state, None)``.
 
     Args:
@@ -45,11 +45,26 @@ class StateFunctionReward(RewardFunction):
 
     def forward(self, state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         check_input(state, "state")
+        check_ignored_action(state, error_action, "state")
+        return self._value(state, error_action)
+
+    def _value(self, state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         value = self.fn(state)
-        if not isinstance(value, torch.Tensor) or value.shape != state.shape[:-1]:
-            shape = tuple(value.shape) if isinstance(value, torch.Tensor) else type(value).__name__
+        # dtype and shape only (no values): cheap for every step, so a bad function fails at its first call
+        if not isinstance(value, torch.Tensor) or value.dtype not in SUPPORTED_FLOATS:
+            got = (
+                f"a {value.dtype} tensor"
+                if isinstance(value, torch.Tensor)
+                else f"{value!r} of type {type(value).__name__}"
+            )
+            raise TypeError(
+                f"fn must return a floating (float32 or float64) tensor of shape [*B] = {tuple(state.shape[:-1])} "
+                f"(one value per row), got {got}"
+            )
+        if value.shape != state.shape[:-1]:
             raise ValueError(
-                f"fn must return a tensor of shape {tuple(state.shape[:-1])} (one value per row), got {shape}"
+                f"fn must return a floating tensor of shape [*B] = {tuple(state.shape[:-1])} (one value per row), "
+                f"got shape {tuple(value.shape)}"
             )
         return -value if self.negate else value
 

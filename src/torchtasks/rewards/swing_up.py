@@ -6,8 +6,8 @@ import math
 
 import torch
 
-from torchtasks._checks import check_index, check_input
-from torchtasks.rewards.base import RewardFunction, squared_sum
+from torchtasks._checks import check_finite_scalar, check_index, check_input
+from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
 
 __all__ = ["CartPoleSwingUpReward", "SwingUpReward"]
 
@@ -59,20 +59,32 @@ class SwingUpReward(RewardFunction):
             ("c_act", c_act),
             ("c_theta_sq", c_theta_sq),
         ):
-            self._register_scalar(name, value)
-            if float(value) < 0:
+            value = check_finite_scalar(value, name)
+            if value < 0:
                 raise ValueError(f"{name} must be non-negative, got {value}")
-        if float(c_theta_log) <= 0:
+            self._register_scalar(name, value)
+        c_theta_log = check_finite_scalar(c_theta_log, "c_theta_log")
+        if c_theta_log <= 0:
             raise ValueError(f"c_theta_log must be positive (it keeps the logarithm finite), got {c_theta_log}")
         self._register_scalar("c_theta_log", c_theta_log)
         self.index_x = check_index(index_x, "index_x")
         self.index_theta = check_index(index_theta, "index_theta")
 
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return index_problem(who, "index_x", self.index_x, state_size) or index_problem(
+            who, "index_theta", self.index_theta, state_size
+        )
+
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         self._check_inputs(error_state, error_action)
-        theta_sq = _entry(error_state, self.index_theta, "index_theta") ** 2
+        _entry(error_state, self.index_theta, "index_theta")
+        _entry(error_state, self.index_x, "index_x")
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        theta_sq = error_state[..., self.index_theta] ** 2
         pole_cost = self.c_theta_sq * theta_sq + torch.log(theta_sq + self.c_theta_log)
-        cart_cost = _entry(error_state, self.index_x, "index_x").abs()
+        cart_cost = error_state[..., self.index_x].abs()
         action_cost = squared_sum(error_action)
         return 10.0 - (self.c_pole * pole_cost + self.c_cart * cart_cost + self.c_act * action_cost)
 
@@ -99,14 +111,24 @@ class CartPoleSwingUpReward(RewardFunction):
 
     def __init__(self, factor: float = 0.9) -> None:
         super().__init__()
-        if not 0.0 <= float(factor) <= 1.0:
+        factor = check_finite_scalar(factor, "factor")
+        if not 0.0 <= factor <= 1.0:
             raise ValueError(f"factor must lie in [0, 1], got {factor}")
         self._register_scalar("factor", factor)
+
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        if state_size >= 2:
+            return None
+        return f"{who} reads state entries 0 and 1 (x, θ), but the task's state has {entries(state_size)}"
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         check_input(error_state, "error_state")
         if error_state.shape[-1] < 2:
             raise ValueError(f"error_state must have at least 2 entries (x, θ), got {tuple(error_state.shape)}")
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         pole = 1.0 - (error_state[..., 1].abs() / math.pi) ** 2
         cart = error_state[..., 0].abs()
         return self.factor * pole + (1.0 - self.factor) * cart

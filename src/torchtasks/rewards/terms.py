@@ -15,7 +15,7 @@ from collections.abc import Sequence
 import torch
 
 from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_index, check_input
-from torchtasks.rewards.base import RewardFunction, squared_sum
+from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
 
 __all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
@@ -43,11 +43,11 @@ def _check_pair(value: object, name: str) -> tuple[float, float]:
     return low, high
 
 
-def _check_state_entry(state: torch.Tensor, index: int, owner: str) -> None:
+def _check_state_entry(state: torch.Tensor, index: int, owner: str, name: str) -> None:
     """Raise unless ``index`` addresses an entry of ``state``'s last dimension (a shape check)."""
     size = state.shape[-1]
     if not -size <= index < size:
-        raise ValueError(f"{owner}: index {index} is out of range for a state of shape {tuple(state.shape)}")
+        raise ValueError(f"{owner}: index {index} is out of range for {name} of shape {tuple(state.shape)}")
 
 
 class VelocityReward(RewardFunction):
@@ -75,9 +75,13 @@ class VelocityReward(RewardFunction):
         self._register_scalar("weight", check_finite_scalar(weight, "weight"))
         self.index = check_index(index, "index")
 
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return index_problem(who, "index", self.index, state_size)
+
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
         check_input(error_state, "error_state")
-        _check_state_entry(error_state, self.index, type(self).__name__)
+        _check_state_entry(error_state, self.index, type(self).__name__, "error_state")
+        check_ignored_action(error_state, error_action)
         return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
@@ -200,14 +204,26 @@ class HealthyReward(RewardFunction):
         self.terminate_when_unhealthy = terminate_when_unhealthy
         self.can_fail = terminate_when_unhealthy
 
-    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
-        """Return ``bool[*B]``: whether every selected entry of ``state`` is in its range."""
-        check_input(state, "state")
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        if state_size >= self._min_size:
+            return None
+        return f"{who} reads state entries index={self.index.tolist()}, but the task's state has {entries(state_size)}"
+
+    def _check_state(self, state: torch.Tensor, name: str) -> None:
+        check_input(state, name)
         if state.shape[-1] < self._min_size:
             raise ValueError(
-                f"HealthyReward: index {self.index.tolist()} is out of range for a state of shape {tuple(state.shape)}"
+                f"HealthyReward: index {self.index.tolist()} is out of range for {name} of shape {tuple(state.shape)}"
             )
-        selected = state.index_select(-1, self.index.to(state.device))
+
+    def is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        """Return ``bool[*B]``: whether every selected entry of ``state`` is in its range."""
+        self._check_state(state, "state")
+        return self._is_healthy(state)
+
+    def _is_healthy(self, state: torch.Tensor) -> torch.Tensor:
+        index = self.index if self.index.device == state.device else self.index.to(state.device)
+        selected = state.index_select(-1, index)
         low = cast_like(self.low, selected)
         high = cast_like(self.high, selected)
         if self.inclusive:
@@ -219,7 +235,12 @@ class HealthyReward(RewardFunction):
         return healthy
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        healthy = self.is_healthy(error_state)
+        self._check_state(error_state, "error_state")
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        healthy = self._is_healthy(error_state)
         return cast_like(self.healthy_reward, error_state) * healthy.to(error_state.dtype)
 
     def has_failed(self, state: torch.Tensor) -> torch.Tensor:
@@ -283,19 +304,36 @@ class ContactCostReward(RewardFunction):
         self._register_scalar("cost_low", cost_low)
         self._register_scalar("cost_high", cost_high)
 
-    def contact_forces(self, state: torch.Tensor) -> torch.Tensor:
-        """Return the unclipped forces ``state[..., start:stop]`` (``[*B, n_forces]``)."""
-        check_input(state, "state")
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        end = state_size if self.stop is None else self.stop
+        if self.start < state_size and end <= state_size:
+            return None
+        return (
+            f"{who} reads the state slice start={self.start}, stop={self.stop}, "
+            f"but the task's state has {entries(state_size)}"
+        )
+
+    def _check_state(self, state: torch.Tensor, name: str) -> None:
+        check_input(state, name)
         end = state.shape[-1] if self.stop is None else self.stop
         if end > state.shape[-1] or self.start >= state.shape[-1]:
             raise ValueError(
-                f"ContactCostReward: the slice [{self.start}:{self.stop}] is beyond a state of shape "
+                f"ContactCostReward: the slice [{self.start}:{self.stop}] is beyond {name} of shape "
                 f"{tuple(state.shape)}"
             )
-        return state[..., self.start : end]
+
+    def contact_forces(self, state: torch.Tensor) -> torch.Tensor:
+        """Return the unclipped forces ``state[..., start:stop]`` (``[*B, n_forces]``)."""
+        self._check_state(state, "state")
+        return state[..., self.start : self.stop]
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        forces = self.contact_forces(error_state)
+        self._check_state(error_state, "error_state")
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        forces = error_state[..., self.start : self.stop]
         forces = forces.clamp(cast_like(self.force_low, forces), cast_like(self.force_high, forces))
         cost = cast_like(self.weight, forces) * squared_sum(forces)
         return -cost.clamp(cast_like(self.cost_low, cost), cast_like(self.cost_high, cost))

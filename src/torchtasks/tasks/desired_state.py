@@ -173,4 +173,5 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
         error = read(memory, "state_des") - state
         period = cast_like(self.modulation, error)
         wrapped = error - period * torch.floor((error + 0.5 * period) / period)
-        return torch.where(self.wrap_mask, wrapped, error)
+        mask = self.wrap_mask if self.wrap_mask.device == error.device else self.wrap_mask.to(error.device)
+        return torch.where(mask, wrapped, error)

@@ -36,19 +36,13 @@ class RewardTask(Task):
 
     @staticmethod
     def _check_reward_sizes(spec: EnvSpec, reward: RewardFunction) -> None:
-        """Reject a reward whose weights do not fit the task's state or action size (at construction)."""
-        state_size = getattr(reward, "state_size", None)
-        if state_size is not None and state_size != spec.state_size:
-            raise ValueError(
-                f"reward {type(reward).__name__} expects states of size {state_size}, "
-                f"but the task's state has {spec.state_size} entries"
-            )
-        action_size = getattr(reward, "action_size", None)
-        if reward.uses_action and action_size is not None and action_size != spec.action_size:
-            raise ValueError(
-                f"reward {type(reward).__name__} expects actions of size {action_size}, "
-                f"but the task's action has {spec.action_size} entries"
-            )
+        """Reject a reward that does not fit the task's state or action size (at construction, not per step).
+
+        :meth:`RewardFunction.check_sizes` sees through containers (every term of a
+        :class:`~torchtasks.rewards.CompoundReward`) and checks the state indices of the rewards that
+        read single entries, so the unchecked step path cannot broadcast or index out of range.
+        """
+        reward.check_sizes(spec.state_size, spec.action_size)
 
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
         return {}

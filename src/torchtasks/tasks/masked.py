@@ -14,6 +14,11 @@ from torchtasks.tasks.base import Task
 __all__ = ["MaskedTask"]
 
 
+def _on_device(index: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    """``index`` on the device of ``x`` (a no-op when it is there already, as after ``task.to(device)``)."""
+    return index if index.device == x.device else index.to(x.device)
+
+
 class MaskedTask(Task):
     """Evaluate a task on selected state (and action) entries, in the order given.
 
@@ -82,7 +87,10 @@ class MaskedTask(Task):
         return self.wrapped_task.term_names
 
     def _state(self, state: torch.Tensor) -> torch.Tensor:
-        return state.index_select(-1, self.state_index)
+        return state.index_select(-1, _on_device(self.state_index, state))
+
+    def _action(self, action: torch.Tensor) -> torch.Tensor:
+        return action.index_select(-1, _on_device(self.action_index, action))
 
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
         return self.wrapped_task._reset(self._state(init_state), overrides)
@@ -90,13 +98,13 @@ class MaskedTask(Task):
     def _step_reward(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        action = action.index_select(-1, self.action_index)
+        action = self._action(action)
         return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps)
 
     def _step_terms(
         self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        action = action.index_select(-1, self.action_index)
+        action = self._action(action)
         return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
