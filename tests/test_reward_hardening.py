@@ -29,6 +29,7 @@ import torchtasks.rewards as rewards_module
 from task_trees import class_cases, full_spec, make_drive_data, memory_leaves, predefined_cases
 from torchtasks.rewards import (
     AbsoluteErrorReward,
+    AffineReward,
     AntForwardReward,
     CartPoleSwingUpReward,
     CompoundReward,
@@ -40,12 +41,14 @@ from torchtasks.rewards import (
     ForwardVelocityReward,
     HealthyReward,
     HumanoidForwardReward,
+    ProductReward,
     QuadraticErrorReward,
     RewardFunction,
     ScaledExpQuadraticErrorReward,
     ShiftedCosineReward,
     StateFunctionReward,
     SwingUpReward,
+    ToleranceReward,
     VelocityReward,
 )
 from torchtasks.spaces import Box, EnvSpec
@@ -378,15 +381,31 @@ SIZED = {
     "humanoid": SizedCase(HumanoidForwardReward, *_locomotion_case(HumanoidForwardReward)),
     "swing_up": SizedCase(SwingUpReward, *_swing_up_case()),
     "cart_pole_swing_up": SizedCase(CartPoleSwingUpReward, *_cart_pole_case(), fit_sizes=(2, 3, 4), misfit_sizes=(1,)),
+    "tolerance": SizedCase(
+        ToleranceReward, *_index_case(lambda i: ToleranceReward(bounds=(-1.0, 1.0), margin=0.5, indices=[i]), "indices")
+    ),
 }
 
 #: reward classes without size-carrying constants (any state and action size fits)
-UNSIZED = {ConstantReward, ControlCostReward, StateFunctionReward, CompoundReward, RewardFunction}
+UNSIZED = {
+    ConstantReward,
+    ControlCostReward,
+    StateFunctionReward,
+    CompoundReward,
+    ProductReward,  # a container: forwards the check to its factors
+    AffineReward,  # a container: forwards the check to its reward
+    RewardFunction,
+}
+
+
+def _reward_classes() -> set[type]:
+    """The reward classes the package exports (its __all__ also lists functions and constants)."""
+    exported = (getattr(rewards_module, name) for name in rewards_module.__all__)
+    return {obj for obj in exported if isinstance(obj, type)}
 
 
 def test_sized_cases_cover_every_reward_class_with_size_carrying_constants():
-    classes = {getattr(rewards_module, name) for name in rewards_module.__all__}
-    assert {case.cls for case in SIZED.values()} == classes - UNSIZED
+    assert {case.cls for case in SIZED.values()} == _reward_classes() - UNSIZED
 
 
 CONTAINERS = ("bare", "compound", "nested")
@@ -536,12 +555,20 @@ CALL_CASES = {
         min_state=5,
         state_name="state",
     ),
+    "tolerance": CallCase(lambda: ToleranceReward(bounds=(0.0, 1.0), margin=0.5, indices=[0, 4]), min_state=5),
+    "product": CallCase(
+        lambda: ProductReward({"track": QuadraticErrorReward(_Q5, _R2), "angle": CosineReward(0)}),
+        exact_state=True,
+        exact_action=True,
+    ),
+    "affine": CallCase(
+        lambda: AffineReward(QuadraticErrorReward(_Q5, _R2), scale=2.0, offset=1.0), exact_state=True, exact_action=True
+    ),
 }
 
 
 def test_call_cases_cover_every_reward_class():
-    classes = {getattr(rewards_module, name) for name in rewards_module.__all__} - {RewardFunction}
-    assert {type(case.reward) for case in CALL_CASES.values()} == classes
+    assert {type(case.reward) for case in CALL_CASES.values()} == _reward_classes() - {RewardFunction}
 
 
 TENSOR_MUTATIONS = {

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from dm_control.utils import rewards as dm_rewards
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -22,6 +23,7 @@ from torch import nn
 
 from torchtasks.rewards import (
     AbsoluteErrorReward,
+    AffineReward,
     AntForwardReward,
     CartPoleSwingUpReward,
     CompoundReward,
@@ -33,12 +35,14 @@ from torchtasks.rewards import (
     ForwardVelocityReward,
     HealthyReward,
     HumanoidForwardReward,
+    ProductReward,
     QuadraticErrorReward,
     RewardFunction,
     ScaledExpQuadraticErrorReward,
     ShiftedCosineReward,
     StateFunctionReward,
     SwingUpReward,
+    ToleranceReward,
     VelocityReward,
 )
 from torchtasks.spaces import Box
@@ -265,6 +269,26 @@ CASES = [
         lambda s, a, s0: np_humanoid(s, a, s0[..., 0]),
         state_size=8,
         stateful=True,
+    ),
+    Case(
+        "tolerance",
+        lambda: ToleranceReward(bounds=([-0.5, 0.0], [0.5, math.inf]), margin=[1.0, 0.5], indices=[0, 2]),
+        lambda s, a: (
+            dm_rewards.tolerance(s[..., 0], (-0.5, 0.5), 1.0) * dm_rewards.tolerance(s[..., 2], (0.0, math.inf), 0.5)
+        ),
+        uses_action=False,
+    ),
+    Case(
+        "product",
+        lambda: ProductReward(
+            {"alive": ConstantReward(2.0), "track": QuadraticErrorReward([1.0, 2.0, 0.5], [1.0, 0.5])}
+        ),
+        lambda s, a: 2.0 * -((s**2 * [1.0, 2.0, 0.5]).sum(-1) + (a**2 * [1.0, 0.5]).sum(-1)),
+    ),
+    Case(
+        "affine",
+        lambda: AffineReward(QuadraticErrorReward([1.0, 2.0, 0.5], [1.0, 0.5]), scale=0.5, offset=3.0),
+        lambda s, a: 0.5 * -((s**2 * [1.0, 2.0, 0.5]).sum(-1) + (a**2 * [1.0, 0.5]).sum(-1)) + 3.0,
     ),
     Case(
         "compound_stateful",

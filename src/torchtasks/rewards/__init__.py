@@ -16,12 +16,16 @@ from torchtasks.rewards.error import (
     ScaledExpQuadraticErrorReward,
 )
 from torchtasks.rewards.locomotion import AntForwardReward, ForwardVelocityReward, HumanoidForwardReward
+from torchtasks.rewards.product import AffineReward, ProductReward, hamacher_product
 from torchtasks.rewards.state_function import StateFunctionReward
 from torchtasks.rewards.swing_up import CartPoleSwingUpReward, SwingUpReward
 from torchtasks.rewards.terms import ContactCostReward, ControlCostReward, HealthyReward, VelocityReward
+from torchtasks.rewards.tolerance import SIGMOIDS, ToleranceReward, tolerance
 
 __all__ = [
+    "SIGMOIDS",
     "AbsoluteErrorReward",
+    "AffineReward",
     "AntForwardReward",
     "CartPoleSwingUpReward",
     "CompoundReward",
@@ -33,11 +37,15 @@ __all__ = [
     "ForwardVelocityReward",
     "HealthyReward",
     "HumanoidForwardReward",
+    "ProductReward",
     "QuadraticErrorReward",
     "RewardFunction",
     "ScaledExpQuadraticErrorReward",
     "ShiftedCosineReward",
     "StateFunctionReward",
     "SwingUpReward",
+    "ToleranceReward",
     "VelocityReward",
+    "hamacher_product",
+    "tolerance",
 ]

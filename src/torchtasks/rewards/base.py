@@ -137,6 +137,14 @@ but the task's state has 2 entries
                 )
         return None
 
+    def combine_terms(self, values: Mapping[str, torch.Tensor]) -> torch.Tensor:
+        """The reward from its named terms (:attr:`term_names`): their sum, left to right, by default.
+
+        A :class:`~torchtasks.rewards.ProductReward` multiplies its factors instead. Tasks call it to
+        turn the breakdown they log into the step reward, so both always agree.
+        """
+        return sum_terms(values)
+
     def _register_constant(self, name: str, value: torch.Tensor, learnable: bool = False) -> None:
         """Register ``value`` as a buffer, or as a parameter when ``learnable``."""
         if learnable:

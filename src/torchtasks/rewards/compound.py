@@ -10,7 +10,7 @@ from torch import nn
 
 from torchtasks._checks import check_input, check_same_batch
 from torchtasks._memory import copy_entries, read
-from torchtasks.rewards.base import RewardFunction, empty_memory, sum_terms
+from torchtasks.rewards.base import RewardFunction, empty_memory
 
 __all__ = ["CompoundReward"]
 
@@ -87,12 +87,14 @@ class CompoundReward(RewardFunction):
         return {name: reward(error_state, error_action) for name, reward in self.rewards.items()}
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        return sum_terms(self.terms(error_state, error_action))
+        return self.combine_terms(self.terms(error_state, error_action))
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         if self.stateful:
             raise TypeError("this CompoundReward has stateful terms: use step(state, action, memory)")
-        return sum_terms({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
+        return self.combine_terms(
+            {name: reward._value(error_state, error_action) for name, reward in self.rewards.items()}
+        )
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
         check_input(init_state, "init_state")
@@ -156,13 +158,13 @@ class CompoundReward(RewardFunction):
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
     ) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self._step_terms(state, action, memory)
-        return sum_terms(values), memory
+        return self.combine_terms(values), memory
 
     def step(
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict
     ) -> tuple[torch.Tensor, TensorDict]:
         values, memory = self.step_terms(state, action, memory)
-        return sum_terms(values), memory
+        return self.combine_terms(values), memory
 
     def has_failed(self, state: torch.Tensor) -> torch.Tensor:
         failed = super().has_failed(state)

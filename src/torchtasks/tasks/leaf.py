@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 
 from torchtasks._memory import copy_entries, read
-from torchtasks.rewards.base import RewardFunction, sum_terms
+from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import make_memory
@@ -94,7 +94,7 @@ class RewardTask(Task):
             entries = copy_entries(memory)
             entries["reward"] = reward_memory
             memory = make_memory(entries, memory.batch_size)
-        return terms, sum_terms(terms), memory
+        return terms, self.reward.combine_terms(terms), memory
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
