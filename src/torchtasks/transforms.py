@@ -9,13 +9,13 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.data import Categorical, Composite, Unbounded
-from torchrl.envs.transforms import Compose, StepCounter, Transform
+from torchrl.envs.transforms import Compose, StepCounter, Transform, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS
 from torchtasks._memory import td_get, td_set
 from torchtasks.tasks.base import Task
-from torchtasks.tasks.memory import where_memory
+from torchtasks.tasks.memory import MemoryLayout, where_memory
 
 __all__ = ["TaskTransform"]
 
@@ -26,6 +26,53 @@ def _flat_transforms(transform: Transform) -> list[Transform]:
     if isinstance(transform, Compose):
         return [leaf for child in transform.transforms for leaf in _flat_transforms(child)]
     return [transform]
+
+
+def _is_key(value: object) -> bool:
+    return isinstance(value, str) or (isinstance(value, tuple) and len(value) > 0 and all(map(_is_key, value)))
+
+
+def _nested_key(value: object, name: str) -> NestedKey:
+    """``value`` unravelled as a TensorDict key (a string or a tuple of strings), else ``TypeError`` naming ``name``."""
+    if not _is_key(value):  # checked here: unravel_key(("a", 3)) silently returns "a"
+        raise TypeError(
+            f"TaskTransform: {name} must be a key (a string or a tuple of strings), got {value!r} of type "
+            f"{type(value).__name__}"
+        )
+    return unravel_key(value)
+
+
+def _state_keys(state_key: object) -> list[NestedKey]:
+    """The state keys: one key, or a non-empty list of keys concatenated on the last dim."""
+    if isinstance(state_key, str) or (
+        isinstance(state_key, tuple) and state_key and not isinstance(state_key[0], (tuple, list))
+    ):
+        return [_nested_key(state_key, "state_key")]
+    if not isinstance(state_key, Sequence):
+        raise TypeError(
+            "TaskTransform: state_key must be a key (a string or a tuple of strings) or a non-empty list of keys, "
+            f"got {state_key!r} of type {type(state_key).__name__}"
+        )
+    if len(state_key) == 0:
+        raise ValueError("TaskTransform: state_key must name at least one entry, got an empty list")
+    return [_nested_key(key, f"state_key[{i}]") for i, key in enumerate(state_key)]
+
+
+def _keys_text(keys: Any) -> str:
+    """``keys`` as a sorted list of reprs (single quotes only, so a KeyError's message reads as written)."""
+    return "[" + ", ".join(repr(key) for key in sorted(keys, key=str)) + "]"
+
+
+def _overlap(a: NestedKey, b: NestedKey) -> bool:
+    """Whether writing one key would overwrite the other (equal, or one nested under the other)."""
+    a, b = (a,) if isinstance(a, str) else a, (b,) if isinstance(b, str) else b
+    n = min(len(a), len(b))
+    return a[:n] == b[:n]
+
+
+def _has_leaves(layout: MemoryLayout) -> bool:
+    """Whether a memory layout holds any tensor (a memory of only empty sub-memories holds none)."""
+    return any(key not in layout.nested or _has_leaves(layout.nested[key]) for key in layout.keys)
 
 
 def _as_entry(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
@@ -63,14 +110,23 @@ class TaskTransform(Transform):
     ``truncated`` is left untouched.
 
     The remaining steps passed to the task are ``max_steps - step_count`` when a
-    ``StepCounter(max_steps)`` precedes this transform (0 without a limit, as in Pyrado).
+    ``StepCounter(max_steps)`` precedes this transform or ``max_steps`` is given (0 without a limit,
+    as in Pyrado). A task that reads them (``task.uses_remaining_steps``) in an env that counts steps
+    with a limit the transform cannot see (e.g. StepCounters inside the workers of a batched env) is
+    an error, not "no limit"; offline, such a task needs ``max_steps`` for data holding
+    ``("next", "step_count")``.
+
+    Every time the env's specs are built the transform sets itself up for the env it is in now
+    (state and action sizes, dtype, time limit, transform order): a transform moved, cloned or
+    deep-copied into another env follows that env.
 
     When the specs are first built, the task is moved to the dtype of the state entry
     (``task.to(dtype)``, in place), so constants are cast once and not at every step; build a
     separate task object if you need the original precision elsewhere.
 
     Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
-    ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it), and,
+    ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it; none for
+    a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`), and,
     with ``log_terms``, the reward breakdown ``(terms_key, "step")``, ``(terms_key, "final")`` and
     one entry per named term of a compound or locomotion reward (reward spec, so a following
     ``RewardSum()`` reports per-term episode sums).
@@ -83,6 +139,7 @@ class TaskTransform(Transform):
         memory_key, success_key, failure_key, terms_key: output keys.
         log_terms: write the reward breakdown.
         max_steps: time limit for the remaining steps; by default read from a preceding StepCounter.
+            Needed offline, and when the env's StepCounters are out of the transform's sight.
         reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (e.g. a goal
             sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
@@ -128,34 +185,50 @@ class TaskTransform(Transform):
             raise ValueError(f"max_steps must be a positive int or None, got {max_steps!r}")
         if reset_overrides is not None and not callable(reset_overrides):
             raise TypeError(f"reset_overrides must be callable, got {type(reset_overrides).__name__}")
-        if isinstance(state_key, (str, tuple)) and not (
-            isinstance(state_key, tuple) and state_key and isinstance(state_key[0], tuple)
-        ):
-            state_keys = [unravel_key(state_key)]
-        else:
-            state_keys = [unravel_key(key) for key in state_key]
+        state_keys = _state_keys(state_key)
         reserved = {"step", "final"} & set(task.term_names)
         if log_terms and reserved:
             raise ValueError(f"reward terms may not be named {sorted(reserved)}: those names are the breakdown's")
         self.state_keys = state_keys
-        self.action_key = unravel_key(action_key)
-        self.reward_key = unravel_key(reward_key)
-        self.memory_key = unravel_key(memory_key)
-        self.success_key = unravel_key(success_key)
-        self.failure_key = unravel_key(failure_key)
-        self.terms_key = unravel_key(terms_key)
+        self.action_key = _nested_key(action_key, "action_key")
+        self.reward_key = _nested_key(reward_key, "reward_key")
+        self.memory_key = _nested_key(memory_key, "memory_key")
+        self.success_key = _nested_key(success_key, "success_key")
+        self.failure_key = _nested_key(failure_key, "failure_key")
+        self.terms_key = _nested_key(terms_key, "terms_key")
         self.reward_on = reward_on
         self.log_terms = log_terms
         self.reset_overrides = reset_overrides
         self.compile = compile
         self._explicit_max_steps = max_steps
-        in_keys = [*state_keys, self.action_key, self.memory_key]
-        out_keys = [self.reward_key, self.memory_key, self.success_key, self.failure_key]
+        # a task tree without memory tensors (e.g. GoallessTask) registers and writes no memory entry: batched
+        # envs refuse empty specs; its (empty) memory is built in the step
+        self._has_memory = _has_leaves(task.memory_layout)
+        self._uses_remaining = task.uses_remaining_steps
+        self._check_key_collisions()
+        memory_keys = [self.memory_key] if self._has_memory else []
+        in_keys = [*state_keys, self.action_key, *memory_keys]
+        out_keys = [self.reward_key, *memory_keys, self.success_key, self.failure_key]
         super().__init__(in_keys=in_keys, out_keys=out_keys)
         self.task = task
         # static per task tree: computed once, read every step
         self._term_names = tuple(task.term_names) if log_terms else ()
         self._term_keys = [self._key(name) for name in ("step", "final", *self._term_names)] if log_terms else []
+
+    def _check_key_collisions(self) -> None:
+        """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
+        names = ["reward_key", "memory_key", "success_key", "failure_key", *(["terms_key"] if self.log_terms else [])]
+        outputs = [(f"{name}={getattr(self, name)!r}", getattr(self, name)) for name in names]
+        others = [(f"the env's {flag!r} flag", flag) for flag in ("done", "terminated", "truncated")]
+        others += [(f"the state key {key!r}", key) for key in self.state_keys]
+        others.append((f"action_key={self.action_key!r}", self.action_key))
+        for i, (name, key) in enumerate(outputs):
+            for other_name, other in outputs[i + 1 :] + others:
+                if _overlap(key, other):
+                    raise ValueError(
+                        f"TaskTransform: {name} collides with {other_name}: the transform writes each output under "
+                        "its own key, so no key may equal another or contain it; pick distinct keys"
+                    )
 
     # ------------------------------------------------------------------ configuration
     def _key(self, *parts: str) -> NestedKey:
@@ -167,15 +240,24 @@ class TaskTransform(Transform):
         """Keys of the reward breakdown: step reward, final reward, then the named terms."""
         return list(self._term_keys)
 
-    def _setup(self) -> None:
-        """Find the time limit and reject set-ups that cannot work (once, when specs are built)."""
-        if "_max_steps" in self.__dict__:
-            return
-        max_steps = self._explicit_max_steps
+    def _container_env(self) -> Any:
         try:
-            container = self.container
+            return self.container
         except (AttributeError, ValueError):  # not in an env (e.g. a replay buffer's transform)
-            container = None
+            return None
+
+    def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
+        """Return ``(max_steps, step_count_key, counted)`` for the env the transform is in now.
+
+        ``max_steps`` is the explicit one or that of the first ``StepCounter`` preceding this transform (in
+        its Compose, or in a TransformedEnv it wraps); ``counted`` says whether such a StepCounter exists.
+        Derived from the current container every time (never cached here): a transform moved, cloned or
+        deep-copied into another env finds that env's limit. Raises ``ValueError`` for a StepCounter after
+        the transform and, given the observation spec, for a time-dependent task in an env that counts
+        steps with a limit the transform cannot see.
+        """
+        max_steps, step_count_key, counters = self._explicit_max_steps, "step_count", []
+        container = self._container_env()
         if container is not None and getattr(container, "transform", None) is not None:
             transforms = _flat_transforms(container.transform)
             position = next((i for i, t in enumerate(transforms) if t is self), None)
@@ -187,17 +269,65 @@ class TaskTransform(Transform):
                         "StepCounter is placed after TaskTransform: the task would not see step_count and "
                         "truncation. Put StepCounter(max_steps) before TaskTransform in the Compose."
                     )
-                if max_steps is None and transform.max_steps is not None:
-                    max_steps = transform.max_steps
+                counters.append(transform)
+            inner = container.base_env  # envs wrapped with auto_unwrap=False: their transforms come first
+            while isinstance(inner, TransformedEnv):
+                counters[:0] = [t for t in _flat_transforms(inner.transform) if isinstance(t, StepCounter)]
+                inner = inner.base_env
             _check_vector_gym(container.base_env)
-        self.__dict__["_max_steps"] = max_steps
-        self.__dict__["_needs_remaining"] = max_steps is not None and self.task.uses_remaining_steps
+        if max_steps is None:
+            counter = next((c for c in counters if c.max_steps is not None), None)
+            if counter is not None:
+                max_steps, step_count_key = counter.max_steps, counter.step_count_key
+        if (
+            max_steps is None
+            and not counters
+            and self._uses_remaining
+            and observation_spec is not None
+            and "step_count" in observation_spec.keys()
+        ):
+            raise ValueError(
+                f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final "
+                "reward) and the env counts steps ('step_count' is in its observation spec), but no time limit "
+                "reaches the transform: max_steps is not given and no StepCounter precedes TaskTransform in its "
+                "Compose (e.g. a StepCounter inside the workers of a batched env is not visible to it). "
+                "Pass TaskTransform(..., max_steps=<the env's limit>), or put StepCounter(max_steps) before "
+                "TaskTransform in the same Compose."
+            )
+        return max_steps, step_count_key, bool(counters)
+
+    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey]:
+        """Derive the time limit for the current container and store what the step reads (at spec building)."""
+        max_steps, step_count_key, _ = self._time_limit(observation_spec)
+        # the step computes the remaining steps only for a task tree that reads them and a known limit
+        limit = (max_steps if self._uses_remaining else None, step_count_key)
+        self.__dict__["_limit"] = limit
+        return limit
+
+    def _forget_setup(self) -> None:
+        """Drop what was derived for the previous env (the next spec building or step derives it again)."""
+        self.__dict__.pop("_limit", None)
+
+    def set_container(self, container: Transform | Any) -> None:
+        super().set_container(container)
+        self._forget_setup()
+
+    def reset_parent(self) -> None:
+        super().reset_parent()
+        self._forget_setup()
+
+    def clone(self) -> TaskTransform:
+        copy = super().clone()
+        copy._forget_setup()
+        return copy
 
     @property
     def max_steps(self) -> int | None:
-        """The time limit used for the remaining steps (None: no limit, remaining steps are 0)."""
-        self._setup()
-        return self.__dict__["_max_steps"]
+        """The time limit used for the remaining steps (None: no limit, remaining steps are 0).
+
+        Read from the env the transform is in now (nothing is frozen by reading it).
+        """
+        return self._time_limit()[0]
 
     # ------------------------------------------------------------------------- specs
     def _state_spec_size(self, observation_spec: Composite) -> tuple[int, torch.dtype, torch.Size]:
@@ -208,7 +338,7 @@ class TaskTransform(Transform):
             if key not in observation_spec.keys(True, True):
                 raise KeyError(
                     f"TaskTransform: the state key {key!r} is not in the observation spec; available keys are "
-                    f"{sorted(map(str, observation_spec.keys(True, True)))}. Pass state_key=... naming the entry "
+                    f"{_keys_text(observation_spec.keys(True, True))}. Pass state_key=... naming the entry "
                     "that holds the task's state."
                 )
             spec = observation_spec[key]
@@ -216,19 +346,46 @@ class TaskTransform(Transform):
                 raise ValueError(
                     f"TaskTransform: the state entry {key!r} must have shape [*batch, n], got {tuple(spec.shape)}"
                 )
+            if spec.dtype not in SUPPORTED_FLOATS:
+                kind = "half precision is not supported" if spec.dtype.is_floating_point else "not a float dtype"
+                raise TypeError(
+                    f"TaskTransform: the state entries {self.state_keys} have dtype {spec.dtype} (state key "
+                    f"{key!r}: {spec.dtype}, {kind}); tasks evaluate float32 or float64 states. Cast the entry "
+                    "first (e.g. with torchrl's DTypeCastTransform) or pick another state_key"
+                )
             size += spec.shape[-1]
             dtype = spec.dtype if dtype is None else torch.promote_types(dtype, spec.dtype)
-        if dtype not in SUPPORTED_FLOATS:
-            raise TypeError(
-                f"TaskTransform: the state entries {self.state_keys} have dtype {dtype}; tasks evaluate float32 or "
-                "float64 states (cast the observation first, e.g. with torchrl's DTypeCastTransform)"
-            )
         if size != self.task.state_size:
             raise ValueError(
                 f"TaskTransform: the task reads states of size {self.task.state_size} but {self.state_keys} "
                 f"holds {size} entries; build the task for this env's state or pick another state_key"
             )
         return size, dtype, batch
+
+    def _check_action_spec(self, batch: torch.Size) -> None:
+        """The action entry exists in the env's action spec and has the task's action size."""
+        parent = self.parent
+        if parent is None:
+            return
+        action_spec = parent.full_action_spec
+        keys = list(action_spec.keys(True, True))
+        if self.action_key not in keys:
+            raise KeyError(
+                f"TaskTransform: the action key {self.action_key!r} is not in the env's action spec; available "
+                f"keys are {_keys_text(keys)}. Pass action_key=... naming the action entry."
+            )
+        shape = action_spec[self.action_key].shape
+        if len(shape) != len(batch) + 1 or shape[: len(batch)] != batch:
+            raise ValueError(
+                f"TaskTransform: the action entry {self.action_key!r} must have shape [*batch, m] with batch "
+                f"{tuple(batch)}, got {tuple(shape)}"
+            )
+        if shape[-1] != self.task.action_size:
+            raise ValueError(
+                f"TaskTransform: the task reads actions of size {self.task.action_size} but the env's action "
+                f"{self.action_key!r} (action_key) has {shape[-1]} entries; build the task for this env's actions "
+                "or pick another action_key"
+            )
 
     def _memory_spec(self, batch: torch.Size, dtype: torch.dtype, device: torch.device | None) -> Composite:
         init_state = torch.zeros((*batch, self.task.state_size), dtype=dtype, device=device)
@@ -237,15 +394,17 @@ class TaskTransform(Transform):
         return spec.to(device) if device is not None else spec
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        self._setup()
         _, dtype, batch = self._state_spec_size(observation_spec)
+        self._check_action_spec(batch)
+        self._setup(observation_spec)
         self.task.to(dtype)
         self.__dict__["_state_dtype"] = dtype
         device = observation_spec.device
         done_shape = self.parent.full_done_spec["done"].shape if self.parent is not None else (*batch, 1)
         observation_spec[self.success_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
         observation_spec[self.failure_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
-        observation_spec[self.memory_key] = self._memory_spec(batch, dtype, device)
+        if self._has_memory:
+            observation_spec[self.memory_key] = self._memory_spec(batch, dtype, device)
         return observation_spec
 
     def transform_state_spec(self, state_spec: Composite) -> Composite:
@@ -254,7 +413,8 @@ class TaskTransform(Transform):
         _, dtype, batch = self._state_spec_size(observation_spec)
         if state_spec is None:
             state_spec = Composite(shape=batch, device=observation_spec.device)
-        state_spec[self.memory_key] = self._memory_spec(batch, dtype, observation_spec.device)
+        if self._has_memory:
+            state_spec[self.memory_key] = self._memory_spec(batch, dtype, observation_spec.device)
         return state_spec
 
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
@@ -290,18 +450,66 @@ class TaskTransform(Transform):
             self._state_spec_size(parent.full_observation_spec)
         raise KeyError(
             f"TaskTransform: the state key(s) {self.state_keys} are missing from the data; available keys are "
-            f"{sorted(map(str, tensordict.keys(True, True)))}. Pass state_key=... naming the entry that holds "
+            f"{_keys_text(tensordict.keys(True, True))}. Pass state_key=... naming the entry that holds "
             "the task's state."
         )
 
+    def _missing_entry(self, tensordict: TensorDictBase, what: str, hint: str) -> None:
+        raise KeyError(
+            f"TaskTransform: {what} is missing from the data; available keys are "
+            f"{_keys_text(tensordict.keys(True, True))}. {hint}"
+        )
+
+    def _missing_memory(self, tensordict: TensorDictBase, offline: bool) -> None:
+        if offline:
+            hint = (
+                "Stored transitions need the task memory before the step at the root, as collected with this "
+                "TaskTransform (pass memory_key=... if it was collected under another key)."
+            )
+        else:
+            hint = (
+                "The memory is written at reset: call env.reset() first and step from the tensordict it "
+                "returns (then from env.step_mdp(...) of each step's output)."
+            )
+        self._missing_entry(tensordict, f"the task memory (memory_key={self.memory_key!r})", hint)
+
+    def _missing_action(self, tensordict: TensorDictBase) -> None:
+        try:
+            parent = self.parent
+        except (AttributeError, ValueError):
+            parent = None
+        if parent is not None:  # the spec check names the keys of the env's action spec
+            self._check_action_spec(parent.full_observation_spec.shape)
+        self._missing_entry(
+            tensordict, f"the action (action_key={self.action_key!r})", "Pass action_key=... naming the action entry."
+        )
+
     def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor) -> torch.Tensor:
-        self._setup()
-        if not self.__dict__["_needs_remaining"]:
+        limit = self.__dict__.get("_limit")
+        if limit is None:
+            limit = self._setup()
+        max_steps, step_count_key = limit
+        if max_steps is None:
             # no limit (Pyrado passes 0), or no task of the tree reads it: skip the arithmetic
             return self.task.no_remaining_steps
-        max_steps = self.__dict__["_max_steps"]
-        step_count = next_tensordict.get("step_count")
+        step_count = td_get(next_tensordict, step_count_key)
+        if step_count is None:
+            self._missing_entry(
+                next_tensordict,
+                f"the step count ('next', {step_count_key!r})",
+                f"{type(self.task).__name__} reads the remaining steps, max_steps - step_count with "
+                f"max_steps={max_steps}: the data must hold the step count after each step under "
+                f"('next', {step_count_key!r}) (as written by StepCounter).",
+            )
         return max_steps - step_count.reshape(reference.shape[:-1])
+
+    def _empty_memory(self, state: torch.Tensor) -> TensorDictBase:
+        """The memory of a task tree without memory tensors, for the batch of ``state`` (cached per batch shape)."""
+        memory = self.__dict__.get("_empty_template")
+        if memory is None or memory.batch_size != state.shape[:-1]:
+            memory = self.task._reset(state, {})
+            self.__dict__["_empty_template"] = memory
+        return memory
 
     def _evaluator(self) -> Callable[..., Any]:
         """The task's transition function (:meth:`Task._transition`), compiled with ``compile=True``."""
@@ -315,7 +523,8 @@ class TaskTransform(Transform):
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
-        state.pop("_compiled_transition", None)
+        for key in ("_compiled_transition", "_limit", "_empty_template"):
+            state.pop(key, None)
         return state
 
     def _episode_end_flags(
@@ -355,9 +564,16 @@ class TaskTransform(Transform):
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
         action = td_get(tensordict, self.action_key)
+        if action is None:
+            self._missing_action(tensordict)
         if action.dtype != state.dtype:
             action = action.to(state.dtype)
-        memory = td_get(tensordict, self.memory_key)
+        if self._has_memory:
+            memory = td_get(tensordict, self.memory_key)
+            if memory is None:
+                self._missing_memory(tensordict, offline)
+        else:
+            memory = self._empty_memory(state)
         done, env_terminated, truncated, has_terminated = self._episode_end_flags(
             next_tensordict, state.shape[:-1], offline
         )
@@ -376,7 +592,7 @@ class TaskTransform(Transform):
         if has_terminated:
             td_set(next_tensordict, "terminated", terminated.reshape(shape))
         td_set(next_tensordict, "done", done_now.reshape(shape))
-        if not offline:
+        if not offline and self._has_memory:
             td_set(next_tensordict, self.memory_key, memory)
         if self.log_terms:
             values = [step_reward, final, *(terms[name] for name in self._term_names)]
@@ -390,12 +606,13 @@ class TaskTransform(Transform):
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         init_state = self._read_state(tensordict_reset)
-        memory = self.task._reset(init_state, self._overrides(init_state))
-        reset_mask = None if tensordict is None else tensordict.get("_reset", None)
-        old = None if tensordict is None else tensordict.get(self.memory_key, None)
-        if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
-            memory = where_memory(reset_mask.reshape(memory.batch_size), memory, old)
-        tensordict_reset.set(self.memory_key, memory)
+        if self._has_memory:
+            memory = self.task._reset(init_state, self._overrides(init_state))
+            reset_mask = None if tensordict is None else tensordict.get("_reset", None)
+            old = None if tensordict is None else tensordict.get(self.memory_key, None)
+            if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
+                memory = where_memory(reset_mask.reshape(memory.batch_size), memory, old)
+            tensordict_reset.set(self.memory_key, memory)
         flags = torch.zeros(
             (*init_state.shape[:-1], 1) if self.parent is None else self.parent.full_done_spec["done"].shape,
             dtype=torch.bool,
@@ -415,17 +632,34 @@ class TaskTransform(Transform):
         stored success/failure flags attribute to the task is re-judged (a relabelled goal may
         change it); truncation and the env's own termination are kept.
         """
-        next_tensordict = tensordict.get("next")
+        next_tensordict = self._offline_next(tensordict)
         self._transition(tensordict, next_tensordict, offline=True)
         return tensordict
+
+    def _offline_next(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """The ``"next"`` entry of stored transitions, after the checks of offline use."""
+        next_tensordict = tensordict.get("next", None)
+        if next_tensordict is None:
+            self._missing_entry(tensordict, "'next'", "Stored transitions hold the next state and flags under 'next'.")
+        limit = self.__dict__.get("_limit")
+        if limit is None:
+            limit = self._setup()
+        if self._uses_remaining and limit[0] is None and "step_count" in next_tensordict.keys():
+            raise ValueError(
+                f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final "
+                "reward) and the data holds ('next', 'step_count'), but max_steps is not known: outside an env "
+                "there is no StepCounter to read it from. Pass TaskTransform(..., max_steps=<the limit the data "
+                "was collected with>)."
+            )
+        return next_tensordict
 
     def reward_fn(self, tensordict: TensorDictBase) -> torch.Tensor:
         """Return the task reward ``[*B, 1]`` of stored transitions (e.g. ``HERReplayBuffer(reward_fn=...)``).
 
         The data is not modified.
         """
-        data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, "next", strict=False)
-        next_data = tensordict.get("next").copy()
+        next_data = self._offline_next(tensordict).copy()
+        data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, strict=False)
         self._transition(data, next_data, offline=True)
         return next_data.get(self.reward_key)
 
