@@ -1,4 +1,4 @@
-"""Ready environments: a batched torch pendulum (and, with the ``mujoco`` extra, Gymnasium presets)."""
+"""Ready environments: a batched torch pendulum and, with the ``mujoco`` extra, Gymnasium presets and batched MuJoCo."""
 
 from typing import Any
 
@@ -17,7 +17,10 @@ _LOCOMOTION = (
     "make_gymnasium_env",
 )
 
-__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION]
+#: the batched MuJoCo env (torchtasks.envs.batched_mujoco), imported on first access for the same reason
+_BATCHED_MUJOCO = ("BatchedMujocoEnv",)
+
+__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION, *_BATCHED_MUJOCO]
 
 
 def __getattr__(name: str) -> Any:
@@ -25,4 +28,8 @@ def __getattr__(name: str) -> Any:
         from torchtasks.envs import locomotion
 
         return getattr(locomotion, name)
+    if name in _BATCHED_MUJOCO:
+        from torchtasks.envs import batched_mujoco
+
+        return getattr(batched_mujoco, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

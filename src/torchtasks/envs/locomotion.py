@@ -7,11 +7,13 @@
 failures when ``terminate_when_unhealthy``. Every Gymnasium keyword argument of the env is accepted
 and the defaults are Gymnasium's own (read from the env class's signature).
 
-:func:`gymnasium_env` builds the matching TorchRL env: a Gymnasium env (``GymWrapper``, or a
-``ParallelEnv`` of them), ``StepCounter(1000)``, the :class:`~torchtasks.transforms.TaskTransform` of
-the task and ``RewardSum``. The observation the policy sees is Gymnasium's default observation,
-unchanged. The task's state is assembled from ``info`` entries read as float64 root entries of the
-tensordict (:func:`locomotion_state_layout` lists them, in order):
+:func:`gymnasium_env` builds the matching TorchRL env: the envs (a
+:class:`~torchtasks.envs.batched_mujoco.BatchedMujocoEnv` stepping all of them in one process, the
+default for more than one env, or a Gymnasium env in a ``GymWrapper``, or a ``ParallelEnv`` of them),
+``StepCounter(1000)``, the :class:`~torchtasks.transforms.TaskTransform` of the task and ``RewardSum``.
+The observation the policy sees is Gymnasium's default observation, unchanged. The task's state is
+assembled from float64 root entries of the tensordict (read from ``info`` on the Gymnasium path;
+:func:`locomotion_state_layout` lists them, in order):
 
 =============  ======================================  =============================================
 env            task state (info keys, concatenated)    where the entries come from
@@ -39,7 +41,7 @@ import inspect
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -492,26 +494,35 @@ def gymnasium_env(
     num_envs: int = 1,
     seed: int | None = None,
     device: torch.device | str | None = None,
+    backend: Literal["batched", "gymnasium"] | None = None,
+    num_threads: int | None = None,
     **gym_kwargs: Any,
 ) -> TransformedEnv:
     """Return a TorchRL env of a Gymnasium MuJoCo v5 locomotion env whose reward comes from :func:`locomotion_task`.
 
     ``TransformedEnv(base, Compose(StepCounter(1000), TaskTransform(task, state_key=[...]), RewardSum()))``
-    where ``base`` is :func:`make_base_env` (``num_envs == 1``) or a ``ParallelEnv`` of ``num_envs``
-    of them (built in spawned workers from a ``functools.partial`` of :func:`make_base_env`). The
-    policy's ``"observation"`` is Gymnasium's, unchanged; the task's state entries
-    (:func:`locomotion_state_layout`) are float64 root entries read from info. ``"reward"`` is the
-    task reward, ``"success"``/``"failure"`` the task flags (failure = unhealthy with
+    where ``base`` is, with ``backend="batched"`` (the default for ``num_envs > 1``), a
+    :class:`~torchtasks.envs.batched_mujoco.BatchedMujocoEnv` that steps all ``num_envs`` envs in
+    this process with native threads, or, with ``backend="gymnasium"`` (the default for
+    ``num_envs == 1``), :func:`make_base_env` (one ``gymnasium.make`` env) or a ``ParallelEnv`` of
+    ``num_envs`` of them (built in spawned workers from a ``functools.partial`` of
+    :func:`make_base_env`; far slower, kept for parity checks). The policy's ``"observation"`` is
+    Gymnasium's, unchanged; the task's state entries (:func:`locomotion_state_layout`) are float64
+    root entries. ``"reward"`` is the task reward (float64 with the batched backend, float32 with
+    Gymnasium's), ``"success"``/``"failure"`` the task flags (failure = unhealthy with
     ``terminate_when_unhealthy``), ``("task_reward", name)`` the named terms and ``RewardSum``
     writes ``"episode_reward"`` and the per-term episode sums.
 
     Args:
         env_id: one of :data:`SUPPORTED_ENV_IDS`.
-        num_envs: number of environments (``> 1``: a ``ParallelEnv``, which handles partial resets).
-        seed: seed passed to ``env.set_seed``: TorchRL then calls the Gymnasium env's
-            ``reset(seed=seed)`` once, so plain Gymnasium is reproduced by ``reset(seed=seed)``
-            followed by one ``reset()`` per TorchRL reset. ``None``: unseeded.
+        num_envs: number of environments (both backends handle partial resets).
+        seed: ``backend="gymnasium"``: seed passed to ``env.set_seed``: TorchRL then calls the
+            Gymnasium env's ``reset(seed=seed)`` once, so plain Gymnasium is reproduced by
+            ``reset(seed=seed)`` followed by one ``reset()`` per TorchRL reset.
+            ``backend="batched"``: the seed of the per-env reset generators. ``None``: unseeded.
         device: device of the TorchRL env and the task.
+        backend: ``"batched"`` or ``"gymnasium"``; ``None``: ``"batched"`` when ``num_envs > 1``.
+        num_threads: threads of the batched backend (default: the CPUs this process may use).
         **gym_kwargs: the env's Gymnasium keyword arguments, used by both Gymnasium and the task
             (see :func:`locomotion_task`).
 
@@ -522,24 +533,38 @@ def gymnasium_env(
         >>> rollout = env.rollout(5, break_when_any_done=False)
         >>> rollout["next", "reward"].shape, rollout["next", "task_reward", "survive"][:, 0]
         (torch.Size([5, 1]), tensor([1., 1., 1., 1., 1.]))
+        >>> batched = gymnasium_env("Hopper-v5", num_envs=2, seed=0)
+        >>> batched.rollout(3)["next", "reward"].shape
+        torch.Size([2, 3, 1])
     """
     config = _config(env_id, gym_kwargs)
     if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
         raise TypeError(f"seed must be an int or None, got {seed!r}")
+    if backend is None:
+        backend = "batched" if num_envs > 1 else "gymnasium"
+    if backend not in ("batched", "gymnasium"):
+        raise ValueError(f"backend must be 'batched' or 'gymnasium', got {backend!r}")
+    if num_threads is not None and backend != "batched":
+        raise ValueError("num_threads applies to backend='batched' only")
     facts = _model_facts(env_id, gym_kwargs)
     task = _build_task(env_id, config, facts)
     if device is not None:
         task = task.to(device)
-    create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
-    base = create_env() if num_envs == 1 else ParallelEnv(num_envs, create_env, device=device)
+    if backend == "batched":
+        from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
+
+        base = BatchedMujocoEnv(env_id, num_envs, seed=seed, device=device, num_threads=num_threads, **gym_kwargs)
+    else:
+        create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
+        base = create_env() if num_envs == 1 else ParallelEnv(num_envs, create_env, device=device)
     transform = Compose(
         StepCounter(MAX_EPISODE_STEPS),
         TaskTransform(task, state_key=list(_layout(env_id, facts))),
         RewardSum(),
     )
     env = TransformedEnv(base, transform)
-    if seed is not None:
+    if seed is not None and backend == "gymnasium":
         env.set_seed(int(seed))
     return env

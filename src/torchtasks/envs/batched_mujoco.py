@@ -1,0 +1,444 @@
+"""Batched Gymnasium MuJoCo v5 locomotion envs in one process: one ``MjModel``, one ``MjData`` per env, native threads.
+
+:class:`BatchedMujocoEnv` steps ``num_envs`` copies of a Gymnasium v5 locomotion env (HalfCheetah,
+Hopper, Walker2d, Swimmer, Ant, Humanoid) as one TorchRL env with ``batch_size=[num_envs]``. The
+model is the one Gymnasium builds for the same keyword arguments, each step applies
+``ctrl = action`` and advances ``frame_skip`` MuJoCo substeps per env in a small pool of threads
+(``mujoco.mj_step`` releases the GIL), and the observation is computed for all envs at once from
+stacked numpy arrays, exactly as Gymnasium v5 computes it for one env. Rewards and terminations
+come from a task: the env writes the entries :func:`~torchtasks.envs.locomotion.locomotion_state_layout`
+lists, so ``TaskTransform(locomotion_task(env_id, **kw), state_key=[...])`` reproduces Gymnasium's
+reward, its terms and its ``terminated`` (``gymnasium_env(env_id, num_envs=N)`` builds that stack).
+
+Why threads over ``mj_step`` and not ``mujoco.rollout``: ``rollout`` takes and returns the
+``mjSTATE_FULLPHYSICS`` state, which lacks the constraint solver's warm start (``qacc_warmstart``)
+that a Gymnasium env carries from one step to the next. Restarting every step from a zero warm
+start moves the solution by the solver's tolerance, and the difference grows until the
+trajectories part (HalfCheetah: 1e-12 after 50 steps, 0.25 in ``qpos`` after 150). It also returns
+no ``xpos``/``xipos``/``cfrc_ext``, which the forward and contact terms read. Both methods are
+measured by ``benchmarks/batched_mujoco.py``.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from torchtasks._optional import missing_extra
+
+try:
+    import gymnasium
+    import mujoco
+except ImportError as _error:
+    raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
+
+from torchtasks.envs.locomotion import _config, _layout, _ModelFacts
+
+__all__ = ["BatchedMujocoEnv"]
+
+#: MuJoCo warnings raised when it resets a diverged state itself (mj_checkPos/Vel/Acc)
+_DIVERGENCE_WARNINGS = (
+    int(mujoco.mjtWarning.mjWARN_BADQPOS),
+    int(mujoco.mjtWarning.mjWARN_BADQVEL),
+    int(mujoco.mjtWarning.mjWARN_BADQACC),
+)
+#: what one ``mj_getState`` call gathers per env: ``[time, qpos, qvel]``
+_STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
+#: envs whose state layout reads the external contact forces (Gymnasium calls mj_rnePostConstraint for them)
+_CONTACT_ENVS = ("Ant-v5", "Humanoid-v5")
+#: leading qpos entries Gymnasium drops from the observation with exclude_current_positions_from_observation
+_SKIPPED_POSITIONS = {
+    "HalfCheetah-v5": 1,
+    "Hopper-v5": 1,
+    "Walker2d-v5": 1,
+    "Swimmer-v5": 2,
+    "Ant-v5": 2,
+    "Humanoid-v5": 2,
+}
+#: reset noise of qvel: Gymnasium's HalfCheetah and Ant draw it from a normal distribution, the others uniform
+_NORMAL_VELOCITY_NOISE = ("HalfCheetah-v5", "Ant-v5")
+#: Hopper and Walker2d clip the observed velocities to this bound
+_VELOCITY_CLIP = 10.0
+
+
+def _check_positive_int(value: object, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+    return int(value)
+
+
+def _default_threads() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+class BatchedMujocoEnv(EnvBase):
+    """Step ``num_envs`` Gymnasium MuJoCo v5 locomotion envs in one process with native threads.
+
+    One ``mujoco.MjModel``, built by Gymnasium for ``env_id`` and ``gym_kwargs`` (``xml_file``,
+    ``frame_skip`` and every keyword that changes the dynamics or the observation), and one
+    ``mujoco.MjData`` per env. A step sets ``ctrl = action`` (as Gymnasium: not clipped; MuJoCo
+    clamps it to ``ctrlrange``), runs ``mj_step(model, data, nstep=frame_skip)`` (and
+    ``mj_rnePostConstraint`` for Ant and Humanoid, as Gymnasium does) for every env, split over
+    ``num_threads`` threads, and computes Gymnasium v5's observation for all envs from stacked
+    arrays. With the same states and actions, the observation equals Gymnasium's bit for bit.
+
+    Entries (float64, ``[num_envs, size]``):
+
+    - ``"observation"``: Gymnasium's observation for these keywords (e.g. without the x position
+      by default, Hopper's and Walker2d's velocities clipped to ±10, Ant's clipped contact forces).
+    - the task state of :func:`~torchtasks.envs.locomotion.locomotion_state_layout`, a subset of
+      ``"x_position"`` (``qpos[0]``), ``"qpos"``, ``"qvel"`` (unclipped), ``"cfrc_ext"`` (all
+      bodies, flattened) and ``"x_velocity"``: Ant's main-body ``xpos`` and Humanoid's centre of
+      mass (from ``xipos``) finite-differenced over the step exactly as Gymnasium does, so they lag
+      ``qpos`` by one substep like Gymnasium's; 0 after a reset.
+
+    The env pays no reward (``"reward"`` is 0, float64) and ends no episode by itself: put a
+    :class:`~torchtasks.transforms.TaskTransform` of
+    :func:`~torchtasks.envs.locomotion.locomotion_task` on it (with ``StepCounter(1000)`` for
+    Gymnasium's time limit), or use ``gymnasium_env(env_id, num_envs=N)``, which does. The one
+    exception is a broken step: an env whose action has a non-finite entry is not simulated, and an
+    env whose state diverges (MuJoCo then resets it to ``qpos0`` by itself; it is detected from the
+    simulation time running back, the divergence warnings and non-finite states) is not continued;
+    both end with ``terminated = done = True`` and a ``RuntimeWarning``, and the next reset starts a
+    fresh episode. Gymnasium would continue silently from MuJoCo's reset state.
+
+    Resets draw Gymnasium v5's initial state distribution of ``env_id`` (``init_qpos`` plus uniform
+    noise of half-width ``reset_noise_scale``, ``init_qvel`` plus uniform or, for HalfCheetah and
+    Ant, normal noise), from one numpy generator per env (``np_random``, spawned from
+    ``numpy.random.SeedSequence(seed)``), and do what Gymnasium's ``reset`` does to the ``MjData``
+    (``mj_resetData``, then ``qpos``/``qvel``, then ``mj_forward``). Partial resets (TorchRL's
+    ``"_reset"`` mask) reset only the masked envs.
+
+    Args:
+        env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
+        num_envs: number of environments.
+        seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
+        device: device of the output tensors (the simulation runs on the CPU).
+        num_threads: threads that step the envs (the calling thread included); default: the CPUs
+            this process may use, at most ``num_envs``.
+        **gym_kwargs: the env's Gymnasium keyword arguments (validated as by
+            :func:`~torchtasks.envs.locomotion.locomotion_task`). Rendering is not supported.
+
+    Example:
+        >>> from torchtasks.envs import BatchedMujocoEnv
+        >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0)
+        >>> rollout = env.rollout(3)
+        >>> rollout["next", "observation"].shape, rollout["next", "qpos"].dtype
+        (torch.Size([2, 3, 11]), torch.float64)
+        >>> env.close()
+    """
+
+    batch_locked = True
+    #: ``frame_skip`` is MuJoCo's substeps per step, done in ``_step`` (TorchRL must not add a FrameSkipTransform)
+    _has_frame_skip = True
+
+    def __init__(
+        self,
+        env_id: str,
+        num_envs: int,
+        *,
+        seed: int | None = None,
+        device: torch.device | str | None = None,
+        num_threads: int | None = None,
+        **gym_kwargs: Any,
+    ) -> None:
+        config = _config(env_id, gym_kwargs)
+        num_envs = _check_positive_int(num_envs, "num_envs")
+        num_threads = min(
+            _default_threads() if num_threads is None else _check_positive_int(num_threads, "num_threads"), num_envs
+        )
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
+            raise TypeError(f"seed must be an int or None, got {seed!r}")
+        if config.get("render_mode") is not None:
+            raise ValueError(f"BatchedMujocoEnv does not render; got render_mode={config['render_mode']!r}")
+        super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        self.env_id = env_id
+        self.num_envs = num_envs
+        self.num_threads = num_threads
+        self.gym_kwargs = dict(gym_kwargs)
+
+        gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
+        try:
+            unwrapped = gym_env.unwrapped
+            self.model: mujoco.MjModel = unwrapped.model
+            self.frame_skip = int(unwrapped.frame_skip)
+            self.dt = unwrapped.dt
+            self.init_qpos = unwrapped.init_qpos.copy()
+            self.init_qvel = unwrapped.init_qvel.copy()
+            facts = _ModelFacts.of(gym_env)
+            observation_size = int(gym_env.observation_space.shape[0])
+        finally:
+            gym_env.close()
+        model = self.model
+        self.datas = [mujoco.MjData(model) for _ in range(num_envs)]
+        self.state_layout = _layout(env_id, facts)
+        self.reset_noise_scale = float(config["reset_noise_scale"])
+        self._setup_buffers(config)
+        if self._observation_size != observation_size:  # a Gymnasium version that observes differently
+            raise RuntimeError(
+                f"{env_id}: the batched observation has {self._observation_size} entries but Gymnasium's has "
+                f"{observation_size}; this Gymnasium version is not supported by BatchedMujocoEnv"
+            )
+        self._chunks = [(int(c[0]), int(c[-1]) + 1) for c in np.array_split(np.arange(num_envs), num_threads)]
+        self._pool = ThreadPoolExecutor(num_threads - 1, "batched-mujoco") if num_threads > 1 else None
+        to_device = self.device is not None and self.device != torch.device("cpu")
+        self._to_torch: Callable[[np.ndarray], torch.Tensor] = (
+            (lambda array: torch.from_numpy(array).to(self.device, non_blocking=True))
+            if to_device
+            else torch.from_numpy
+        )
+        self._make_specs(facts)
+        self.np_random: list[np.random.Generator] = []
+        self._set_seed(seed)
+
+    # ------------------------------------------------------------------ set-up
+    def _setup_buffers(self, config: dict[str, Any]) -> None:
+        """Allocate the per-env gather buffers and plan the observation as copies from them."""
+        env_id, model, n = self.env_id, self.model, self.num_envs
+        nq = model.nq
+        self._state = np.zeros((n, mujoco.mj_stateSize(model, _STATE_SPEC)))  # [time, qpos, qvel]
+        self._time = np.zeros(n)
+        qpos, qvel = self._state[:, 1 : 1 + nq], self._state[:, 1 + nq :]
+        #: (MjData attribute, index or None, buffer): buffer[i] = data.<attribute>[index] after every step
+        self._readers: list[tuple[str, Any, np.ndarray]] = []
+
+        def reader(attribute: str, index: Any = None) -> np.ndarray:
+            value = getattr(self.datas[0], attribute)
+            buffer = np.zeros((n, *np.shape(value if index is None else value[index])))
+            self._readers.append((attribute, index, buffer))
+            return buffer
+
+        self._rne = env_id in _CONTACT_ENVS
+        cfrc_ext = reader("cfrc_ext") if self._rne else None
+        # the forward position that Gymnasium finite-differences (None: qpos[0] in the task)
+        self._position: np.ndarray | None = None
+        self._mass_weights: np.ndarray | None = None
+        if env_id == "Ant-v5":
+            self._position = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
+        elif env_id == "Humanoid-v5":
+            self._position = reader("xipos")
+            self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
+        self._previous_position = None if self._position is None else np.zeros((n, 2))
+
+        skip = _SKIPPED_POSITIONS[env_id] if config["exclude_current_positions_from_observation"] else 0
+        # (source view, clip bounds or None): the observation is their concatenation
+        plan: list[tuple[np.ndarray, tuple[float, float] | None]] = [(qpos[:, skip:], None)]
+        if env_id in ("Hopper-v5", "Walker2d-v5"):
+            plan.append((qvel, (-_VELOCITY_CLIP, _VELOCITY_CLIP)))
+        else:
+            plan.append((qvel, None))
+        if env_id == "Ant-v5" and config["include_cfrc_ext_in_observation"]:
+            plan.append((cfrc_ext[:, 1:].reshape(n, -1), tuple(config["contact_force_range"])))
+        if env_id == "Humanoid-v5":
+            for flag, attribute in (
+                ("include_cinert_in_observation", "cinert"),
+                ("include_cvel_in_observation", "cvel"),
+                ("include_qfrc_actuator_in_observation", "qfrc_actuator"),
+            ):
+                if config[flag] is True:  # Gymnasium tests `is True`
+                    buffer = reader(attribute)
+                    plan.append((buffer[:, 6:] if attribute == "qfrc_actuator" else buffer[:, 1:].reshape(n, -1), None))
+            if config["include_cfrc_ext_in_observation"] is True:
+                plan.append((cfrc_ext[:, 1:].reshape(n, -1), None))
+        self._observation_plan: list[tuple[slice, np.ndarray, tuple[float, float] | None]] = []
+        start = 0
+        for source, bounds in plan:
+            self._observation_plan.append((slice(start, start + source.shape[1]), source, bounds))
+            start += source.shape[1]
+        self._observation_size = start
+        # the task-state entries, as views of the gather buffers (x_velocity is computed)
+        self._entry_sources: dict[str, np.ndarray | None] = {
+            "x_position": qpos[:, :1],
+            "qpos": qpos,
+            "qvel": qvel,
+            "cfrc_ext": None if cfrc_ext is None else cfrc_ext.reshape(n, -1),
+            "x_velocity": None,
+        }
+
+    def _make_specs(self, facts: _ModelFacts) -> None:
+        n, device = self.num_envs, self.device
+        batch = torch.Size([n])
+        entries = {"observation": Unbounded(shape=(n, self._observation_size), dtype=torch.float64, device=device)}
+        for key, size in self.state_layout.items():
+            entries[key] = Unbounded(shape=(n, size), dtype=torch.float64, device=device)
+        self.observation_spec = Composite(entries, shape=batch, device=device)
+        # Gymnasium's action space: the actuators' ctrlrange as float32
+        low = torch.as_tensor(facts.action_low.astype(np.float32)).expand(n, -1)
+        high = torch.as_tensor(facts.action_high.astype(np.float32)).expand(n, -1)
+        self.action_spec = Bounded(low=low, high=high, shape=low.shape, dtype=torch.float32, device=device)
+        self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float64, device=device)
+        self.done_spec = Composite(
+            {
+                key: Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
+                for key in ("done", "terminated", "truncated")
+            },
+            shape=batch,
+            device=device,
+        )
+        self._action_shape = torch.Size([n, self.model.nu])
+
+    # ------------------------------------------------------------------ simulation
+    def _gather(self, i: int, data: mujoco.MjData) -> None:
+        mujoco.mj_getState(self.model, data, self._state[i], _STATE_SPEC)
+        for attribute, index, buffer in self._readers:
+            value = getattr(data, attribute)
+            buffer[i] = value if index is None else value[index]
+
+    def _advance(self, start: int, stop: int, ctrl: np.ndarray, skipped: np.ndarray | None) -> None:
+        """Step envs ``start:stop`` (those not ``skipped``) and gather their state (one thread's share)."""
+        model, datas, nstep, rne = self.model, self.datas, self.frame_skip, self._rne
+        step, post_constraint, gather = mujoco.mj_step, mujoco.mj_rnePostConstraint, self._gather
+        for i in range(start, stop):
+            data = datas[i]
+            if skipped is None or not skipped[i]:
+                data.ctrl[:] = ctrl[i]
+                step(model, data, nstep)
+                if rne:
+                    post_constraint(model, data)
+            gather(i, data)
+
+    def _simulate(self, ctrl: np.ndarray, skipped: np.ndarray | None) -> None:
+        chunks = self._chunks
+        if self._pool is None:
+            self._advance(0, self.num_envs, ctrl, skipped)
+            return
+        futures = [self._pool.submit(self._advance, start, stop, ctrl, skipped) for start, stop in chunks[1:]]
+        self._advance(*chunks[0], ctrl, skipped)
+        for future in futures:
+            future.result()
+
+    def _reset_env(self, i: int) -> None:
+        """Gymnasium v5's ``reset`` of env ``i`` (``mj_resetData``, ``reset_model``) and a gather of its state."""
+        model, data, rng, scale = self.model, self.datas[i], self.np_random[i], self.reset_noise_scale
+        mujoco.mj_resetData(model, data)
+        qpos = self.init_qpos + rng.uniform(low=-scale, high=scale, size=model.nq)
+        if self.env_id in _NORMAL_VELOCITY_NOISE:
+            qvel = self.init_qvel + scale * rng.standard_normal(model.nv)
+        else:
+            qvel = self.init_qvel + rng.uniform(low=-scale, high=scale, size=model.nv)
+        data.qpos[:] = qpos
+        data.qvel[:] = qvel
+        mujoco.mj_forward(model, data)
+        self._gather(i, data)
+
+    # ------------------------------------------------------------------ outputs
+    def _outputs(self, x_velocity: np.ndarray | None, terminated: np.ndarray | None, reward: bool) -> TensorDictBase:
+        """Fresh tensors of the observation, the task-state entries and the flags (and a zero reward)."""
+        n = self.num_envs
+        observation = np.empty((n, self._observation_size))
+        for columns, source, bounds in self._observation_plan:
+            if bounds is None:
+                observation[:, columns] = source
+            else:
+                np.clip(source, bounds[0], bounds[1], out=observation[:, columns])
+        to_torch = self._to_torch
+        out: dict[str, torch.Tensor] = {"observation": to_torch(observation)}
+        for key in self.state_layout:
+            if key == "x_velocity":
+                value = np.zeros((n, 1)) if x_velocity is None else x_velocity
+            else:
+                value = self._entry_sources[key].copy()
+            out[key] = to_torch(value)
+        flags = np.zeros((n, 1), dtype=bool) if terminated is None else terminated.reshape(n, 1)
+        out["terminated"] = to_torch(flags)
+        out["done"] = to_torch(flags.copy())
+        out["truncated"] = to_torch(np.zeros((n, 1), dtype=bool))
+        if reward:
+            out["reward"] = to_torch(np.zeros((n, 1)))
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
+
+    def _forward_position(self) -> np.ndarray:
+        """The position Gymnasium finite-differences: Ant's main body ``xpos[:2]``, Humanoid's mass centre."""
+        if self._mass_weights is None:
+            return self._position.copy()
+        weights = self._mass_weights
+        return (np.einsum("b,nbj->nj", weights, self._position) / weights.sum())[:, :2]
+
+    def _check_action(self, action: object) -> np.ndarray:
+        if not isinstance(action, torch.Tensor):
+            raise TypeError(f"action must be a torch.Tensor, got {type(action).__name__}")
+        if action.dtype not in (torch.float32, torch.float64):
+            raise TypeError(f"action must be a float32 or float64 tensor, got dtype {action.dtype}")
+        if action.shape != self._action_shape:
+            raise ValueError(
+                f"action must have shape {tuple(self._action_shape)} ([num_envs, nu]), got {tuple(action.shape)}"
+            )
+        return action.detach().to("cpu", torch.float64).numpy()
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        ctrl = self._check_action(tensordict.get("action", None))
+        finite = np.isfinite(ctrl).all(axis=1)
+        skipped = None if finite.all() else ~finite
+        previous_time = self._time
+        self._simulate(ctrl, skipped)
+        state = self._state
+        time = state[:, 0].copy()
+        # MuJoCo resets a diverged state to qpos0 and time 0 by itself: the clock runs back. The first
+        # substep after one of our resets (time 0) cannot show it, so read its warnings there.
+        broken = time < previous_time + 0.5 * self.model.opt.timestep
+        for i in np.flatnonzero(previous_time == 0.0):
+            warning = self.datas[i].warning
+            broken[i] = broken[i] or any(warning[w].number for w in _DIVERGENCE_WARNINGS)
+        broken |= ~np.isfinite(state).all(axis=1)
+        if skipped is not None:
+            broken |= skipped
+        self._time = time
+        terminated = None
+        if broken.any():
+            terminated = broken
+            warnings.warn(
+                f"BatchedMujocoEnv({self.env_id}): envs {np.flatnonzero(broken).tolist()} ended their episode: "
+                f"non-finite action in envs {np.flatnonzero(~finite).tolist()}, the others diverged",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        x_velocity = None
+        if self._position is not None:
+            position = self._forward_position()
+            x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
+            self._previous_position = position
+        return self._outputs(x_velocity, terminated, reward=True)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        if reset is None:
+            indices = range(self.num_envs)
+        else:
+            indices = np.flatnonzero(reset.reshape(self.num_envs).cpu().numpy())
+        for i in indices:
+            self._reset_env(int(i))
+        self._time[indices] = self._state[indices, 0]
+        if self._position is not None:
+            self._previous_position[indices] = self._forward_position()[indices]
+        return self._outputs(None, None, reward=False)
+
+    def _set_seed(self, seed: int | None) -> None:
+        children = np.random.SeedSequence(None if seed is None else int(seed)).spawn(self.num_envs)
+        self.np_random = [np.random.Generator(np.random.PCG64(child)) for child in children]
+
+    # ------------------------------------------------------------------ lifetime
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        pool = self.__dict__.get("_pool")
+        if pool is not None:
+            pool.shutdown(wait=True)
+            self._pool = None
+            self._chunks = [(0, self.num_envs)]
+        super().close(raise_if_closed=raise_if_closed)
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(env_id={self.env_id!r}, num_envs={self.num_envs}, "
+            f"num_threads={self.num_threads}, frame_skip={self.frame_skip}, device={self.device})"
+        )

@@ -1,0 +1,487 @@
+"""BatchedMujocoEnv: parity with plain Gymnasium, resets, seeding, threads, bad input, specs and the presets.
+
+The parity tests drive ``gymnasium_env(env_id, num_envs=N)`` (a :class:`BatchedMujocoEnv` under
+``StepCounter``, the locomotion task's ``TaskTransform`` and ``RewardSum``) and ``N`` independent
+``gymnasium.make(env_id, **kwargs)`` envs. After every reset of a batched env (initial, at the end of
+an episode, or forced mid-episode for some envs while the others continue) its ``qpos``/``qvel`` are
+copied into the matching Gymnasium env with ``reset()`` + ``unwrapped.set_state`` (which leaves the
+MjData as the batched env's reset leaves it), and both get the same actions. Expected values come
+from Gymnasium only: the observations must be bit-identical (the two simulations stay in lockstep),
+the task reward and each term within 1e-9 of Gymnasium's reward and ``info["reward_*"]``, and
+``terminated``/``truncated`` equal.
+
+The actions are drawn in float32 (what TorchRL passes on) and handed to Gymnasium as the same values
+in float64: with a float32 action Gymnasium computes its control cost in float32 (NumPy 2 keeps
+``weight * np.sum(np.square(action))`` in float32), which differs from the exact value by up to
+~1e-7 relative; ``test_float32_actions_only_change_gymnasiums_control_cost_rounding`` measures that.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import warnings
+from typing import Any
+
+import numpy as np
+import pytest
+import torch
+
+pytest.importorskip("mujoco")
+gymnasium = pytest.importorskip("gymnasium")
+
+from tensordict import TensorDict  # noqa: E402
+from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv  # noqa: E402
+from torchrl.envs.utils import check_env_specs  # noqa: E402
+
+from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
+from torchtasks.envs.locomotion import gymnasium_env, locomotion_state_layout, locomotion_task  # noqa: E402
+from torchtasks.transforms import TaskTransform  # noqa: E402
+
+pytestmark = pytest.mark.mujoco
+
+ENV_IDS = ["HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Ant-v5", "Humanoid-v5"]
+ATOL = 1e-9
+NUM_ENVS = 3
+STEPS = 200
+#: steps after which env 0 (and at the second one env 2 as well) is reset while the others continue
+FORCED_RESETS = {60: [0], 130: [0, 2]}
+
+#: keywords that change the dynamics, the observation, the resets or the termination
+KEYWORD_CASES: list[tuple[str, dict[str, Any]]] = [
+    ("HalfCheetah-v5", {"exclude_current_positions_from_observation": False, "forward_reward_weight": 2.0}),
+    ("Hopper-v5", {"frame_skip": 2, "healthy_z_range": (0.8, 2.0), "reset_noise_scale": 0.02}),
+    ("Walker2d-v5", {"reset_noise_scale": 0.05, "healthy_angle_range": (-0.5, 0.5), "frame_skip": 3}),
+    ("Swimmer-v5", {"exclude_current_positions_from_observation": False, "frame_skip": 2}),
+    (
+        "Ant-v5",
+        {
+            "include_cfrc_ext_in_observation": False,
+            "healthy_z_range": (0.3, 0.9),
+            "contact_force_range": (-0.5, 0.5),
+            "main_body": 2,
+            "reset_noise_scale": 0.2,
+        },
+    ),
+    ("Ant-v5", {"exclude_current_positions_from_observation": False, "terminate_when_unhealthy": False}),
+    (
+        "Humanoid-v5",
+        {
+            "include_cinert_in_observation": False,
+            "include_cvel_in_observation": False,
+            "healthy_z_range": (0.9, 2.0),
+            "exclude_current_positions_from_observation": False,
+            "reset_noise_scale": 0.05,
+        },
+    ),
+    ("Humanoid-v5", {"include_qfrc_actuator_in_observation": False, "include_cfrc_ext_in_observation": False}),
+]
+
+
+# ------------------------------------------------------------------------------ parity driver
+def _sync(reference: Any, env: BatchedMujocoEnv, i: int) -> np.ndarray:
+    """Put Gymnasium env ``reference`` into env ``i``'s state as a fresh episode; return its observation."""
+    reference.reset()
+    data = env.datas[i]
+    reference.unwrapped.set_state(data.qpos.copy(), data.qvel.copy())
+    return reference.unwrapped._get_obs()
+
+
+def _drive(
+    env: TransformedEnv,
+    env_id: str,
+    kwargs: dict[str, Any],
+    steps: int,
+    *,
+    seed: int = 0,
+    forced_resets: dict[int, list[int]] | None = None,
+    reference_kwargs: dict[str, Any] | None = None,
+    float64_reference_actions: bool = True,
+) -> dict[str, Any]:
+    """Step ``env`` and one Gymnasium env per batch entry in lockstep; return the largest differences."""
+    base = env.base_env
+    n = base.num_envs
+    names = next(t for t in env.transform if isinstance(t, TaskTransform)).task.term_names
+    references = [gymnasium.make(env_id, **kwargs, **(reference_kwargs or {})) for _ in range(n)]
+    result: dict[str, Any] = {"observation": 0.0, "reward": 0.0, "ends": 0, "forced": 0}
+    result.update({f"term_{name}": 0.0 for name in names})
+    flags = {"terminated": [], "truncated": []}
+    try:
+        for i, reference in enumerate(references):
+            reference.reset(seed=1000 + i)
+        tensordict = env.reset()
+        for i, reference in enumerate(references):
+            np.testing.assert_array_equal(tensordict["observation"][i].numpy(), _sync(reference, base, i))
+        rng = np.random.default_rng(seed)
+        low, high = references[0].action_space.low, references[0].action_space.high
+        for step in range(steps):
+            actions = rng.uniform(low, high, size=(n, low.size)).astype(np.float32)
+            tensordict["action"] = torch.from_numpy(actions)
+            tensordict, next_root = env.step_and_maybe_reset(tensordict)
+            out = tensordict["next"]
+            for i, reference in enumerate(references):
+                action = actions[i].astype(np.float64) if float64_reference_actions else actions[i]
+                observation, reward, terminated, truncated, info = reference.step(action)
+                context = f"{env_id} {kwargs} env {i} step {step}"
+                np.testing.assert_array_equal(
+                    out["observation"][i].numpy(), observation, err_msg=f"observation differs: {context}"
+                )
+                result["reward"] = max(result["reward"], abs(out["reward"][i].item() - reward))
+                for name in names:
+                    difference = abs(out["task_reward", name][i].item() - info[f"reward_{name}"])
+                    result[f"term_{name}"] = max(result[f"term_{name}"], difference)
+                assert out["terminated"][i].item() == terminated, f"terminated differs: {context}"
+                assert out["truncated"][i].item() == truncated, f"truncated differs: {context}"
+                assert out["done"][i].item() == (terminated or truncated), f"done differs: {context}"
+                flags["terminated"].append(terminated)
+                flags["truncated"].append(truncated)
+                if terminated or truncated:  # TorchRL has reset env i: follow it
+                    result["ends"] += 1
+                    np.testing.assert_array_equal(next_root["observation"][i].numpy(), _sync(reference, base, i))
+            forced = (forced_resets or {}).get(step)
+            if forced:
+                mask = torch.zeros(n, 1, dtype=torch.bool)
+                mask[forced] = True
+                before = next_root["observation"].clone()
+                next_root.set("_reset", mask)
+                next_root = env.reset(next_root)
+                kept = ~mask[:, 0]
+                assert torch.equal(next_root["observation"][kept], before[kept]), "a partial reset changed other envs"
+                assert (next_root["step_count"][mask[:, 0]] == 0).all()
+                for i in forced:
+                    result["forced"] += 1
+                    np.testing.assert_array_equal(next_root["observation"][i].numpy(), _sync(references[i], base, i))
+            tensordict = next_root
+    finally:
+        env.close()
+        for reference in references:
+            reference.close()
+    result = {key: float(value) if isinstance(value, float) else value for key, value in result.items()}
+    result["terminated"] = int(np.sum(flags["terminated"]))
+    result["truncated"] = int(np.sum(flags["truncated"]))
+    return result
+
+
+def _assert_close(result: dict[str, Any]) -> None:
+    differences = {key: value for key, value in result.items() if key == "reward" or key.startswith("term_")}
+    assert max(differences.values()) <= ATOL, differences
+
+
+# ------------------------------------------------------------------------------------ parity
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_default_keywords_match_gymnasium_with_partial_resets(env_id: str, record_property: Any) -> None:
+    env = gymnasium_env(env_id, num_envs=NUM_ENVS, seed=0)
+    assert isinstance(env.base_env, BatchedMujocoEnv)
+    result = _drive(env, env_id, {}, STEPS, forced_resets=FORCED_RESETS)
+    record_property("max_abs_differences", result)
+    _assert_close(result)
+    assert result["forced"] == 3
+    if env_id in ("Hopper-v5", "Walker2d-v5", "Humanoid-v5"):
+        assert result["terminated"] > 0  # episodes end by themselves as well
+
+
+@pytest.mark.parametrize(
+    ("env_id", "kwargs"),
+    KEYWORD_CASES,
+    ids=[f"{env_id}-{'-'.join(kwargs)}" for env_id, kwargs in KEYWORD_CASES],
+)
+def test_keywords_match_gymnasium(env_id: str, kwargs: dict[str, Any], record_property: Any) -> None:
+    env = gymnasium_env(env_id, num_envs=NUM_ENVS, seed=1, **kwargs)
+    result = _drive(env, env_id, kwargs, 120, seed=1, forced_resets={50: [1]})
+    record_property("max_abs_differences", result)
+    _assert_close(result)
+
+
+def test_truncation_matches_gymnasiums_time_limit() -> None:
+    """A hand-built stack (the task path without the preset): StepCounter(40) against max_episode_steps=40."""
+    env_id = "HalfCheetah-v5"
+    task = locomotion_task(env_id)
+    base = BatchedMujocoEnv(env_id, NUM_ENVS, seed=3)
+    state_key = list(locomotion_state_layout(env_id))
+    env = TransformedEnv(base, Compose(StepCounter(40), TaskTransform(task, state_key=state_key), RewardSum()))
+    result = _drive(env, env_id, {}, 130, forced_resets={25: [1], 70: [2]}, reference_kwargs={"max_episode_steps": 40})
+    _assert_close(result)
+    assert result["truncated"] >= 6  # staggered by the forced resets
+    assert result["terminated"] == 0
+
+
+def test_float32_actions_only_change_gymnasiums_control_cost_rounding() -> None:
+    env_id = "Ant-v5"
+    result = _drive(gymnasium_env(env_id, num_envs=2, seed=0), env_id, {}, 40, float64_reference_actions=False)
+    # the same trajectories (observations are compared bit for bit inside _drive) ...
+    assert result["term_forward"] <= ATOL and result["term_contact"] <= ATOL and result["term_survive"] == 0
+    # ... and Gymnasium's float32 control cost: float32 rounding of a value of order 1
+    assert 1e-9 < result["term_ctrl"] < 1e-6
+
+
+# ------------------------------------------------------------------------------------ resets
+@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize("kwargs", [{}, {"reset_noise_scale": 0.3}], ids=["default-noise", "noise-0.3"])
+def test_resets_draw_gymnasiums_initial_state_distribution(env_id: str, kwargs: dict[str, Any]) -> None:
+    """With each env's generator seeded like Gymnasium's ``reset(seed=s)``, the initial states are identical."""
+    env = BatchedMujocoEnv(env_id, 2, **kwargs)
+    seeds = [11, 12]
+    env.np_random = [np.random.default_rng(seed) for seed in seeds]
+    tensordict = env.reset()
+    for i, seed in enumerate(seeds):
+        reference = gymnasium.make(env_id, **kwargs)
+        observation, _ = reference.reset(seed=seed)
+        np.testing.assert_array_equal(env.datas[i].qpos, reference.unwrapped.data.qpos)
+        np.testing.assert_array_equal(env.datas[i].qvel, reference.unwrapped.data.qvel)
+        np.testing.assert_array_equal(tensordict["observation"][i].numpy(), observation)
+        reference.close()
+    if "x_velocity" in tensordict.keys():
+        assert torch.equal(tensordict["x_velocity"], torch.zeros(2, 1, dtype=torch.float64))
+    env.close()
+
+
+def test_seeding_is_reproducible_with_independent_per_env_streams() -> None:
+    def initial(seed: int | None, num_envs: int = 4) -> torch.Tensor:
+        env = BatchedMujocoEnv("Walker2d-v5", num_envs, seed=seed)
+        try:
+            return env.reset()["qpos"]
+        finally:
+            env.close()
+
+    first = initial(5)
+    assert torch.equal(first, initial(5))
+    assert not torch.equal(first, initial(6))
+    assert not torch.equal(initial(None), initial(None))
+    assert len({tuple(row.tolist()) for row in first}) == 4  # every env draws its own noise
+    env = BatchedMujocoEnv("Walker2d-v5", 4, seed=0)
+    env.set_seed(5)
+    assert torch.equal(env.reset()["qpos"], first)
+    env.close()
+
+
+def test_partial_reset_touches_only_the_masked_envs() -> None:
+    env = BatchedMujocoEnv("Hopper-v5", 4, seed=0)
+    tensordict = env.reset()
+    for _ in range(5):
+        tensordict = env.rand_step(tensordict)["next"]
+    states = [(data.qpos.copy(), data.qvel.copy(), data.time) for data in env.datas]
+    mask = torch.tensor([[False], [True], [False], [True]])
+    result = env.reset(tensordict.clone().set("_reset", mask))
+    for i, (qpos, qvel, time) in enumerate(states):
+        data = env.datas[i]
+        if mask[i]:
+            assert data.time == 0.0
+            assert not np.array_equal(data.qpos, qpos)
+        else:
+            assert data.time == time
+            np.testing.assert_array_equal(data.qpos, qpos)
+            np.testing.assert_array_equal(data.qvel, qvel)
+            assert torch.equal(result["observation"][i], tensordict["observation"][i])
+    env.close()
+
+
+# ----------------------------------------------------------------------------------- threads
+@pytest.mark.parametrize("env_id", ["Hopper-v5", "Ant-v5"])
+def test_results_do_not_depend_on_the_number_of_threads(env_id: str) -> None:
+    rollouts = []
+    for num_threads in (1, 2, 3):
+        env = BatchedMujocoEnv(env_id, 5, seed=0, num_threads=num_threads)
+        assert env.num_threads == num_threads
+        torch.manual_seed(0)
+        rollouts.append(env.rollout(30, break_when_any_done=False))
+        env.close()
+    for other in rollouts[1:]:
+        for key in ("observation", "qpos", "qvel"):
+            assert torch.equal(rollouts[0]["next", key], other["next", key]), key
+
+
+# --------------------------------------------------------------------------------- bad input
+def test_bad_actions_are_rejected_by_name() -> None:
+    env = BatchedMujocoEnv("Swimmer-v5", 2, seed=0)
+    tensordict = env.reset()
+    with pytest.raises(ValueError, match="action"):
+        env.step(tensordict.clone().set("action", torch.zeros(2, 3)))
+    with pytest.raises(TypeError, match="action"):
+        env.step(tensordict.clone().set("action", torch.zeros(2, 2, dtype=torch.int64)))
+    with pytest.raises(TypeError, match="action"):
+        env.step(tensordict.clone().set("action", torch.zeros(2, 2, dtype=torch.float16)))
+    env.close()
+
+
+def test_a_non_finite_action_ends_only_that_envs_episode() -> None:
+    env = BatchedMujocoEnv("Hopper-v5", 3, seed=0)
+    tensordict = env.reset()
+    qpos = env.datas[1].qpos.copy()
+    action = torch.zeros(3, 3)
+    action[1, 2] = float("nan")
+    with pytest.warns(RuntimeWarning, match=r"envs \[1\]"):
+        out = env.step(tensordict.set("action", action))["next"]
+    assert out["terminated"][:, 0].tolist() == [False, True, False]
+    assert out["done"][:, 0].tolist() == [False, True, False]
+    np.testing.assert_array_equal(env.datas[1].qpos, qpos)  # not simulated
+    assert env.datas[0].time > 0.0
+    env.close()
+
+
+@pytest.mark.parametrize("steps_before", [0, 3], ids=["right-after-reset", "mid-episode"])
+def test_a_diverged_state_ends_the_episode_instead_of_mujocos_silent_reset(steps_before: int) -> None:
+    """MuJoCo resets a diverged MjData to qpos0 and carries on; the env ends that episode instead."""
+    env = gymnasium_env("Hopper-v5", num_envs=3, seed=0)
+    base = env.base_env
+    tensordict = env.reset()
+    for _ in range(steps_before):
+        tensordict = env.step_and_maybe_reset(env.rand_action(tensordict))[1]
+    base.datas[2].qvel[:] = 1e11  # beyond mjMAXVAL: mj_checkVel resets the data
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        tensordict, next_root = env.step_and_maybe_reset(env.rand_action(tensordict))
+    assert any("diverged" in str(w.message) for w in caught)
+    assert tensordict["next", "terminated"][2].item()
+    assert tensordict["next", "done"][2].item()
+    assert not tensordict["next", "terminated"][:2].any()
+    # TorchRL reset env 2: it continues normally from a fresh episode
+    assert next_root["step_count"][2].item() == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        tensordict, _ = env.step_and_maybe_reset(env.rand_action(next_root))
+    assert not tensordict["next", "done"].any()
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"num_envs": 0}, ValueError, "num_envs"),
+        ({"num_envs": True}, ValueError, "num_envs"),
+        ({"num_threads": 0}, ValueError, "num_threads"),
+        ({"seed": "0"}, TypeError, "seed"),
+        ({"render_mode": "rgb_array"}, ValueError, "render"),
+        ({"no_such_keyword": 1}, TypeError, "no_such_keyword"),
+        ({"healthy_z_range": (1.0, 0.5)}, ValueError, "healthy_z_range"),
+    ],
+)
+def test_bad_arguments_are_rejected_by_name(kwargs: dict[str, Any], error: type[Exception], match: str) -> None:
+    kwargs = {"num_envs": 2, **kwargs}
+    with pytest.raises(error, match=match):
+        BatchedMujocoEnv("Hopper-v5", **kwargs)
+
+
+def test_unknown_env_ids_are_rejected() -> None:
+    with pytest.raises(ValueError, match="env_id"):
+        BatchedMujocoEnv("CartPole-v1", 2)
+
+
+# ------------------------------------------------------------------------------------- specs
+@pytest.mark.parametrize("env_id", ENV_IDS)
+def test_specs(env_id: str) -> None:
+    env = BatchedMujocoEnv(env_id, 2, seed=0)
+    check_env_specs(env)
+    reference = gymnasium.make(env_id)
+    assert env.batch_size == (2,)
+    assert env.observation_spec["observation"].shape == (2, *reference.observation_space.shape)
+    assert env.observation_spec["observation"].dtype == torch.float64
+    layout = locomotion_state_layout(env_id)
+    assert set(env.observation_spec.keys()) == {"observation", *layout}
+    for key, size in layout.items():
+        assert env.observation_spec[key].shape == (2, size)
+        assert env.observation_spec[key].dtype == torch.float64
+    action = env.action_spec
+    assert action.dtype == torch.float32
+    np.testing.assert_array_equal(action.space.low[0].numpy(), reference.action_space.low)
+    np.testing.assert_array_equal(action.space.high[0].numpy(), reference.action_space.high)
+    assert env.reward_spec.dtype == torch.float64
+    assert set(env.full_done_spec.keys()) == {"done", "terminated", "truncated"}
+    reference.close()
+    env.close()
+
+
+def test_device_argument() -> None:
+    env = BatchedMujocoEnv("Swimmer-v5", 2, seed=0, device="cpu")
+    assert env.device == torch.device("cpu")
+    assert env.rollout(2)["next", "observation"].device == torch.device("cpu")
+    env.close()
+
+
+def test_the_env_pays_no_reward_and_ends_no_episode_by_itself() -> None:
+    env = BatchedMujocoEnv("Hopper-v5", 2, seed=0)
+    rollout = env.rollout(60, break_when_any_done=False)  # Hopper falls under random actions
+    assert not rollout["next", "done"].any()
+    assert torch.equal(rollout["next", "reward"], torch.zeros(2, 60, 1, dtype=torch.float64))
+    env.close()
+
+
+def test_outputs_are_fresh_tensors_at_every_step() -> None:
+    """Returned steps keep their values: nothing the env returns is a view of a buffer it writes again."""
+    env = BatchedMujocoEnv("Ant-v5", 2, seed=0)
+    tensordict = env.reset()
+    kept, copies = [tensordict], [tensordict.clone()]
+    for _ in range(30):
+        tensordict = env.rand_step(tensordict)["next"]
+        kept.append(tensordict)
+        copies.append(tensordict.clone())
+    keys = ["observation", "qpos", "qvel", "cfrc_ext", "x_velocity"]
+    for stored, copy in zip(kept, copies, strict=True):
+        for key in keys:
+            assert torch.equal(stored[key], copy[key]), key
+    assert any(stored["cfrc_ext"].abs().sum() > 0 for stored in kept)  # contact forces were gathered
+    env.close()
+
+
+# ----------------------------------------------------------------------------------- presets
+def test_gymnasium_env_selects_the_backend() -> None:
+    env = gymnasium_env("Hopper-v5", num_envs=2, seed=0, num_threads=1)
+    assert isinstance(env.base_env, BatchedMujocoEnv)
+    assert env.base_env.num_threads == 1
+    assert env.output_spec["full_reward_spec", "reward"].dtype == torch.float64
+    env.close()
+    single = gymnasium_env("Hopper-v5", backend="batched")
+    assert isinstance(single.base_env, BatchedMujocoEnv) and single.batch_size == (1,)
+    single.close()
+    parallel = gymnasium_env("Hopper-v5", num_envs=2, backend="gymnasium")
+    assert isinstance(parallel.base_env, ParallelEnv)  # not started: no worker is spawned here
+    with pytest.raises(ValueError, match="backend"):
+        gymnasium_env("Hopper-v5", num_envs=2, backend="envpool")
+    with pytest.raises(ValueError, match="num_threads"):
+        gymnasium_env("Hopper-v5", num_envs=2, backend="gymnasium", num_threads=2)
+
+
+def test_collector_over_the_batched_preset() -> None:
+    from torchrl.collectors import Collector
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    env = gymnasium_env("Hopper-v5", num_envs=4, seed=0)
+    dt = env.base_env.dt
+    collector = Collector(env, policy=None, frames_per_batch=400, total_frames=400)
+    try:
+        batch = next(iter(collector))
+    finally:
+        collector.shutdown()
+        torch.set_num_threads(threads)
+    assert batch.batch_size == (4, 100)
+    nxt = batch["next"]
+    done = nxt["done"][..., 0]
+    assert done.sum() >= 4 and (done.any(1)).all()
+    # each forward term is its own episode's finite difference, also right after partial resets
+    expected = (nxt["qpos"][..., 0] - batch["qpos"][..., 0]) / dt
+    torch.testing.assert_close(nxt["task_reward", "forward"][..., 0], expected, rtol=0, atol=1e-9)
+    after_reset = torch.zeros_like(done)
+    after_reset[:, 1:] = done[:, :-1]
+    assert (batch["step_count"][..., 0][after_reset] == 0).all()
+    assert torch.equal(nxt["failure"][..., 0], nxt["terminated"][..., 0])
+
+
+def test_importing_torchtasks_envs_does_not_import_the_batched_env_or_gymnasium() -> None:
+    code = (
+        "import sys, torchtasks, torchtasks.envs\n"
+        "assert 'gymnasium' not in sys.modules\n"
+        "assert 'torchtasks.envs.batched_mujoco' not in sys.modules\n"
+        "assert torchtasks.envs.BatchedMujocoEnv.__module__ == 'torchtasks.envs.batched_mujoco'\n"
+        "assert 'BatchedMujocoEnv' in torchtasks.envs.__all__\n"
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+
+
+def test_reset_output_of_a_fresh_env_has_every_entry() -> None:
+    env = BatchedMujocoEnv("Humanoid-v5", 2, seed=0)
+    td = env.reset()
+    assert isinstance(td, TensorDict)
+    assert set(td.keys()) >= {"observation", "x_velocity", "qpos", "cfrc_ext", "done", "terminated", "truncated"}
+    assert not td["done"].any()
+    env.close()
