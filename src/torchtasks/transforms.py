@@ -15,6 +15,7 @@ from torchrl.envs.utils import make_composite_from_td
 from torchtasks._checks import SUPPORTED_FLOATS
 from torchtasks._memory import td_get, td_set
 from torchtasks.tasks.base import Task
+from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
 
 __all__ = ["TaskTransform"]
@@ -81,6 +82,26 @@ def _as_entry(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> tor
     return value if value.dtype == dtype else value.to(dtype)
 
 
+def _goal_slot(task: Task, goal_name: str | None) -> GoalSlot:
+    """The goal slot a TaskTransform's goal keys are about (the tree's only one, or the one named)."""
+    slots = {slot.name: slot for slot in task.goal_slots}
+    if not slots:
+        raise ValueError(
+            f"TaskTransform: goal_key/achieved_goal_key were given, but no task of the {type(task).__name__} tree "
+            "takes a goal (a DesiredStateTask, also inside wrappers, masks and composites)"
+        )
+    if goal_name is None:
+        if len(slots) > 1:
+            raise ValueError(
+                f"TaskTransform: the task tree has {len(slots)} goal tasks {sorted(slots)}; pass goal_name=... to "
+                "say which one the goal is for"
+            )
+        return next(iter(slots.values()))
+    if goal_name not in slots:
+        raise ValueError(f"TaskTransform: unknown goal_name {goal_name!r}; the task tree's goals are {sorted(slots)}")
+    return slots[goal_name]
+
+
 def _check_vector_gym(base_env: Any) -> None:
     """Reject Gymnasium vector envs that reset sub-envs by themselves (they cannot take task resets)."""
     gym_env = base_env.__dict__.get("_env")
@@ -143,6 +164,14 @@ class TaskTransform(Transform):
         reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (e.g. a goal
             sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
+        goal_key: read the goal of step ``t`` from this root entry (``[*B, k]``: the goal the policy
+            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.commands.GoalCommand`) and
+            pass it to the task (``Task.transition(..., goal=...)``); offline, a relabelled goal there
+            re-judges reward, success and the episode end.
+        achieved_goal_key: write the achieved goal (the entries of the state the goal is compared
+            with) of ``s_{t+1}`` under ``"next"`` (and of the initial state at reset).
+        goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has
+            several.
 
     Example:
         >>> import torch
@@ -176,6 +205,9 @@ class TaskTransform(Transform):
         max_steps: int | None = None,
         reset_overrides: ResetOverrides | None = None,
         compile: bool = False,
+        goal_key: NestedKey | None = None,
+        achieved_goal_key: NestedKey | None = None,
+        goal_name: str | None = None,
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -198,6 +230,13 @@ class TaskTransform(Transform):
         self.terms_key = _nested_key(terms_key, "terms_key")
         self.reward_on = reward_on
         self.log_terms = log_terms
+        self.goal_key = None if goal_key is None else _nested_key(goal_key, "goal_key")
+        self.achieved_goal_key = (
+            None if achieved_goal_key is None else _nested_key(achieved_goal_key, "achieved_goal_key")
+        )
+        self._goal_slot = (
+            _goal_slot(task, goal_name) if (goal_key is not None or achieved_goal_key is not None) else None
+        )
         self.reset_overrides = reset_overrides
         self.compile = compile
         self._explicit_max_steps = max_steps
@@ -207,8 +246,10 @@ class TaskTransform(Transform):
         self._uses_remaining = task.uses_remaining_steps
         self._check_key_collisions()
         memory_keys = [self.memory_key] if self._has_memory else []
-        in_keys = [*state_keys, self.action_key, *memory_keys]
-        out_keys = [self.reward_key, *memory_keys, self.success_key, self.failure_key]
+        goal_keys = [] if self.goal_key is None else [self.goal_key]
+        achieved_keys = [] if self.achieved_goal_key is None else [self.achieved_goal_key]
+        in_keys = [*state_keys, self.action_key, *memory_keys, *goal_keys]
+        out_keys = [self.reward_key, *memory_keys, self.success_key, self.failure_key, *achieved_keys]
         super().__init__(in_keys=in_keys, out_keys=out_keys)
         self.task = task
         # static per task tree: computed once, read every step
@@ -405,6 +446,9 @@ class TaskTransform(Transform):
         observation_spec[self.failure_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
         if self._has_memory:
             observation_spec[self.memory_key] = self._memory_spec(batch, dtype, device)
+        if self.achieved_goal_key is not None:
+            size = self._goal_slot.size
+            observation_spec[self.achieved_goal_key] = Unbounded(shape=(*batch, size), dtype=dtype, device=device)
         return observation_spec
 
     def transform_state_spec(self, state_spec: Composite) -> Composite:
@@ -483,6 +527,23 @@ class TaskTransform(Transform):
         self._missing_entry(
             tensordict, f"the action (action_key={self.action_key!r})", "Pass action_key=... naming the action entry."
         )
+
+    def _read_goal(self, tensordict: TensorDictBase, state: torch.Tensor) -> torch.Tensor:
+        goal = td_get(tensordict, self.goal_key)
+        size = self._goal_slot.size
+        if goal is None:
+            self._missing_entry(
+                tensordict,
+                f"the goal {self.goal_key!r}",
+                "Write the goal the policy sees at the root of the data (e.g. with a GoalCommand in the env), or "
+                "drop goal_key to use the task's own desired state.",
+            )
+        if goal.shape != (*state.shape[:-1], size):
+            raise ValueError(
+                f"TaskTransform: the goal {self.goal_key!r} must have shape {[*state.shape[:-1], size]} (the "
+                f"{size} entries of the goal task {self._goal_slot.name!r}), got {list(goal.shape)}"
+            )
+        return goal if goal.dtype == state.dtype else goal.to(state.dtype)
 
     def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor) -> torch.Tensor:
         limit = self.__dict__.get("_limit")
@@ -574,6 +635,8 @@ class TaskTransform(Transform):
                 self._missing_memory(tensordict, offline)
         else:
             memory = self._empty_memory(state)
+        if self.goal_key is not None:
+            memory = replace_goals(memory, {self._goal_slot: self._read_goal(tensordict, state)})
         done, env_terminated, truncated, has_terminated = self._episode_end_flags(
             next_tensordict, state.shape[:-1], offline
         )
@@ -594,6 +657,8 @@ class TaskTransform(Transform):
         td_set(next_tensordict, "done", done_now.reshape(shape))
         if not offline and self._has_memory:
             td_set(next_tensordict, self.memory_key, memory)
+        if not offline and self.achieved_goal_key is not None:
+            td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
         if self.log_terms:
             values = [step_reward, final, *(terms[name] for name in self._term_names)]
             for key, value in zip(self._term_keys, values, strict=True):
@@ -620,6 +685,8 @@ class TaskTransform(Transform):
         )
         tensordict_reset.set(self.success_key, flags)
         tensordict_reset.set(self.failure_key, flags.clone())
+        if self.achieved_goal_key is not None:
+            tensordict_reset.set(self.achieved_goal_key, self._goal_slot.achieved(init_state))
         return tensordict_reset
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -659,7 +726,8 @@ class TaskTransform(Transform):
         The data is not modified.
         """
         next_data = self._offline_next(tensordict).copy()
-        data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, strict=False)
+        goal_keys = [] if self.goal_key is None else [self.goal_key]
+        data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, *goal_keys, strict=False)
         self._transition(data, next_data, offline=True)
         return next_data.get(self.reward_key)
 

@@ -23,7 +23,7 @@ again. :meth:`Task._transition` is the one implementation of a transition: the
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any, Literal
 
 import torch
@@ -33,6 +33,7 @@ from torch import nn
 from torchtasks._checks import cast_like, check_input, check_same_batch
 from torchtasks._memory import copy_entries, read
 from torchtasks.spaces import Box, EnvSpec, rows_outside
+from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
 
@@ -126,6 +127,84 @@ class Task(nn.Module):
     def children_tasks(self) -> tuple[Task, ...]:
         """The tasks this one is made of (empty for a leaf task)."""
         return ()
+
+    def _child_memory_keys(self) -> tuple[str | None, ...]:
+        """The memory key of each child task (``None``: the child's memory is this task's own)."""
+        return ()
+
+    def _goal_slots(self, prefix: tuple[str, ...], indices: tuple[int, ...] | None) -> list[GoalSlot]:
+        """The goal slots of this subtree, its memory at ``prefix``, seeing ``state[..., indices]``."""
+        slots: list[GoalSlot] = []
+        for key, child in zip(self._child_memory_keys(), self.children_tasks(), strict=True):
+            slots += child._goal_slots(prefix if key is None else (*prefix, key), indices)
+        return slots
+
+    @property
+    def goal_slots(self) -> tuple[GoalSlot, ...]:
+        """The tasks of this tree that take a goal (desired-state tasks), by the dotted path of their goal.
+
+        A goal passed to :meth:`transition` (or to the fine-grained calls) replaces their desired
+        state: a ``[*B, k]`` tensor when the tree has exactly one, or ``{name: goal}``.
+        """
+        slots = self.__dict__.get("_goal_slot_cache")
+        if slots is None:
+            slots = tuple(self._goal_slots((), None))
+            self.__dict__["_goal_slot_cache"] = slots
+        return slots
+
+    def _resolve_goal(self, goal: object, state: torch.Tensor) -> dict[GoalSlot, torch.Tensor]:
+        """Validate ``goal`` (a tensor or ``{name: tensor}``) and map it to the goal slots it fills."""
+        slots = {slot.name: slot for slot in self.goal_slots}
+        if not slots:
+            raise ValueError(f"goal was given, but no task of this {type(self).__name__} tree takes a goal")
+        if isinstance(goal, torch.Tensor):
+            if len(slots) > 1:
+                raise ValueError(
+                    f"this task tree has {len(slots)} tasks that take a goal ({sorted(slots)}); pass "
+                    "goal={name: tensor} to say which"
+                )
+            goals = {next(iter(slots)): goal}
+        elif isinstance(goal, Mapping):
+            goals = dict(goal)
+            unknown = set(goals) - set(slots)
+            if unknown:
+                raise ValueError(f"unknown goal name(s) {sorted(unknown)}; this task tree takes goals {sorted(slots)}")
+        else:
+            raise TypeError(f"goal must be a tensor [*B, k] or a mapping {{name: tensor}}, got {type(goal).__name__}")
+        resolved = {}
+        for name, value in goals.items():
+            slot = slots[name]
+            label = "goal" if len(goals) == 1 else f"goal[{name!r}]"
+            check_input(value, label, slot.size)
+            if value.shape[:-1] != state.shape[:-1]:
+                raise ValueError(
+                    f"{label} must have shape {[*state.shape[:-1], slot.size]} (the batch of the state and "
+                    f"the {slot.size} entries of the goal task), got {list(value.shape)}"
+                )
+            resolved[slot] = value if value.dtype == state.dtype else value.to(state.dtype)
+        return resolved
+
+    def with_goal(self, memory: TensorDictBase, goal: object, state: torch.Tensor) -> TensorDictBase:
+        """Return ``memory`` with the desired state of the goal task(s) replaced by ``goal`` (validated).
+
+        This is what ``goal=`` does in :meth:`transition` and the fine-grained calls; ``state`` gives
+        the batch shape and dtype.
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.rewards import QuadraticErrorReward
+            >>> from torchtasks.spaces import EnvSpec
+            >>> from torchtasks.tasks import DesiredStateTask, FinalRewardTask
+            >>> task = FinalRewardTask(DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 1.0])))
+            >>> [slot.name for slot in task.goal_slots]
+            ['wrapped.state_des']
+            >>> state = torch.zeros(1, 2)
+            >>> task.with_goal(task.reset(state), torch.tensor([[1.0, 2.0]]), state)["wrapped", "state_des"]
+            tensor([[1., 2.]])
+        """
+        if goal is None:
+            return memory
+        return replace_goals(memory, self._resolve_goal(goal, state))
 
     @property
     def term_names(self) -> tuple[str, ...]:
@@ -259,11 +338,17 @@ class Task(nn.Module):
         action: torch.Tensor,
         memory: TensorDictBase,
         remaining_steps: int | torch.Tensor = 0,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        """Return ``(reward[*B], memory)`` of one step taken from ``state`` with ``action``."""
+        """Return ``(reward[*B], memory)`` of one step taken from ``state`` with ``action``.
+
+        ``goal`` replaces the desired state of the tree's goal task for this call (see :meth:`transition`).
+        """
         self._check_state(state)
         self._check_action(state, action)
         self._check_memory(state, memory)
+        memory = self.with_goal(memory, goal, state)
         return self._step_reward(state, action, memory, self._as_remaining(remaining_steps, state))
 
     def step_reward_terms(
@@ -272,34 +357,56 @@ class Task(nn.Module):
         action: torch.Tensor,
         memory: TensorDictBase,
         remaining_steps: int | torch.Tensor = 0,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
         """Like :meth:`step_reward`, with the named terms: ``({name: value[*B]}, reward[*B], memory)``.
 
-        The terms are those of a compound or locomotion reward reached through wrappers and
-        masks (:attr:`term_names`); they sum to the reward. Other tasks report no terms.
+        The terms are those of a compound, product or locomotion reward reached through wrappers and
+        masks (:attr:`term_names`); the reward combines them (a sum, or a product of factors). Other
+        tasks report no terms.
         """
         self._check_state(state)
         self._check_action(state, action)
         self._check_memory(state, memory)
+        memory = self.with_goal(memory, goal, state)
         return self._step_terms(state, action, memory, self._as_remaining(remaining_steps, state))
 
-    def has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+    def has_succeeded(
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """Return ``bool[*B]``: whether each environment's episode is a success (pure)."""
         self._check_state(state)
         self._check_memory(state, memory)
-        return self._has_succeeded(state, memory)
+        return self._has_succeeded(state, self.with_goal(memory, goal, state))
 
-    def has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+    def has_failed(
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """Return ``bool[*B]``: whether each environment's episode is a failure (pure)."""
         self._check_state(state)
         self._check_memory(state, memory)
-        return self._has_failed(state, memory)
+        return self._has_failed(state, self.with_goal(memory, goal, state))
 
-    def is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+    def is_done(
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
+    ) -> torch.Tensor:
         """Return ``bool[*B]``: success or failure (pure)."""
         self._check_state(state)
         self._check_memory(state, memory)
-        return self._is_done(state, memory)
+        return self._is_done(state, self.with_goal(memory, goal, state))
 
     def final_reward(
         self,
@@ -307,6 +414,8 @@ class Task(nn.Module):
         memory: TensorDictBase,
         remaining_steps: int | torch.Tensor,
         done: torch.Tensor,
+        *,
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         """Return ``(final_reward[*B], memory)``: the one-off reward, paid once and only where ``done``.
 
@@ -316,6 +425,7 @@ class Task(nn.Module):
         self._check_state(state)
         self._check_memory(state, memory)
         self._check_done(done, state)
+        memory = self.with_goal(memory, goal, state)
         return self._final_reward(state, memory, self._as_remaining(remaining_steps, state), done)
 
     def transition(
@@ -329,6 +439,7 @@ class Task(nn.Module):
         terminated: torch.Tensor | None = None,
         truncated: torch.Tensor | None = None,
         reward_on: RewardOn = "next",
+        goal: torch.Tensor | Mapping[str, torch.Tensor] | None = None,
     ) -> TaskOutput:
         """Evaluate one transition ``(s_t, a_t, s_{t+1})`` for a batch of environments: the one call per step.
 
@@ -351,6 +462,10 @@ class Task(nn.Module):
             terminated: the env's own termination, ``bool[*B]``, or None.
             truncated: truncation (time limit), ``bool[*B]``, or None.
             reward_on: ``"next"`` or ``"state"``: the state the step reward is evaluated on.
+            goal: a goal ``[*B, k]`` replacing the desired state of the tree's goal task (a
+                :class:`DesiredStateTask`, also inside wrappers, masks and composites; ``k`` is the
+                size of the state it sees) for this call, or ``{name: goal}`` when the tree has
+                several (:attr:`goal_slots` lists them). The returned memory carries it.
 
         Returns:
             a :class:`TaskOutput` (reward, step and final reward, flags, memory, named terms).
@@ -373,6 +488,7 @@ class Task(nn.Module):
             (tensor([ True, False, False]), tensor([False,  True, False]), tensor([ True,  True, False]))
         """
         self._check_transition(state, action, next_state, memory, terminated, truncated, reward_on)
+        memory = self.with_goal(memory, goal, state)
         remaining = self._as_remaining(remaining_steps, state)
         values = self._transition(state, action, next_state, memory, remaining, terminated, truncated, reward_on)
         return TaskOutput(*values)
@@ -488,6 +604,9 @@ class TaskWrapper(Task):
 
     def children_tasks(self) -> tuple[Task, ...]:
         return (self.wrapped_task,)
+
+    def _child_memory_keys(self) -> tuple[str | None, ...]:
+        return ("wrapped",)
 
     @property
     def term_names(self) -> tuple[str, ...]:

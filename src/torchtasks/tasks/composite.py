@@ -47,6 +47,9 @@ class CompositeTask(Task):
     def children_tasks(self) -> tuple[Task, ...]:
         return tuple(self.tasks)
 
+    def _child_memory_keys(self) -> tuple[str | None, ...]:
+        return self._keys
+
     @property
     def num_tasks(self) -> int:
         """Number of sub-tasks ``K``."""

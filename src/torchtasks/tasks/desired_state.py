@@ -13,6 +13,7 @@ from torchtasks._checks import as_constant, cast_like
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
+from torchtasks.tasks.goals import GOAL_ENTRY, GoalSlot
 from torchtasks.tasks.leaf import RewardTask
 from torchtasks.tasks.success import never_succeeded
 
@@ -91,6 +92,10 @@ class DesiredStateTask(RewardTask):
                     f"{[*batch, self.state_size]}, got {list(goal.shape)}"
                 )
         return {"state_des": goal.expand(*batch, self.state_size).clone()}
+
+    def _goal_slots(self, prefix: tuple[str, ...], indices: tuple[int, ...] | None) -> list[GoalSlot]:
+        path = (*prefix, GOAL_ENTRY)
+        return [GoalSlot(".".join(path), path, self.state_size, indices)]
 
     def state_error(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         """Return ``state_des - state`` (``[*B, n]``)."""

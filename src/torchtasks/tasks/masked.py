@@ -82,6 +82,13 @@ class MaskedTask(Task):
     def children_tasks(self) -> tuple[Task, ...]:
         return (self.wrapped_task,)
 
+    def _child_memory_keys(self) -> tuple[str | None, ...]:
+        return (None,)  # the wrapped task's memory is this task's memory
+
+    def _goal_slots(self, prefix: tuple[str, ...], indices: tuple[int, ...] | None) -> list:
+        selected = tuple(self.state_indices) if indices is None else tuple(indices[i] for i in self.state_indices)
+        return self.wrapped_task._goal_slots(prefix, selected)
+
     @property
     def term_names(self) -> tuple[str, ...]:
         return self.wrapped_task.term_names
