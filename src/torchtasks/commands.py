@@ -1,0 +1,272 @@
+"""Goal commands the policy sees: :class:`GoalCommand`, a TorchRL transform that samples, holds and resamples goals.
+
+IsaacLab and mjlab call these commands: a per-env target (a position to reach, a velocity to
+track) that is part of the observation, resampled at reset and on a per-env timer. A
+:class:`~torchtasks.transforms.TaskTransform` with ``goal_key=`` passes the goal of step ``t`` (the
+one the policy saw) to the task, so the reward and the success flag are judged against it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey, unravel_key
+from torchrl.data import Bounded, Composite, Unbounded
+from torchrl.envs.transforms import Compose, Transform
+
+from torchtasks.spaces import Box
+
+__all__ = ["GoalCommand"]
+
+Sampler = Callable[[torch.Size, torch.Generator | None], torch.Tensor]
+
+
+def _flat(transform: Transform) -> list[Transform]:
+    if isinstance(transform, Compose):
+        return [leaf for child in transform.transforms for leaf in _flat(child)]
+    return [transform]
+
+
+class GoalCommand(Transform):
+    """Sample per-env goals into the observation; resample at reset, on a per-env timer, or after a success.
+
+    The goal lives under ``goal_key`` (observation AND state spec, so ``ParallelEnv``, ``SerialEnv``,
+    batched envs, every collector and ``env.rollout`` carry it). Goals are drawn uniformly from a
+    :class:`~torchtasks.spaces.Box` (finite bounds) or by a callable ``sampler(shape, generator) ->
+    goals``. They are drawn anew:
+
+    - at reset, for the envs being reset only;
+    - with ``resample_steps=n`` every ``n`` steps, or with ``(low, high)`` after a number of steps
+      drawn uniformly from ``[low, high]`` per env and per goal (the steps left are the state entry
+      ``(goal_key)_steps_left``);
+    - with ``resample_on_success=True``, right after a step whose ``success`` flag is set (then the
+      command must come after the :class:`~torchtasks.transforms.TaskTransform` that writes it).
+
+    The goal written in step ``t`` is the one the policy sees when it chooses ``a_{t+1}``, and the
+    one a ``TaskTransform(task, goal_key=...)`` judges the transition ``t+1`` with. Randomness comes
+    from ``torch``'s global generator (seeded by ``torch.manual_seed``), or from the command's own
+    generator when ``seed`` is given (:meth:`set_seed` re-seeds it). TorchRL's
+    ``TransformedEnv.set_seed`` seeds the base env only, not its transforms.
+
+    Args:
+        space: the goal space (a ``Box`` of ``k`` finite entries) or a sampler.
+        goal_key: where the goal is written.
+        resample_steps: ``None`` (only at reset), an int, or an inclusive ``(low, high)`` range.
+        resample_on_success: draw a new goal right after a success.
+        success_key: the success flag written by the TaskTransform.
+        seed: seed of the command's own generator (``None``: torch's global one).
+        goal_size: the number of goal entries when ``space`` is a sampler.
+
+    Example:
+        >>> import functools, torch
+        >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
+        >>> from torchtasks.commands import GoalCommand
+        >>> from torchtasks.envs import PendulumEnv
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> from torchtasks.spaces import Box, EnvSpec
+        >>> from torchtasks.tasks import DesiredStateTask, proximity_succeeded
+        >>> from torchtasks.transforms import TaskTransform
+        >>> near = functools.partial(proximity_succeeded, threshold=0.1)
+        >>> task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
+        ...     StepCounter(50),
+        ...     TaskTransform(task, goal_key="goal"),
+        ...     GoalCommand(Box([-1.0, -0.5], [1.0, 0.5]), resample_steps=(5, 10), seed=0)))
+        >>> rollout = env.rollout(12)
+        >>> rollout["goal"].shape
+        torch.Size([4, 12, 2])
+    """
+
+    def __init__(
+        self,
+        space: Box | Sampler,
+        *,
+        goal_key: NestedKey = "goal",
+        resample_steps: int | tuple[int, int] | None = None,
+        resample_on_success: bool = False,
+        success_key: NestedKey = "success",
+        seed: int | None = None,
+        goal_size: int | None = None,
+    ) -> None:
+        if isinstance(space, Box):
+            if not (torch.isfinite(space.low).all() and torch.isfinite(space.high).all()):
+                raise ValueError("GoalCommand: the goal space must have finite bounds to sample uniformly from it")
+            size = space.size
+        elif callable(space):
+            if goal_size is None or isinstance(goal_size, bool) or not isinstance(goal_size, int) or goal_size < 1:
+                raise ValueError(f"GoalCommand: a sampler needs goal_size=<number of goal entries>, got {goal_size!r}")
+            size = goal_size
+        else:
+            raise TypeError(f"space must be a torchtasks.spaces.Box or a sampler callable, got {type(space).__name__}")
+        self.timer_range = _timer_range(resample_steps)
+        if not isinstance(resample_on_success, bool):
+            raise TypeError(f"resample_on_success must be a bool, got {resample_on_success!r}")
+        self.goal_key = unravel_key(goal_key)
+        self.timer_key = unravel_key(
+            f"{goal_key}_steps_left" if isinstance(goal_key, str) else (*goal_key[:-1], f"{goal_key[-1]}_steps_left")
+        )
+        self.success_key = unravel_key(success_key)
+        in_keys = [self.goal_key, self.timer_key] + ([self.success_key] if resample_on_success else [])
+        super().__init__(in_keys=in_keys, out_keys=[self.goal_key, self.timer_key])
+        self.space = space
+        self.goal_size = size
+        self.resample_on_success = resample_on_success
+        self.generator = None if seed is None else torch.Generator().manual_seed(seed)
+
+    def set_seed(self, seed: int) -> None:
+        """Seed the command's own generator (created if it had none)."""
+        self.generator = torch.Generator().manual_seed(seed)
+
+    # --------------------------------------------------------------------------- sampling
+    def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+        if isinstance(self.space, Box):
+            unit = torch.rand((*batch, self.goal_size), generator=self.generator, dtype=torch.float64)
+            low, high = self.space.low, self.space.high
+            goals = low + unit * (high - low)
+        else:
+            goals = torch.as_tensor(self.space(torch.Size(batch), self.generator))
+            if goals.shape != (*batch, self.goal_size) or not goals.is_floating_point():
+                raise ValueError(
+                    f"GoalCommand: the sampler must return floating goals of shape {[*batch, self.goal_size]}, "
+                    f"got {goals.dtype} {list(goals.shape)}"
+                )
+        return goals.to(device=device, dtype=dtype)
+
+    def _sample_timers(self, batch: torch.Size, device: torch.device) -> torch.Tensor:
+        if self.timer_range is None:
+            return torch.zeros(batch, dtype=torch.long, device=device)
+        low, high = self.timer_range
+        return torch.randint(low, high + 1, batch, generator=self.generator).to(device)
+
+    # ------------------------------------------------------------------------------ specs
+    def _goal_dtype(self) -> torch.dtype:
+        parent = self.parent
+        if parent is None:
+            return torch.get_default_dtype()
+        spec = parent.full_observation_spec
+        for key in ("observation", *spec.keys(True, True)):
+            if key in spec.keys(True, True) and spec[key].dtype.is_floating_point:
+                return spec[key].dtype
+        return torch.get_default_dtype()
+
+    def _specs(self, batch: torch.Size, device: torch.device | None, dtype: torch.dtype) -> dict:
+        if isinstance(self.space, Box):
+            goal = Bounded(
+                low=self.space.low.to(dtype).expand(*batch, self.goal_size),
+                high=self.space.high.to(dtype).expand(*batch, self.goal_size),
+                shape=(*batch, self.goal_size),
+                dtype=dtype,
+                device=device,
+            )
+        else:
+            goal = Unbounded(shape=(*batch, self.goal_size), dtype=dtype, device=device)
+        timer = Unbounded(shape=batch, dtype=torch.long, device=device)
+        return {self.goal_key: goal, self.timer_key: timer}
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        self._check_placement()
+        dtype = self._goal_dtype()
+        self.__dict__["_dtype"] = dtype
+        for key, spec in self._specs(observation_spec.shape, observation_spec.device, dtype).items():
+            observation_spec[key] = spec
+        return observation_spec
+
+    def transform_state_spec(self, state_spec: Composite) -> Composite:
+        parent = self.parent
+        batch = parent.batch_size if parent is not None else state_spec.shape
+        device = None if parent is None else parent.device
+        if state_spec is None:
+            state_spec = Composite(shape=batch, device=device)
+        for key, spec in self._specs(batch, device, self.__dict__.get("_dtype", self._goal_dtype())).items():
+            state_spec[key] = spec
+        return state_spec
+
+    def _check_placement(self) -> None:
+        """Refuse orders in which the command cannot see success or the task cannot see the goal."""
+        try:
+            container = self.container
+        except (AttributeError, ValueError):
+            return
+        transform = getattr(container, "transform", None)
+        if transform is None:
+            return
+        flat = _flat(transform)
+        position = next((i for i, t in enumerate(flat) if t is self), None)
+        # TaskTransforms, recognised by what they are (commands sit beside transforms, not above them)
+        tasks = [(i, t) for i, t in enumerate(flat) if hasattr(t, "task") and hasattr(t, "goal_key")]
+        if self.resample_on_success and not any(i < position and t.success_key == self.success_key for i, t in tasks):
+            raise ValueError(
+                "GoalCommand(resample_on_success=True) must come after the TaskTransform that writes "
+                f"{self.success_key!r}: it reads the success of the step to draw the next goal. Put it after "
+                "TaskTransform in the Compose."
+            )
+        for _, task in tasks:
+            if task.goal_key != self.goal_key:
+                raise ValueError(
+                    f"GoalCommand writes the goal to {self.goal_key!r}, but the TaskTransform of "
+                    f"{type(task.task).__name__} reads goal_key={task.goal_key!r}: the task would not see the goal. "
+                    f"Pass TaskTransform(task, goal_key={self.goal_key!r})."
+                )
+
+    # ------------------------------------------------------------------------ TorchRL hooks
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        batch = tensordict_reset.batch_size
+        device = tensordict_reset.device or torch.device("cpu")
+        dtype = self.__dict__.get("_dtype", self._goal_dtype())
+        goals = self._sample_goals(batch, dtype, device)
+        timers = self._sample_timers(batch, device)
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        old_goals = None if tensordict is None else tensordict.get(self.goal_key, None)
+        old_timers = None if tensordict is None else tensordict.get(self.timer_key, None)
+        if reset is not None and old_goals is not None and old_timers is not None:
+            mask = reset.reshape(batch)
+            goals = torch.where(mask.unsqueeze(-1), goals, old_goals)
+            timers = torch.where(mask, timers, old_timers)
+        tensordict_reset.set(self.goal_key, goals)
+        tensordict_reset.set(self.timer_key, timers)
+        return tensordict_reset
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        goals = tensordict.get(self.goal_key)
+        timers = tensordict.get(self.timer_key)
+        if goals is None or timers is None:
+            raise KeyError(f"GoalCommand: {self.goal_key!r} is missing from the data; call env.reset() first")
+        batch = goals.shape[:-1]
+        resample = torch.zeros(batch, dtype=torch.bool, device=goals.device)
+        if self.timer_range is not None:
+            timers = timers - 1
+            resample = timers <= 0
+        if self.resample_on_success:
+            resample = resample | next_tensordict.get(self.success_key).reshape(batch)
+        new_goals = self._sample_goals(batch, goals.dtype, goals.device)
+        goals = torch.where(resample.unsqueeze(-1), new_goals, goals)
+        if self.timer_range is not None:
+            timers = torch.where(resample, self._sample_timers(batch, goals.device), timers)
+        next_tensordict.set(self.goal_key, goals)
+        next_tensordict.set(self.timer_key, timers)
+        return next_tensordict
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(goal_key={self.goal_key!r}, resample_steps={self.timer_range}, "
+            f"resample_on_success={self.resample_on_success})"
+        )
+
+
+def _timer_range(resample_steps: object) -> tuple[int, int] | None:
+    if resample_steps is None:
+        return None
+    if isinstance(resample_steps, int) and not isinstance(resample_steps, bool):
+        low = high = resample_steps
+    elif isinstance(resample_steps, Sequence) and len(resample_steps) == 2:
+        low, high = resample_steps
+    else:
+        raise TypeError(f"resample_steps must be None, an int or a (low, high) pair, got {resample_steps!r}")
+    for value in (low, high):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise ValueError(f"resample_steps must be positive ints, got {resample_steps!r}")
+    if low > high:
+        raise ValueError(f"resample_steps (low, high) needs low <= high, got {resample_steps!r}")
+    return int(low), int(high)

@@ -1,0 +1,148 @@
+"""GoalCommand on data collected by TorchRL: goals inside the space, changed only at a reset, at the end of their
+timer (lengths within the range) or right after a success; the task judges each transition with the goal the policy
+saw; the command's state survives SerialEnv/ParallelEnv and collectors; wrong orders are refused at set-up."""
+
+from __future__ import annotations
+
+import functools
+
+import pytest
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import Compose, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
+
+from torchtasks.commands import GoalCommand
+from torchtasks.envs import PendulumEnv
+from torchtasks.rewards import QuadraticErrorReward
+from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
+from torchtasks.transforms import TaskTransform
+
+SPACE = Box([-0.6], [0.6])  # goal angles
+MAX_STEPS = 25
+
+
+def angle_task() -> FinalRewardTask:
+    """Reach a goal angle (the first state entry) within 0.25; failure beyond ±1.2 rad."""
+    spec = EnvSpec(Box([-1.2, -8.5], [1.2, 8.5]), 1)
+    near = functools.partial(proximity_succeeded, threshold=0.25)
+    inner = DesiredStateTask(spec.select_state([0]), [0.0], QuadraticErrorReward([1.0]), near)
+    return FinalRewardTask(MaskedTask(spec, inner, [0]), factor=5.0)
+
+
+def transforms(**command) -> Compose:
+    return Compose(
+        StepCounter(MAX_STEPS),
+        TaskTransform(angle_task(), goal_key="goal", achieved_goal_key="achieved_goal"),
+        GoalCommand(SPACE, **command),
+    )
+
+
+def make_env(batch: int = 8, seed: int = 0, **command) -> TransformedEnv:
+    base = PendulumEnv(batch_size=[batch], seed=seed, dtype=torch.float64, init_angle=0.4, init_speed=0.5)
+    return TransformedEnv(base, transforms(**command))
+
+
+def check(data: TensorDictBase, timer_range: tuple[int, int] | None, on_success: bool) -> dict[str, int]:
+    """Every rule of the command, and the task's verdicts recomputed offline with the goal the policy saw."""
+    goal, next_goal = data["goal"], data["next", "goal"]
+    assert ((goal >= SPACE.low) & (goal <= SPACE.high)).all()
+    changed = (next_goal != goal).any(-1)
+    success = data["next", "success"][..., 0]
+    reset_next = torch.zeros_like(changed)
+    reset_next[:, :-1] = data["step_count"][:, 1:, 0] == 0  # the next root entry is a new episode
+    counts = {"timer": 0, "success": 0, "reset": 0}
+    # the first step of each env's current goal; unknown (None) until the first change or reset inside the
+    # batch, unless the batch starts with an episode (a collector's batch may start in the middle of one)
+    start = [0 if int(data["step_count"][env, 0, 0]) == 0 else None for env in range(changed.shape[0])]
+    for t in range(changed.shape[1]):
+        for env in range(changed.shape[0]):
+            if changed[env, t]:
+                allowed_success = on_success and bool(success[env, t])
+                expired = timer_range is not None and int(data["goal_steps_left"][env, t]) == 1
+                assert allowed_success or expired, (env, t)
+                if timer_range is not None and not allowed_success and start[env] is not None:
+                    used = t - start[env] + 1  # transitions judged with this goal
+                    assert timer_range[0] <= used <= timer_range[1], (env, t, used)
+                counts["success" if allowed_success else "timer"] += 1
+                start[env] = t + 1
+            elif on_success and success[env, t]:
+                raise AssertionError(f"no new goal after the success of env {env} at step {t}")
+            if reset_next[env, t]:
+                counts["reset"] += 1
+                start[env] = t + 1
+    # the task judged every transition with the goal at the root (the one the policy saw)
+    task = angle_task().double()
+    for t in range(data.shape[1]):
+        step = data[:, t]
+        out = task.transition(
+            step["observation"], step["action"], step["next", "observation"], step["task"], goal=step["goal"]
+        )
+        torch.testing.assert_close(out.reward, step["next", "reward"][..., 0], rtol=0, atol=1e-12)
+        assert torch.equal(out.success, step["next", "success"][..., 0])
+    return counts
+
+
+def test_goals_change_only_at_reset_and_at_the_end_of_their_timer():
+    torch.manual_seed(0)
+    data = make_env(resample_steps=(3, 6), seed=1).rollout(60, break_when_any_done=False)
+    counts = check(data, (3, 6), on_success=False)
+    assert counts["timer"] > 10 and counts["reset"] > 0, counts
+    # a reset draws a new goal for the envs being reset only: the root goal after a reset is fresh
+    assert ((data["goal_steps_left"] >= 1) & (data["goal_steps_left"] <= 6)).all()
+
+
+def test_goals_are_resampled_right_after_a_success():
+    torch.manual_seed(1)
+    data = make_env(resample_on_success=True, seed=2).rollout(80, break_when_any_done=False)
+    counts = check(data, None, on_success=True)
+    assert counts["success"] > 0, counts
+
+
+def test_the_command_is_reproducible_with_its_seed():
+    first = make_env(resample_steps=4, seed=3)
+    second = make_env(resample_steps=4, seed=3)
+    for env in (first, second):
+        env.transform[-1].set_seed(7)
+    torch.manual_seed(0)
+    a = first.rollout(20, break_when_any_done=False)
+    torch.manual_seed(0)
+    b = second.rollout(20, break_when_any_done=False)
+    assert torch.equal(a["goal"], b["goal"])
+
+
+@pytest.mark.multiprocess
+@pytest.mark.parametrize("placement", ["serial", "parallel"])
+def test_the_state_survives_batched_envs(placement: str):
+    factory = functools.partial(PendulumEnv, batch_size=[3], dtype=torch.float64, init_angle=0.4, init_speed=0.5)
+    batched = SerialEnv(2, factory) if placement == "serial" else ParallelEnv(2, factory, mp_start_method="fork")
+    env = TransformedEnv(batched, transforms(resample_steps=(2, 4)))
+    torch.manual_seed(4)
+    data = env.rollout(30, break_when_any_done=False).reshape(6, 30)
+    env.close()
+    check(data, (2, 4), on_success=False)
+
+
+def test_collector_batches():
+    env = make_env(resample_steps=(3, 5), seed=5)
+    collector = Collector(env, None, frames_per_batch=8 * 30, total_frames=8 * 60)
+    for batch in collector:
+        check(batch, (3, 5), on_success=False)
+    collector.shutdown()
+
+
+def test_wrong_orders_are_refused_at_set_up():
+    base = PendulumEnv(batch_size=[2])
+    before = Compose(
+        StepCounter(5), GoalCommand(SPACE, resample_on_success=True), TaskTransform(angle_task(), goal_key="goal")
+    )
+    with pytest.raises(ValueError, match="must come after the TaskTransform"):
+        TransformedEnv(base, before).reset()
+    unseen = Compose(StepCounter(5), TaskTransform(angle_task()), GoalCommand(SPACE))
+    with pytest.raises(ValueError, match="the task would not see the goal"):
+        TransformedEnv(PendulumEnv(batch_size=[2]), unseen).reset()
+    with pytest.raises(ValueError, match="finite bounds"):
+        GoalCommand(Box([-1.0], [float("inf")]))
+    with pytest.raises(ValueError, match="low <= high"):
+        GoalCommand(SPACE, resample_steps=(5, 2))
