@@ -1,0 +1,363 @@
+"""Episode statistics of collected data: success, failure and timeout rates, lengths and returns per reward term.
+
+:func:`episode_statistics` reads what a :class:`~torchtasks.transforms.TaskTransform` wrote into the
+data (the task's ``success`` and ``failure`` flags, the env's ``done``/``terminated``/``truncated``
+flags, the reward and its breakdown) and summarises the episodes that end in a batch. It re-applies
+no threshold and knows no env: the numbers are the task's own verdicts, counted.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey, unravel_key
+
+__all__ = ["episode_statistics"]
+
+#: where TorchRL collectors write the trajectory id of every frame
+TRAJ_IDS_KEY = ("collector", "traj_ids")
+#: StepCounter's entry: steps since the env's last reset (0 at the reset, L after the L-th step)
+STEP_COUNT_KEY = "step_count"
+#: InitTracker's entry: True on the first frame of an episode
+IS_INIT_KEY = "is_init"
+#: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
+EPISODE_SUM_PREFIX = "episode_"
+
+
+def _key(value: object, name: str) -> tuple[str, ...]:
+    """``value`` as a tuple key, else ``TypeError`` naming the argument."""
+    is_key = isinstance(value, str) or (
+        isinstance(value, tuple) and len(value) > 0 and all(isinstance(part, str) for part in value)
+    )
+    if not is_key:
+        raise TypeError(f"episode_statistics: {name} must be a key (a string or a tuple of strings), got {value!r}")
+    key = unravel_key(value)
+    return (key,) if isinstance(key, str) else tuple(key)
+
+
+def _keys_text(batch: TensorDictBase) -> str:
+    return "[" + ", ".join(repr(key) for key in sorted(batch.keys(True, True), key=str)) + "]"
+
+
+class _Frames:
+    """The batch's entries as ``[F, ...]`` frames: time-major rows ``[E, T]`` flattened, or a flat ``[N]`` batch."""
+
+    def __init__(self, batch: TensorDictBase, time_dim: int | None) -> None:
+        self.batch = batch
+        self.time_dim = time_dim  # None: flat batch of transitions
+        shape = batch.batch_size
+        if time_dim is None:
+            self.rows, self.steps = 1, shape[0]
+        else:
+            self.steps = shape[time_dim]
+            self.rows = shape.numel() // self.steps if self.steps else 0
+        self.count = self.rows * self.steps
+
+    def get(self, key: tuple[str, ...], *, where: str = "next") -> torch.Tensor | None:
+        """The entry ``("next", *key)`` (``where="next"``), ``key`` (``"root"``) or the first of both found
+        (``"either"``) as ``[F, *rest]``; None when missing."""
+        value = self.batch.get(("next", *key), None) if where in ("next", "either") else None
+        if value is None and where in ("root", "either"):
+            value = self.batch.get(key, None)
+        if value is None:
+            return None
+        if isinstance(value, TensorDictBase):
+            raise TypeError(f"episode_statistics: {key!r} holds a TensorDict, expected a tensor")
+        value = value.detach()
+        ndim = self.batch.batch_dims
+        if self.time_dim is not None and self.time_dim != ndim - 1:
+            value = value.movedim(self.time_dim, ndim - 1)
+        return value.reshape(self.count, *value.shape[ndim:])
+
+    def scalar(self, key: tuple[str, ...], name: str, *, where: str = "next") -> torch.Tensor | None:
+        """One value per frame (``[*B]`` or ``[*B, 1]`` entries) as ``[F]``; None when missing."""
+        value = self.get(key, where=where)
+        if value is None:
+            return None
+        if value.shape[1:].numel() != 1:
+            raise ValueError(
+                f"episode_statistics: {name} {key!r} must hold one value per frame (shape [*B] or [*B, 1] for the "
+                f"batch shape {list(self.batch.batch_size)}), got trailing shape {list(value.shape[1:])}; "
+                "select one agent group or reward entry first"
+            )
+        return value.reshape(self.count)
+
+    def flag(self, key: tuple[str, ...], name: str, *, where: str = "next") -> torch.Tensor | None:
+        value = self.scalar(key, name, where=where)
+        return None if value is None else value != 0
+
+
+def _required(frames: _Frames, key: tuple[str, ...], name: str, *, flag: bool = False) -> torch.Tensor:
+    value = frames.flag(key, name) if flag else frames.scalar(key, name)
+    if value is None:
+        raise KeyError(
+            f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked under "
+            f"'next'); available keys are {_keys_text(frames.batch)}. Pass the key the data uses, or None to "
+            "skip the statistics that need it."
+        )
+    return value
+
+
+def _term_names(batch: TensorDictBase, terms_key: tuple[str, ...]) -> list[tuple[str, ...]]:
+    """The reward terms under ``("next", *terms_key)``, without RewardSum's running sums (``episode_<term>``)."""
+    terms = batch.get(("next", *terms_key), None)
+    if terms is None:
+        raise KeyError(
+            f"episode_statistics: terms_key={terms_key if len(terms_key) > 1 else terms_key[0]!r} is not in the "
+            f"data (looked under 'next'); available keys are {_keys_text(batch)}. Pass the key of the task's "
+            "reward breakdown (TaskTransform's terms_key), or None when the data has none (log_terms=False)."
+        )
+    if not isinstance(terms, TensorDictBase):
+        raise TypeError(f"episode_statistics: ('next', *{terms_key!r}) must hold the reward breakdown (a TensorDict)")
+    names = [(key,) if isinstance(key, str) else tuple(key) for key in terms.keys(True, True)]
+    leaf_names = {name[-1] for name in names}
+    return [
+        name
+        for name in names
+        if not (name[-1].startswith(EPISODE_SUM_PREFIX) and name[-1][len(EPISODE_SUM_PREFIX) :] in leaf_names)
+    ]
+
+
+def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
+    """The time dim as a non-negative index, or None for a flat batch grouped by the collector's trajectory ids."""
+    ndim = batch.batch_dims
+    if ndim == 0:
+        raise ValueError(
+            "episode_statistics: the batch has no batch dims; expected [*envs, time] frames (env.rollout, a "
+            "collector's batch) or a flat [N] batch with ('collector', 'traj_ids')"
+        )
+    if time_dim is None:
+        if ndim == 1 and batch.get(TRAJ_IDS_KEY, None) is not None:
+            return None
+        return ndim - 1
+    if isinstance(time_dim, bool) or not isinstance(time_dim, int) or not -ndim <= time_dim < ndim:
+        raise ValueError(
+            f"episode_statistics: time_dim must be an int in [{-ndim}, {ndim - 1}] for the batch shape "
+            f"{list(batch.batch_size)}, got {time_dim!r}"
+        )
+    return time_dim % ndim
+
+
+def episode_statistics(
+    batch: TensorDictBase,
+    *,
+    reward_key: NestedKey | None = "reward",
+    success_key: NestedKey | None = "success",
+    failure_key: NestedKey | None = "failure",
+    terms_key: NestedKey | None = "task_reward",
+    goal_key: NestedKey | None = None,
+    achieved_goal_key: NestedKey | None = None,
+    time_dim: int | None = None,
+) -> dict[str, float]:
+    """Return statistics of the episodes that end in ``batch``: outcome rates, mean length and returns per term.
+
+    The numbers are counted from the data as the task and the env wrote it: how an episode ended is
+    read from the flags under ``"next"`` at its last frame (where ``("next", "done")`` is True), and
+    returns are sums of ``("next", reward_key)`` and of every entry of the reward breakdown
+    ``("next", terms_key)`` over the episode's frames. Nothing is recomputed or re-thresholded.
+
+    **Layouts.** ``[*envs, time]`` batches (``env.rollout(..., break_when_any_done=False)``, a
+    ``Collector``'s batches, ``split_trajs=True`` padded batches): each row along ``time_dim`` (default:
+    the last batch dim, TorchRL's convention) holds one env's consecutive frames, and the env resets
+    after every ``done`` frame. A flat ``[N]`` batch with ``("collector", "traj_ids")`` (e.g.
+    ``batch.reshape(-1)`` of a collector's batch) is grouped by trajectory id (one id per episode,
+    frames in any order); without trajectory ids a 1-D batch is one env's time series.
+
+    **Episodes that started before the batch.** Every episode that ends in the batch is counted in
+    ``episodes`` and in the outcome rates, so consecutive batches count each episode exactly once. Its
+    length is ``("next", "step_count")`` at the last frame when the data has it (StepCounter in the env);
+    its return is known only when all its frames are in the batch, so ``return_mean`` (and
+    ``episode_length_mean`` without step counts) are means over the ``complete_episodes``: ended
+    episodes whose start is in the batch. The start is known from the step count (frames in the batch
+    equal the episode's length), from a ``done`` frame just before it in the same row, or from
+    InitTracker's ``is_init``; without any of these the first episode of each row is not complete.
+    RewardSum's running sums are not used (and its ``episode_*`` entries are not taken for terms): the
+    results are the same with and without it.
+
+    **No ended episode.** A mean or rate over zero episodes is left out, never NaN or a made-up 0:
+    with no ended episode the result is ``{"episodes": 0.0, "complete_episodes": 0.0}``.
+
+    Returned keys (plain floats, ready for ``logger.log_scalar(name, value, step)``):
+
+    - ``episodes``: number of episodes that end in the batch; ``complete_episodes``: those whose frames
+      are all in the batch.
+    - ``success_rate``, ``failure_rate``: fraction of the ended episodes whose last frame has the
+      task's success / failure flag.
+    - ``timeout_rate``: truncated without success, failure or termination; ``env_termination_rate``:
+      terminated by the env itself, neither success nor failure (needs both task flags). Left out when
+      the data has neither ``terminated`` nor ``truncated``.
+    - ``episode_length_mean``: transitions per episode.
+    - ``return_mean`` and ``return_mean/<term>`` for every entry of the breakdown (TaskTransform writes
+      ``step``, ``final`` and one per named reward term; nested names are joined with ``/``).
+    - ``final_goal_distance_mean`` (with ``goal_key`` and ``achieved_goal_key``): the L2 distance
+      between the goal and the achieved goal at the last frame of every ended episode, read under
+      ``"next"`` (or at the root when not there).
+
+    Args:
+        batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
+        reward_key, success_key, failure_key, terms_key: entries under ``"next"``; ``None`` skips the
+            statistics that need one. A key that is given but missing raises ``KeyError``.
+        goal_key, achieved_goal_key: entries ``[*B, k]`` holding the goal and the achieved goal.
+        time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
+            batch with the collector's trajectory ids, the flat layout).
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> def flags(*values):  # one env, five frames: [1, 5, 1]
+        ...     return torch.tensor(values).reshape(1, 5, 1)
+        >>> batch = TensorDict({"next": {
+        ...     "done": flags(0, 1, 0, 0, 1).bool(), "terminated": flags(0, 1, 0, 0, 0).bool(),
+        ...     "truncated": flags(0, 0, 0, 0, 1).bool(), "success": flags(0, 1, 0, 0, 0).bool(),
+        ...     "failure": flags(0, 0, 0, 0, 0).bool(), "step_count": flags(1, 2, 1, 2, 3),
+        ...     "reward": flags(1.0, 2.0, 0.5, 0.5, 0.5),
+        ...     "task_reward": {"step": flags(1.0, 1.0, 0.5, 0.5, 0.5), "final": flags(0.0, 1.0, 0.0, 0.0, 0.0)},
+        ... }}, batch_size=[1, 5])
+        >>> stats = episode_statistics(batch)
+        >>> stats["episodes"], stats["success_rate"], stats["timeout_rate"], stats["episode_length_mean"]
+        (2.0, 0.5, 0.5, 2.5)
+        >>> stats["return_mean"], stats["return_mean/final"]
+        (2.25, 0.5)
+    """
+    if not isinstance(batch, TensorDictBase):
+        raise TypeError(f"episode_statistics: batch must be a TensorDict, got {type(batch).__name__}")
+    if (goal_key is None) != (achieved_goal_key is None):
+        raise ValueError("episode_statistics: give both goal_key and achieved_goal_key, or neither")
+    keys = {
+        name: None if value is None else _key(value, name)
+        for name, value in (
+            ("reward_key", reward_key),
+            ("success_key", success_key),
+            ("failure_key", failure_key),
+            ("terms_key", terms_key),
+            ("goal_key", goal_key),
+            ("achieved_goal_key", achieved_goal_key),
+        )
+    }
+    with torch.no_grad():
+        return _statistics(batch, keys, _time_dim(batch, time_dim))
+
+
+def _statistics(
+    batch: TensorDictBase, keys: dict[str, tuple[str, ...] | None], time_dim: int | None
+) -> dict[str, float]:
+    frames = _Frames(batch, time_dim)
+    # every entry that a given key names is read (and checked) up front, whether or not an episode ended
+    done = _required(frames, ("done",), "done", flag=True)
+    flags = {
+        name: _required(frames, keys[f"{name}_key"], f"{name}_key", flag=True)
+        for name in ("success", "failure")
+        if keys[f"{name}_key"] is not None
+    }
+    terminated = frames.flag(("terminated",), "terminated")
+    truncated = frames.flag(("truncated",), "truncated")
+    step_count = frames.scalar((STEP_COUNT_KEY,), STEP_COUNT_KEY)
+    is_init = frames.flag((IS_INIT_KEY,), IS_INIT_KEY, where="root")
+    returns: dict[str, torch.Tensor] = {}
+    if keys["reward_key"] is not None:
+        returns["return_mean"] = _required(frames, keys["reward_key"], "reward_key")
+    if keys["terms_key"] is not None:
+        for name in _term_names(batch, keys["terms_key"]):
+            returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
+    goals = None
+    if keys["goal_key"] is not None:
+        goals = (
+            _required_vector(frames, keys["goal_key"], "goal_key"),
+            _required_vector(frames, keys["achieved_goal_key"], "achieved_goal_key"),
+        )
+        if goals[0].shape != goals[1].shape:
+            raise ValueError(
+                "episode_statistics: goal_key and achieved_goal_key hold different sizes per frame "
+                f"({list(goals[0].shape[1:])} and {list(goals[1].shape[1:])})"
+            )
+    device = done.device
+
+    # ------------------------------------------------------------- episode id of every frame
+    start = torch.zeros_like(done)  # frames known to be the first of their episode
+    if time_dim is None:  # flat: one collector trajectory id per episode
+        traj_ids = frames.scalar(TRAJ_IDS_KEY, "traj_ids", where="root")
+        _, ids = torch.unique(traj_ids, return_inverse=True)
+        slots = int(ids.max()) + 1 if ids.numel() else 0
+    else:  # rows of consecutive frames: a new episode after every done frame
+        rows = done.reshape(frames.rows, frames.steps)
+        index = torch.cumsum(rows, dim=1) - rows.long()  # episode number within the row; the done frame ends it
+        slots = frames.rows * (frames.steps + 1)
+        offsets = torch.arange(frames.rows, device=device).unsqueeze(1) * (frames.steps + 1)
+        ids = (index + offsets).reshape(-1)
+        start = start.reshape(frames.rows, frames.steps)
+        start[:, 1:] = rows[:, :-1]
+        start = start.reshape(-1)
+    if is_init is not None:
+        start = start | is_init
+
+    ends = torch.nonzero(done).squeeze(-1)  # the last frame of every ended episode
+    episode = ids[ends]
+    n_ended = ends.numel()
+    if n_ended and time_dim is None and torch.bincount(episode).max() > 1:
+        raise ValueError(
+            "episode_statistics: a collector trajectory id has more than one done frame; a flat batch needs one "
+            "trajectory id per episode, as TorchRL collectors write them"
+        )
+    stats: dict[str, float] = {"episodes": float(n_ended)}
+    if n_ended == 0:
+        stats["complete_episodes"] = 0.0
+        return stats
+
+    frames_per_episode = torch.bincount(ids, minlength=slots)
+    if step_count is not None:  # the length of every ended episode, wherever it started
+        length = step_count[ends]
+        complete = frames_per_episode[episode] == length
+    else:
+        starts = torch.zeros(slots, dtype=torch.long, device=device).index_add_(0, ids, start.long())
+        complete = starts[episode] > 0
+        length = frames_per_episode[episode]
+    n_complete = int(complete.sum())
+    stats["complete_episodes"] = float(n_complete)
+
+    # ------------------------------------------------------------- how the episodes ended
+    results: dict[str, torch.Tensor] = {}
+    for name, flag in flags.items():
+        results[f"{name}_rate"] = _mean(flag[ends])
+    if terminated is not None or truncated is not None:
+        if terminated is None:
+            terminated = done & ~truncated
+        if truncated is None:
+            truncated = done & ~terminated
+        task_end = torch.zeros_like(ends, dtype=torch.bool)
+        for flag in flags.values():
+            task_end = task_end | flag[ends]
+        end_terminated = terminated[ends]
+        results["timeout_rate"] = _mean(truncated[ends] & ~end_terminated & ~task_end)
+        if len(flags) == 2:  # the env's own termination: terminated, and the task said neither success nor failure
+            results["env_termination_rate"] = _mean(end_terminated & ~task_end)
+
+    # ------------------------------------------------------------- lengths and returns
+    if step_count is not None:
+        results["episode_length_mean"] = _mean(length)
+    elif n_complete:
+        results["episode_length_mean"] = _mean(length[complete])
+    if n_complete:
+        for stat, value in returns.items():
+            sums = torch.zeros(slots, dtype=torch.float64, device=device).index_add_(0, ids, value.to(torch.float64))
+            results[stat] = sums[episode][complete].mean()
+    if goals is not None:
+        goal, achieved = (value[ends].to(torch.float64) for value in goals)
+        results["final_goal_distance_mean"] = torch.linalg.vector_norm(goal - achieved, dim=-1).mean()
+
+    values = torch.stack(list(results.values())).tolist() if results else []  # one device-to-host copy
+    stats.update(zip(results, values, strict=True))
+    return stats
+
+
+def _mean(values: torch.Tensor) -> torch.Tensor:
+    return values.to(torch.float64).mean()
+
+
+def _required_vector(frames: _Frames, key: tuple[str, ...], name: str) -> torch.Tensor:
+    value = frames.get(key, where="either")
+    if value is None:
+        raise KeyError(
+            f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked under "
+            f"'next' and at the root); available keys are {_keys_text(frames.batch)}"
+        )
+    return value.reshape(frames.count, -1)
