@@ -142,3 +142,42 @@ def test_task_transform_goal_errors():
     env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(StepCounter(5), TaskTransform(reach(), goal_key="goal")))
     with pytest.raises(KeyError, match="the goal 'goal' is missing"):
         env.rollout(2)
+
+
+def test_her_relabelled_batches_carry_the_tasks_reward_success_and_episode_end():
+    from torchrl.data import HERReplayBuffer, LazyTensorStorage
+
+    from torchtasks.commands import GoalCommand
+
+    task = reach()
+    transform = TaskTransform(task, goal_key="goal", achieved_goal_key="achieved_goal")
+    command = GoalCommand(Box([-2.0, -2.0], [2.0, 2.0]), resample_steps=(4, 8), seed=0)
+    env = TransformedEnv(PendulumEnv(batch_size=[4], seed=1), Compose(StepCounter(12), transform, command))
+    torch.manual_seed(0)
+    data = env.rollout(36, break_when_any_done=False)
+    data["next", "done"][:, -1] = True  # each env's chunk ends an episode in storage (a trajectory split)
+    data["next", "truncated"][:, -1] = True
+    buffer = HERReplayBuffer(
+        reward_fn=transform.relabel,
+        goal_key="goal",
+        achieved_goal_key=("next", "achieved_goal"),
+        her_ratio=1.0,
+        strategy="future",
+        storage=LazyTensorStorage(200),
+        batch_size=64,
+    )
+    buffer.extend(data.reshape(-1))
+    batch = buffer.sample()
+    assert batch["next", "success"].any()  # relabelled goals are reached: the episode end changes
+    out = task.transition(
+        batch["observation"],
+        batch["action"],
+        batch["next", "observation"],
+        batch["task"],
+        truncated=batch["next", "truncated"][..., 0],
+        goal=batch["goal"],
+    )
+    torch.testing.assert_close(out.reward, batch["next", "reward"][..., 0])
+    assert torch.equal(out.success, batch["next", "success"][..., 0])
+    assert torch.equal(out.terminated, batch["next", "terminated"][..., 0])
+    assert torch.equal(out.done, batch["next", "done"][..., 0])

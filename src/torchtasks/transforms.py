@@ -731,6 +731,48 @@ class TaskTransform(Transform):
         self._transition(data, next_data, offline=True)
         return next_data.get(self.reward_key)
 
+    def relabel(self, tensordict: TensorDictBase) -> torch.Tensor:
+        """Re-judge stored transitions in place and return their reward: the ``reward_fn`` for hindsight relabelling.
+
+        TorchRL's ``HERReplayBuffer`` writes a relabelled goal into a sampled batch and asks its
+        ``reward_fn`` for the new reward only; but where reaching the goal ends the episode, the
+        relabelled transition's ``success``, ``terminated`` and ``done`` change too, and bootstrapping
+        with the stored ones is wrong. This function writes the task's ``success``, ``failure``,
+        ``terminated``, ``done`` and reward breakdown for the goal now in the data into the batch, in
+        place (so into the buffer's sampled batch), keeping truncation and the env's own termination,
+        and returns the reward ``[*B, 1]``. Use it as
+        ``HERReplayBuffer(reward_fn=transform.relabel, goal_key=<this transform's goal_key>,
+        achieved_goal_key=...)``.
+
+        Example:
+            >>> import functools, torch
+            >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
+            >>> from torchtasks.commands import GoalCommand
+            >>> from torchtasks.envs import PendulumEnv
+            >>> from torchtasks.rewards import QuadraticErrorReward
+            >>> from torchtasks.spaces import Box, EnvSpec
+            >>> from torchtasks.tasks import DesiredStateTask, proximity_succeeded
+            >>> near = functools.partial(proximity_succeeded, threshold=0.1)
+            >>> task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
+            >>> transform = TaskTransform(task, goal_key="goal", achieved_goal_key="achieved_goal")
+            >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
+            ...     StepCounter(20), transform, GoalCommand(Box([5.0, 5.0], [6.0, 6.0]))))  # unreachable goals
+            >>> data = env.rollout(5)
+            >>> data["goal"] = data["next", "achieved_goal"]  # hindsight: the goal is where the pendulum got to
+            >>> reward = transform.relabel(data)
+            >>> bool(data["next", "success"].all()), bool(data["next", "done"].all())
+            (True, True)
+        """
+        next_tensordict = self._offline_next(tensordict)
+        work = next_tensordict.copy()
+        self._transition(tensordict, work, offline=True)
+        keys = [self.success_key, self.failure_key, "terminated", "done", *self._term_keys]
+        for key in keys:
+            stored = next_tensordict.get(key, None)
+            if stored is not None:
+                stored.copy_(work.get(key))
+        return work.get(self.reward_key)
+
     def __repr__(self) -> str:
         name = type(self.task).__name__
         return f"{type(self).__name__}(task={name}, state_keys={self.state_keys}, reward_on={self.reward_on!r})"
