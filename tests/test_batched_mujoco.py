@@ -485,3 +485,24 @@ def test_reset_output_of_a_fresh_env_has_every_entry() -> None:
     assert set(td.keys()) >= {"observation", "x_velocity", "qpos", "cfrc_ext", "done", "terminated", "truncated"}
     assert not td["done"].any()
     env.close()
+
+
+def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
+    """``benchmarks/batched_mujoco.py --tiny``: every code path with tiny sizes (timings mean nothing)."""
+    import importlib.util
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "batched_mujoco.py"
+    spec = importlib.util.spec_from_file_location("batched_mujoco_benchmark", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    threads = torch.get_num_threads()
+    assert module.main(["--tiny", "--output", str(tmp_path)]) == 0
+    assert torch.get_num_threads() == threads
+    rows = json.loads((tmp_path / "results.json").read_text())["rows"]
+    assert [(row["env"], row["num_envs"]) for row in rows] == [("Hopper-v5", 2), ("Ant-v5", 3)]
+    for row in rows:
+        assert all(row[f"{variant}_median"] > 0 for variant in module.VARIANTS)
+        assert row["floor_median"] >= row["floor_threads_median"]
+    assert (tmp_path / "results.md").read_text().count("| Hopper-v5 | 2 |") == 1
