@@ -3,6 +3,7 @@
 from typing import Any
 
 from torchtasks.envs.pendulum import PendulumEnv, pendulum_dynamics, swing_up_task
+from torchtasks.envs.point_mass import PointMassEnv
 
 #: Gymnasium MuJoCo v5 locomotion presets (torchtasks.envs.locomotion), imported on first access so
 #: that ``import torchtasks.envs`` works without the ``mujoco`` extra (gymnasium, mujoco)
@@ -20,7 +21,7 @@ _LOCOMOTION = (
 #: the batched MuJoCo env (torchtasks.envs.batched_mujoco), imported on first access for the same reason
 _BATCHED_MUJOCO = ("BatchedMujocoEnv",)
 
-__all__ = ["PendulumEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION, *_BATCHED_MUJOCO]
+__all__ = ["PendulumEnv", "PointMassEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION, *_BATCHED_MUJOCO]
 
 
 def __getattr__(name: str) -> Any:
