@@ -86,3 +86,20 @@ def test_mujoco_locomotion() -> None:
         assert re.search(rf"^\| {term} \|", out, flags=re.MULTILINE), term
     assert _number(r"largest difference to Gymnasium's info terms over 300 steps: (\S+)$", out) < 1e-5
     assert "RewardSum episode sums match the per-step terms summed by hand" in out
+
+
+def test_goal_reaching(tmp_path: Path) -> None:
+    import json
+
+    out = run_example("goal_reaching.py", "--output", str(tmp_path))
+    for variant in ("her", "plain"):
+        assert re.search(rf"^{variant}, seed 0: 90% (after \d+ frames|not reached in \d+ frames)", out, re.MULTILINE)
+    experiment = json.loads((tmp_path / "goal_reaching.json").read_text())
+    assert set(experiment["variants"]) == {"her", "plain"}
+    for variant in experiment["variants"].values():
+        (run,) = variant["runs"]
+        assert run["seed"] == 0 and run["updates"] > 0  # the warm-up ended and TD3 trained
+        assert run["curve"][0]["frames"] == 0
+        assert all(0.0 <= point["eval_success_rate"] <= 1.0 for point in run["curve"])
+        assert variant["frames_to_target"] == [run["frames_to_target"]]
+    assert (tmp_path / "goal_reaching.png").stat().st_size > 0

@@ -1,4 +1,4 @@
-"""A batched, differentiable 2-D point mass in torch (a box with walls) whose reward and termination come from a task."""
+"""A batched, differentiable 2-D point mass in a box, in torch, whose reward and termination come from a task."""
 
 from __future__ import annotations
 
