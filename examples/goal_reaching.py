@@ -276,7 +276,7 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
     ax.set_ylim(-0.02, 1.02)
     target = experiment["config"]["target"]
     ax.set_title(f"Point-mass goal reaching, TD3 ± HER ({EVAL_ENVS} fixed goals; dot: {target:.0%} reached)")
-    ax.legend(loc="lower right")
+    ax.legend(loc="upper left")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
