@@ -40,124 +40,66 @@ lists the hyper-parameter flags).
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import torch
+from _ppo_common import (
+    EVAL_ENVS,
+    EVAL_SEED,
+    MAX_SPEED,
+    MAX_STEPS,
+    MAX_TORQUE,
+    QUICK,
+    QUICK_ITERATIONS,
+    PendulumFeatures,
+    PPOConfig,
+    machine_info,
+    make_pendulum_env,
+    make_policy,
+    mlp,
+    plot,
+    save,
+)
+from _ppo_common import evaluate as evaluate_on
+from _ppo_common import train as train_on
 from tensordict import TensorDictBase
-from tensordict.nn import NormalParamExtractor, TensorDictModule
-from torch import nn
-from torchrl.collectors import Collector
-from torchrl.envs import Compose, ExplorationType, RewardSum, StepCounter, TransformedEnv, set_exploration_type
-from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
-from torchrl.objectives import ClipPPOLoss
-from torchrl.objectives.value import GAE
-from tqdm import tqdm
+from torchrl.envs import TransformedEnv
 
-from torchtasks.envs import PendulumEnv, swing_up_task
-from torchtasks.transforms import TaskTransform
+from torchtasks.envs import swing_up_task
 
-MAX_STEPS = 200  # episode length limit (StepCounter), 10 s
+# the building blocks live in _ppo_common.py (shared with potential_shaping.py); they are importable from here too
+__all__ = [
+    "EVAL_ENVS",
+    "EVAL_SEED",
+    "MAX_SPEED",
+    "MAX_STEPS",
+    "MAX_TORQUE",
+    "QUICK",
+    "QUICK_ITERATIONS",
+    "PPOConfig",
+    "PendulumFeatures",
+    "evaluate",
+    "machine_info",
+    "make_env",
+    "make_policy",
+    "mlp",
+    "plot",
+    "save",
+    "train",
+]
+
 SUCCESS_THRESHOLD = 0.1  # ‖[wrapped θ, θ̇]‖ below this ends the episode in success
-MAX_TORQUE = 2.0  # PendulumEnv's torque bound
-MAX_SPEED = 8.0  # PendulumEnv's speed bound
-EVAL_ENVS = 256
-EVAL_SEED = 12345
 CURVE_NAME = "swingup_ppo_curve"
-
-
-@dataclass(frozen=True)
-class PPOConfig:
-    """Hyper-parameters of a PPO run (``frames_per_batch = num_envs * rollout_steps``)."""
-
-    num_envs: int = 256
-    rollout_steps: int = 32
-    epochs: int = 8
-    minibatch_size: int = 1024
-    learning_rate: float = 1e-3
-    gamma: float = 0.98
-    lmbda: float = 0.95
-    clip_epsilon: float = 0.2
-    entropy_coeff: float = 1e-3
-    critic_coeff: float = 0.5
-    max_grad_norm: float = 1.0
-    reward_scale: float = 0.01
-    hidden: int = 64
-    max_minutes: float = 10.0
-    target: float = 0.8
-
-    @property
-    def frames_per_batch(self) -> int:
-        return self.num_envs * self.rollout_steps
-
-
-QUICK = PPOConfig(num_envs=32, rollout_steps=16, epochs=2, minibatch_size=256, max_minutes=0.5)
-QUICK_ITERATIONS = 3
-
-
-class PendulumFeatures(nn.Module):
-    """Map the raw state ``[θ, θ̇]`` to ``[cos θ, sin θ, θ̇ / max_speed]`` (continuous in θ, of order 1).
-
-    Example:
-        >>> PendulumFeatures()(torch.tensor([[0.0, 4.0]]))
-        tensor([[1.0000, 0.0000, 0.5000]])
-    """
-
-    def __init__(self, max_speed: float = MAX_SPEED) -> None:
-        super().__init__()
-        self.max_speed = max_speed
-
-    def forward(self, state: torch.Tensor) -> torch.Tensor:
-        theta, speed = state[..., 0], state[..., 1]
-        return torch.stack((torch.cos(theta), torch.sin(theta), speed / self.max_speed), dim=-1)
-
-
-def mlp(out_features: int, hidden: int) -> nn.Sequential:
-    """Return ``PendulumFeatures`` followed by a two-hidden-layer tanh MLP."""
-    return nn.Sequential(
-        PendulumFeatures(),
-        nn.Linear(3, hidden),
-        nn.Tanh(),
-        nn.Linear(hidden, hidden),
-        nn.Tanh(),
-        nn.Linear(hidden, out_features),
-    )
 
 
 def make_env(num_envs: int, seed: int) -> TransformedEnv:
     """Return ``num_envs`` pendulums with ``StepCounter(MAX_STEPS)``, the swing-up task and ``RewardSum``."""
-    return TransformedEnv(
-        PendulumEnv(batch_size=[num_envs], seed=seed, max_torque=MAX_TORQUE, max_speed=MAX_SPEED),
-        Compose(
-            StepCounter(MAX_STEPS),
-            TaskTransform(swing_up_task(success_threshold=SUCCESS_THRESHOLD, max_torque=MAX_TORQUE)),
-            RewardSum(),
-        ),
-    )
+    return make_pendulum_env(swing_up_task(success_threshold=SUCCESS_THRESHOLD, max_torque=MAX_TORQUE), num_envs, seed)
 
 
-def make_policy(env: TransformedEnv, hidden: int) -> tuple[ProbabilisticActor, ValueOperator]:
-    """Return the actor (TanhNormal on ``[-MAX_TORQUE, MAX_TORQUE]``) and the critic."""
-    actor_net = nn.Sequential(mlp(2, hidden), NormalParamExtractor())
-    actor = ProbabilisticActor(
-        TensorDictModule(actor_net, in_keys=["observation"], out_keys=["loc", "scale"]),
-        in_keys=["loc", "scale"],
-        spec=env.action_spec,
-        distribution_class=TanhNormal,
-        distribution_kwargs={"low": -MAX_TORQUE, "high": MAX_TORQUE},
-        return_log_prob=True,
-        default_interaction_type=ExplorationType.RANDOM,
-    )
-    critic = ValueOperator(mlp(1, hidden), in_keys=["observation"])
-    return actor, critic
-
-
-@torch.no_grad()
 def evaluate(policy: Callable[[TensorDictBase], TensorDictBase], num_envs: int = EVAL_ENVS) -> dict[str, float]:
     """Run one deterministic episode on each of ``num_envs`` pendulums from fixed initial states.
 
@@ -166,25 +108,7 @@ def evaluate(policy: Callable[[TensorDictBase], TensorDictBase], num_envs: int =
     reward (task reward summed over the episode, +100 included on success) of the first episode of
     every env, and the mean episode length.
     """
-    env = make_env(num_envs, seed=EVAL_SEED)
-    with set_exploration_type(ExplorationType.DETERMINISTIC):
-        rollout = env.rollout(MAX_STEPS, policy, break_when_any_done=False)
-    nxt = rollout["next"]
-    done = nxt["done"].squeeze(-1)  # [num_envs, MAX_STEPS]; every env is done by the last step
-    first_end = done.int().argmax(dim=-1)
-    rows = torch.arange(num_envs)
-    success = nxt["success"].squeeze(-1)[rows, first_end]
-    episode_reward = nxt["episode_reward"].squeeze(-1)[rows, first_end]
-    return {
-        "success_rate": success.float().mean().item(),
-        "episode_reward": episode_reward.mean().item(),
-        "episode_length": (first_end + 1).float().mean().item(),
-    }
-
-
-def machine_info() -> dict[str, Any]:
-    """Return the CPU count, torch threads and the 1-minute load average (the machine is shared)."""
-    return {"cpu_count": os.cpu_count(), "torch_threads": torch.get_num_threads(), "load_1min": os.getloadavg()[0]}
+    return evaluate_on(policy, make_env, num_envs)
 
 
 def train(config: PPOConfig, seed: int, max_iterations: int | None = None) -> dict[str, Any]:
@@ -193,144 +117,7 @@ def train(config: PPOConfig, seed: int, max_iterations: int | None = None) -> di
     Returns the run record: config, seed, machine load, the learning curve (one point per
     evaluation) and the wall time and frames at which the target was first reached (None if not).
     """
-    torch.manual_seed(seed)
-    start = time.perf_counter()
-    env = make_env(config.num_envs, seed=seed)
-    actor, critic = make_policy(env, config.hidden)
-    advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
-    loss_module = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=config.clip_epsilon,
-        entropy_coeff=config.entropy_coeff,
-        critic_coeff=config.critic_coeff,
-        loss_critic_type="l2",
-        normalize_advantage=True,
-    )
-    optimizer = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate)
-    collector = Collector(
-        env, actor, frames_per_batch=config.frames_per_batch, total_frames=-1, auto_register_policy_transforms=False
-    )
-    record: dict[str, Any] = {
-        "method": "PPO",
-        "config": asdict(config),
-        "seed": seed,
-        "machine_start": machine_info(),
-        "target": config.target,
-        "curve": [],
-        "time_to_target_s": None,
-        "frames_to_target": None,
-    }
-    deadline = start + 60.0 * config.max_minutes
-    frames = 0
-    bar = tqdm(desc="PPO swing-up", unit="it")
-    for iteration, batch in enumerate(collector, start=1):
-        frames += batch.numel()
-        train_stats = _episode_stats(batch)
-        batch["next", "reward"] = batch["next", "reward"] * config.reward_scale
-        with torch.no_grad():
-            advantage(batch)
-        data = batch.reshape(-1)
-        for _ in range(config.epochs):
-            for indices in torch.randperm(data.numel()).split(config.minibatch_size):
-                losses = loss_module(data[indices])
-                loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
-                optimizer.zero_grad()
-                loss.backward()
-                nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
-                optimizer.step()
-        collector.update_policy_weights_()
-        stats = evaluate(actor)
-        seconds = time.perf_counter() - start
-        record["curve"].append(
-            {
-                "iteration": iteration,
-                "frames": frames,
-                "seconds": seconds,
-                "eval_success_rate": stats["success_rate"],
-                "eval_episode_reward": stats["episode_reward"],
-                "eval_episode_length": stats["episode_length"],
-                **train_stats,
-            }
-        )
-        bar.set_postfix(frames=frames, success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}")
-        bar.update()
-        if stats["success_rate"] >= config.target:
-            record["time_to_target_s"], record["frames_to_target"] = seconds, frames
-            break
-        if (max_iterations is not None and iteration >= max_iterations) or time.perf_counter() > deadline:
-            break
-    bar.close()
-    collector.shutdown()
-    last = record["curve"][-1]
-    record.update(
-        total_frames=frames,
-        total_seconds=time.perf_counter() - start,
-        final_success_rate=last["eval_success_rate"],
-        final_episode_reward=last["eval_episode_reward"],
-        machine_end=machine_info(),
-    )
-    return record
-
-
-def _episode_stats(batch: TensorDictBase) -> dict[str, float | None]:
-    """Success rate and mean episode reward of the episodes that ended in a training batch (None if none)."""
-    nxt = batch["next"]
-    ended = nxt["done"]
-    count = int(ended.sum())
-    if count == 0:
-        return {"train_success_rate": None, "train_episode_reward": None, "train_episodes": 0}
-    return {
-        "train_success_rate": nxt["success"][ended].float().mean().item(),
-        "train_episode_reward": nxt["episode_reward"][ended].mean().item(),
-        "train_episodes": count,
-    }
-
-
-def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
-    """Plot the evaluation success rate and mean episode reward of each run against env frames and wall time."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import EngFormatter
-
-    figure, axes = plt.subplots(2, 2, figsize=(10, 7), sharey="row")
-    for label, record in runs.items():
-        curve = record["curve"]
-        frames = [point["frames"] for point in curve]
-        minutes = [point["seconds"] / 60.0 for point in curve]
-        for column, x in enumerate((frames, minutes)):
-            axes[0, column].plot(x, [point["eval_success_rate"] for point in curve], marker=".", label=label)
-            axes[1, column].plot(x, [point["eval_episode_reward"] for point in curve], marker=".", label=label)
-    target = next(iter(runs.values()))["target"]
-    for column in range(2):
-        axes[0, column].axhline(target, color="grey", linestyle="--", linewidth=1, label=f"target {target:.0%}")
-        axes[1, column].set_xlabel(("env frames", "wall time [min]")[column])
-        axes[0, column].legend(loc="upper left")
-    for axis in axes.flat:
-        axis.grid(alpha=0.3)
-    for axis in axes[:, 0]:
-        axis.xaxis.set_major_formatter(EngFormatter())
-    axes[0, 0].set_ylim(-0.02, 1.02)
-    axes[0, 0].set_ylabel(f"success rate ({EVAL_ENVS} evaluation episodes)")
-    axes[1, 0].set_ylabel("mean evaluation episode reward")
-    figure.suptitle(title)
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
-
-
-def save(
-    record: dict[str, Any], output: Path, name: str, title: str, others: dict[str, dict[str, Any]] | None = None
-) -> tuple[Path, Path]:
-    """Write the run record to ``name.json`` and its curve (with the curves of ``others``) to ``name.png``."""
-    output.mkdir(parents=True, exist_ok=True)
-    json_path = output / f"{name}.json"
-    json_path.write_text(json.dumps(record, indent=2))
-    return json_path, plot({record["method"]: record, **(others or {})}, output / f"{name}.png", title)
+    return train_on(config, seed, make_env, max_iterations=max_iterations)
 
 
 def main() -> None:

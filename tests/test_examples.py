@@ -8,6 +8,7 @@ it. The Ray example starts (and shuts down) its own local Ray cluster; the MuJoC
 from __future__ import annotations
 
 import importlib.util
+import json
 import re
 import subprocess
 import sys
@@ -86,6 +87,28 @@ def test_mujoco_locomotion() -> None:
         assert re.search(rf"^\| {term} \|", out, flags=re.MULTILINE), term
     assert _number(r"largest difference to Gymnasium's info terms over 300 steps: (\S+)$", out) < 1e-5
     assert "RewardSum episode sums match the per-step terms summed by hand" in out
+
+
+def test_potential_shaping(tmp_path: Path) -> None:
+    out = run_example("potential_shaping.py", "--output", str(tmp_path))
+    assert "frame budget 1,024 per run" in out
+    for label in ("sparse", "sparse + shaping"):
+        for seed in (0, 1):
+            assert re.search(rf"^\s*{re.escape(label)}, seed {seed}: 80% (after|not reached)", out, re.MULTILINE)
+    experiment = json.loads((tmp_path / "potential_shaping.json").read_text())
+    assert set(experiment["variants"]) == {"sparse", "shaped"}
+    assert f"γ = {experiment['config']['gamma']:g} (the PPO discount)" in experiment["shaping"]
+    for variant in experiment["variants"].values():
+        assert [run["seed"] for run in variant["runs"]] == [0, 1]
+        for run in variant["runs"]:
+            assert run["total_frames"] == experiment["frame_budget"] == 1024  # the same budget for every run
+            assert all(0.0 <= point["eval_success_rate"] <= 1.0 for point in run["curve"])
+        mean = variant["mean_curve"]
+        assert len(mean["frames"]) == len(mean["eval_success_rate"]) == 2
+        for i, rate in enumerate(mean["eval_success_rate"]):
+            per_seed = [run["curve"][i]["eval_success_rate"] for run in variant["runs"]]
+            assert rate == pytest.approx(sum(per_seed) / len(per_seed))
+    assert (tmp_path / "potential_shaping.png").stat().st_size > 0
 
 
 def test_goal_reaching(tmp_path: Path) -> None:
