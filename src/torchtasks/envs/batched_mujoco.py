@@ -12,11 +12,14 @@ reward, its terms and its ``terminated`` (``gymnasium_env(env_id, num_envs=N)`` 
 
 Why threads over ``mj_step`` and not ``mujoco.rollout``: ``rollout`` takes and returns the
 ``mjSTATE_FULLPHYSICS`` state, which lacks the constraint solver's warm start (``qacc_warmstart``)
-that a Gymnasium env carries from one step to the next. Restarting every step from a zero warm
-start moves the solution by the solver's tolerance, and the difference grows until the
-trajectories part (HalfCheetah: 1e-12 after 50 steps, 0.25 in ``qpos`` after 150). It also returns
-no ``xpos``/``xipos``/``cfrc_ext``, which the forward and contact terms read. Both methods are
-measured by ``benchmarks/batched_mujoco.py``.
+that a Gymnasium env carries from one step to the next (``initial_warmstart`` can be passed in, the
+final one is not returned). Restarting every step from another warm start moves the solution within
+the solver's tolerance and the difference grows until the trajectories part (HalfCheetah: 4e-12 in
+``qpos`` after 50 steps, 0.25 after 150; with the exact warm start passed in, rollout is bit-identical).
+It also returns no ``xpos``/``xipos``/``cfrc_ext``, which the forward and contact terms read. On an
+idle 2-core machine both run at the same speed (HalfCheetah ×64: 59-64k frames/s threaded,
+62-65k rollout); when other processes compete for the cores, the per-env GIL hand-offs of the threads
+cost more (measured 13-17k against 38-44k). ``benchmarks/batched_mujoco.py`` measures both.
 """
 
 from __future__ import annotations
@@ -210,6 +213,7 @@ class BatchedMujocoEnv(EnvBase):
         nq = model.nq
         self._state = np.zeros((n, mujoco.mj_stateSize(model, _STATE_SPEC)))  # [time, qpos, qvel]
         self._time = np.zeros(n)
+        self._half_timestep = 0.5 * float(model.opt.timestep)
         qpos, qvel = self._state[:, 1 : 1 + nq], self._state[:, 1 + nq :]
         #: (MjData attribute, index or None, buffer): buffer[i] = data.<attribute>[index] after every step
         self._readers: list[tuple[str, Any, np.ndarray]] = []
@@ -379,28 +383,32 @@ class BatchedMujocoEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         ctrl = self._check_action(tensordict.get("action", None))
-        finite = np.isfinite(ctrl).all(axis=1)
-        skipped = None if finite.all() else ~finite
+        skipped = None if np.isfinite(ctrl).all() else ~np.isfinite(ctrl).all(axis=1)
         previous_time = self._time
         self._simulate(ctrl, skipped)
         state = self._state
         time = state[:, 0].copy()
+        self._time = time
         # MuJoCo resets a diverged state to qpos0 and time 0 by itself: the clock runs back. The first
         # substep after one of our resets (time 0) cannot show it, so read its warnings there.
-        broken = time < previous_time + 0.5 * self.model.opt.timestep
+        broken = time < previous_time + self._half_timestep
         for i in np.flatnonzero(previous_time == 0.0):
             warning = self.datas[i].warning
             broken[i] = broken[i] or any(warning[w].number for w in _DIVERGENCE_WARNINGS)
-        broken |= ~np.isfinite(state).all(axis=1)
+        if not np.isfinite(state).all():
+            broken |= ~np.isfinite(state).all(axis=1)
         if skipped is not None:
             broken |= skipped
-        self._time = time
         terminated = None
         if broken.any():
             terminated = broken
+            invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
+            diverged = (
+                np.flatnonzero(broken).tolist() if skipped is None else np.flatnonzero(broken & ~skipped).tolist()
+            )
             warnings.warn(
-                f"BatchedMujocoEnv({self.env_id}): envs {np.flatnonzero(broken).tolist()} ended their episode: "
-                f"non-finite action in envs {np.flatnonzero(~finite).tolist()}, the others diverged",
+                f"BatchedMujocoEnv({self.env_id}): episodes ended by a broken step (terminated=True): "
+                f"non-finite action in envs {invalid}, diverged state in envs {diverged}",
                 RuntimeWarning,
                 stacklevel=2,
             )
