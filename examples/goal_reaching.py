@@ -3,7 +3,7 @@
 What it shows: goals sampled per env by a :class:`~torchtasks.commands.GoalCommand` and seen by the
 policy, a sparse goal-reaching task applied by :class:`~torchtasks.transforms.TaskTransform` (reward,
 success, episode end), and the same task relabelling stored transitions in TorchRL's
-``HERReplayBuffer`` through ``TaskTransform.reward_fn``. The agent is TorchRL's TD3 (``TD3Loss``,
+``HERReplayBuffer`` through ``TaskTransform.relabel``. The agent is TorchRL's TD3 (``TD3Loss``,
 ``SoftUpdate``) trained off-policy from a replay buffer: a ``HERReplayBuffer`` (``"future"``
 strategy, ``her_ratio`` 0.8) or a plain ``TensorDictReplayBuffer``, the rest being identical.
 
@@ -19,13 +19,13 @@ Set-up:
   ["x", "y"]), always_positive, factor 1)``: -1 per step, 0 in the step that reaches the goal
   (``‖(x, y) − goal‖ < 0.1``; -1 + the final +1), and success ends the episode. The transform reads the goal
   the policy saw (``goal_key="goal"``) and writes the achieved goal ``(x, y)`` (``achieved_goal_key``).
-- HER: ``HERReplayBuffer(reward_fn=transform.reward_fn, goal_key="goal",
+- HER: ``HERReplayBuffer(reward_fn=transform.relabel, goal_key="goal",
   achieved_goal_key=("next", "achieved_goal"), end_key=("next", "segment_end"))``. The buffer holds
   each env's steps of one collection in order; ``segment_end`` marks episode ends and the end of each
-  env's row (so no goal comes from another env). The buffer rewrites ``goal`` and ``("next", "goal")``
-  and the reward; it does not rewrite ``done``/``terminated``: a relabelled transition that reaches its
-  new goal keeps ``terminated=False`` (its target bootstraps past the success), and one whose original
-  goal was reached keeps ``terminated=True`` (a known limitation of relabelling the reward alone).
+  env's row (so no goal comes from another env). The buffer rewrites ``goal`` and ``("next", "goal")``;
+  ``relabel`` re-judges each relabelled transition for its new goal and writes the reward and, in place,
+  ``success``, ``terminated`` and ``done`` (with ``reward_fn`` alone a relabelled transition that reaches
+  its new goal would keep ``terminated=False`` and its target would bootstrap past the success).
 - Evaluation: every ``Config.eval_every`` (2,000) frames, the deterministic policy (no noise) runs one
   episode on each of ``EVAL_ENVS`` envs with fixed initial states and fixed goals (seed ``EVAL_SEED``);
   success rate = fraction of first episodes that reach their goal. A run stops at ``--target`` (0.9)
@@ -177,7 +177,7 @@ def train(config: Config, seed: int, her: bool, quiet: bool = False) -> dict[str
     """One TD3 run (with HER or a plain buffer); returns the curve and the frames to ``config.target``."""
     torch.manual_seed(seed)
     env = make_env(config.num_envs, seed)
-    transform = env.transform[1]  # the TaskTransform: its reward_fn relabels offline
+    transform = env.transform[1]  # the TaskTransform: its relabel re-judges stored transitions
     actor = TensorDictModule(Actor(config.hidden), in_keys=["observation", "goal"], out_keys=["action"])
     critic = TensorDictModule(
         Critic(config.hidden), in_keys=["observation", "goal", "action"], out_keys=["state_action_value"]
@@ -193,7 +193,7 @@ def train(config: Config, seed: int, her: bool, quiet: bool = False) -> dict[str
     storage = LazyTensorStorage(config.buffer_size)
     if her:
         buffer = HERReplayBuffer(
-            reward_fn=transform.reward_fn, her_ratio=config.her_ratio, strategy="future", goal_key="goal",
+            reward_fn=transform.relabel, her_ratio=config.her_ratio, strategy="future", goal_key="goal",
             achieved_goal_key=("next", "achieved_goal"), end_key=SEGMENT_END_KEY, storage=storage,
             batch_size=config.batch_size,
         )  # fmt: skip
