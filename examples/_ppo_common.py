@@ -4,10 +4,12 @@
 sparse success reward, with and without potential-based shaping) import from here: the batched
 pendulum env with a torchtasks task (:func:`make_pendulum_env`), the networks (:func:`make_policy`),
 the hyper-parameters (:class:`PPOConfig`), the deterministic evaluation from fixed initial states
-(:func:`evaluate`), the TorchRL PPO loop (:func:`train`) and the JSON/PNG output (:func:`save`).
-Which task the pendulums are trained and evaluated on is the caller's choice: :func:`train` and
-:func:`evaluate` take env factories ``(num_envs, seed) -> env``. See ``train_swingup_ppo.py`` for
-the set-up and ``docs/training.md`` for the measured results.
+(:func:`evaluate`), the TorchRL PPO loop (:func:`train`, its gradient steps in :func:`ppo_update`)
+and the JSON/PNG output (:func:`save`). ``train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah)
+reuses :func:`ppo_update` and :func:`machine_info`. Which task the pendulums are trained and
+evaluated on is the caller's choice: :func:`train` and :func:`evaluate` take env factories
+``(num_envs, seed) -> env``. See ``train_swingup_ppo.py`` for the set-up and ``docs/training.md``
+for the measured results.
 """
 
 from __future__ import annotations
@@ -216,15 +218,14 @@ def train(
         batch["next", "reward"] = batch["next", "reward"] * config.reward_scale
         with torch.no_grad():
             advantage(batch)
-        data = batch.reshape(-1)
-        for _ in range(config.epochs):
-            for indices in torch.randperm(data.numel()).split(config.minibatch_size):
-                losses = loss_module(data[indices])
-                loss = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
-                optimizer.zero_grad()
-                loss.backward()
-                nn.utils.clip_grad_norm_(loss_module.parameters(), config.max_grad_norm)
-                optimizer.step()
+        ppo_update(
+            loss_module,
+            optimizer,
+            batch.reshape(-1),
+            epochs=config.epochs,
+            minibatch_size=config.minibatch_size,
+            max_grad_norm=config.max_grad_norm,
+        )
         collector.update_policy_weights_()
         stats = evaluate(actor, make_eval_env, eval_envs)
         seconds = time.perf_counter() - start
@@ -259,6 +260,38 @@ def train(
         machine_end=machine_info(),
     )
     return record
+
+
+def ppo_update(
+    loss_module: ClipPPOLoss,
+    optimizer: torch.optim.Optimizer,
+    data: TensorDictBase,
+    *,
+    epochs: int,
+    minibatch_size: int,
+    max_grad_norm: float,
+) -> TensorDictBase:
+    """Take the PPO gradient steps on one batch: ``epochs`` passes over ``data`` in shuffled minibatches.
+
+    ``data`` is a flat batch of transitions with the advantages already computed (``GAE``). Every
+    minibatch's loss (objective + critic + entropy, when the loss has an entropy term) is
+    back-propagated, the gradient norm clipped at ``max_grad_norm`` and one optimizer step taken.
+    Returns the losses of the last minibatch (detached), for logging.
+    """
+    losses = None
+    for _ in range(epochs):
+        for indices in torch.randperm(data.numel()).split(minibatch_size):
+            losses = loss_module(data[indices])
+            loss = losses["loss_objective"] + losses["loss_critic"]
+            if "loss_entropy" in losses.keys():
+                loss = loss + losses["loss_entropy"]
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(loss_module.parameters(), max_grad_norm)
+            optimizer.step()
+    if losses is None:
+        raise ValueError(f"ppo_update: no gradient step (epochs={epochs}, {data.numel()} transitions)")
+    return losses.detach()
 
 
 def episode_stats(batch: TensorDictBase) -> dict[str, float | None]:
