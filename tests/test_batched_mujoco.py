@@ -2,7 +2,9 @@
 
 The parity tests drive ``gymnasium_env(env_id, num_envs=N)`` (a :class:`BatchedMujocoEnv` under
 ``StepCounter``, the locomotion task's ``TaskTransform`` and ``RewardSum``) and ``N`` independent
-``gymnasium.make(env_id, **kwargs)`` envs. After every reset of a batched env (initial, at the end of
+``gymnasium.make(env_id, **kwargs)`` envs with :func:`torchtasks.parity.compare_batched_with_gymnasium`
+(the lockstep driver behind ``torchtasks check --backend batched``; ``tests/test_batched_parity_check.py``
+checks that it reports injected differences). After every reset of a batched env (initial, at the end of
 an episode, or forced mid-episode for some envs while the others continue) its ``qpos``/``qvel`` are
 copied into the matching Gymnasium env with ``reset()`` + ``unwrapped.set_state`` (which leaves the
 MjData as the batched env's reset leaves it), and both get the same actions. Expected values come
@@ -36,6 +38,7 @@ from torchrl.envs.utils import check_env_specs  # noqa: E402
 
 from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
 from torchtasks.envs.locomotion import gymnasium_env, locomotion_state_layout, locomotion_task  # noqa: E402
+from torchtasks.parity import compare_batched_with_gymnasium  # noqa: E402
 from torchtasks.transforms import TaskTransform  # noqa: E402
 
 pytestmark = pytest.mark.mujoco
@@ -79,14 +82,6 @@ KEYWORD_CASES: list[tuple[str, dict[str, Any]]] = [
 
 
 # ------------------------------------------------------------------------------ parity driver
-def _sync(reference: Any, env: BatchedMujocoEnv, i: int) -> np.ndarray:
-    """Put Gymnasium env ``reference`` into env ``i``'s state as a fresh episode; return its observation."""
-    reference.reset()
-    data = env.datas[i]
-    reference.unwrapped.set_state(data.qpos.copy(), data.qvel.copy())
-    return reference.unwrapped._get_obs()
-
-
 def _drive(
     env: TransformedEnv,
     env_id: str,
@@ -98,67 +93,30 @@ def _drive(
     reference_kwargs: dict[str, Any] | None = None,
     float64_reference_actions: bool = True,
 ) -> dict[str, Any]:
-    """Step ``env`` and one Gymnasium env per batch entry in lockstep; return the largest differences."""
-    base = env.base_env
-    n = base.num_envs
-    names = next(t for t in env.transform if isinstance(t, TaskTransform)).task.term_names
-    references = [gymnasium.make(env_id, **kwargs, **(reference_kwargs or {})) for _ in range(n)]
-    result: dict[str, Any] = {"observation": 0.0, "reward": 0.0, "ends": 0, "forced": 0}
-    result.update({f"term_{name}": 0.0 for name in names})
-    flags = {"terminated": [], "truncated": []}
-    try:
-        for i, reference in enumerate(references):
-            reference.reset(seed=1000 + i)
-        tensordict = env.reset()
-        for i, reference in enumerate(references):
-            np.testing.assert_array_equal(tensordict["observation"][i].numpy(), _sync(reference, base, i))
-        rng = np.random.default_rng(seed)
-        low, high = references[0].action_space.low, references[0].action_space.high
-        for step in range(steps):
-            actions = rng.uniform(low, high, size=(n, low.size)).astype(np.float32)
-            tensordict["action"] = torch.from_numpy(actions)
-            tensordict, next_root = env.step_and_maybe_reset(tensordict)
-            out = tensordict["next"]
-            for i, reference in enumerate(references):
-                action = actions[i].astype(np.float64) if float64_reference_actions else actions[i]
-                observation, reward, terminated, truncated, info = reference.step(action)
-                context = f"{env_id} {kwargs} env {i} step {step}"
-                np.testing.assert_array_equal(
-                    out["observation"][i].numpy(), observation, err_msg=f"observation differs: {context}"
-                )
-                result["reward"] = max(result["reward"], abs(out["reward"][i].item() - reward))
-                for name in names:
-                    difference = abs(out["task_reward", name][i].item() - info[f"reward_{name}"])
-                    result[f"term_{name}"] = max(result[f"term_{name}"], difference)
-                assert out["terminated"][i].item() == terminated, f"terminated differs: {context}"
-                assert out["truncated"][i].item() == truncated, f"truncated differs: {context}"
-                assert out["done"][i].item() == (terminated or truncated), f"done differs: {context}"
-                flags["terminated"].append(terminated)
-                flags["truncated"].append(truncated)
-                if terminated or truncated:  # TorchRL has reset env i: follow it
-                    result["ends"] += 1
-                    np.testing.assert_array_equal(next_root["observation"][i].numpy(), _sync(reference, base, i))
-            forced = (forced_resets or {}).get(step)
-            if forced:
-                mask = torch.zeros(n, 1, dtype=torch.bool)
-                mask[forced] = True
-                before = next_root["observation"].clone()
-                next_root.set("_reset", mask)
-                next_root = env.reset(next_root)
-                kept = ~mask[:, 0]
-                assert torch.equal(next_root["observation"][kept], before[kept]), "a partial reset changed other envs"
-                assert (next_root["step_count"][mask[:, 0]] == 0).all()
-                for i in forced:
-                    result["forced"] += 1
-                    np.testing.assert_array_equal(next_root["observation"][i].numpy(), _sync(references[i], base, i))
-            tensordict = next_root
-    finally:
-        env.close()
-        for reference in references:
-            reference.close()
-    result = {key: float(value) if isinstance(value, float) else value for key, value in result.items()}
-    result["terminated"] = int(np.sum(flags["terminated"]))
-    result["truncated"] = int(np.sum(flags["truncated"]))
+    """Step ``env`` and one Gymnasium env per batch entry in lockstep (``compare_batched_with_gymnasium``).
+
+    The observations must be bit-identical (after every step and every reset), the flags equal and the
+    forced partial resets must leave the other envs alone; returns the reward and term differences.
+    """
+    assert env.base_env.env_id == env_id
+    row = compare_batched_with_gymnasium(
+        env,
+        steps,
+        seed=seed,
+        forced_resets=forced_resets,
+        reference_kwargs={**kwargs, **(reference_kwargs or {})},
+        float64_reference_actions=float64_reference_actions,
+        tolerance=ATOL,
+    )
+    context = f"{env_id} {kwargs}: {row['first_mismatch']}"
+    differences = row["max_abs_diff"]
+    assert differences["observation"] == 0.0, context
+    assert differences["terminated"] == differences["truncated"] == differences["done"] == 0.0, context
+    assert row["partial_reset_problems"] == 0, context
+    result: dict[str, Any] = {"reward": differences["reward"]}
+    result.update({f"term_{name}": value for name, value in row["max_abs_term_diff"].items()})
+    for key in ("terminated", "truncated", "forced", "episodes"):
+        result[key] = row["forced_resets" if key == "forced" else key]
     return result
 
 

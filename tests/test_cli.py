@@ -65,7 +65,7 @@ def test_subcommand_help(command: str, capsys: pytest.CaptureFixture[str]) -> No
 def test_subcommand_options_in_help(capsys: pytest.CaptureFixture[str]) -> None:
     expected = {
         "demo": ("--quick", "--output", "--seed", "--no-progress"),
-        "check": ("ENV_ID", "--seeds", "--steps"),
+        "check": ("ENV_ID", "--seeds", "--steps", "--backend", "--envs"),
         "bench": ("--output", "--tiny", "--sections"),
     }
     for command, options in expected.items():

@@ -142,16 +142,33 @@ def _cmd_demo(args: argparse.Namespace) -> int:
 
 
 def _cmd_check(args: argparse.Namespace) -> int:
+    if args.envs is not None and args.backend != "batched":
+        print("torchtasks check: --envs applies to --backend batched only", file=sys.stderr)
+        return 2
     try:
-        from torchtasks.parity import check_parity, format_parity_table
+        from torchtasks import parity
     except ImportError as error:  # pragma: no cover - depends on the optional mujoco extra
         from torchtasks._optional import missing_extra
 
         print(f"{missing_extra('mujoco', 'torchtasks check')} (cannot import {error.name or error})", file=sys.stderr)
         return 2
     env_ids = args.env_ids
-    rows = [check_parity(env_id, seeds=tuple(range(args.seeds)), steps=args.steps) for env_id in env_ids]
-    print(format_parity_table(rows))
+    seeds = tuple(range(args.seeds))
+    if args.backend == "batched":
+        num_envs = 3 if args.envs is None else args.envs
+        rows = [
+            parity.check_batched_parity(env_id, seeds=seeds, steps=args.steps, num_envs=num_envs) for env_id in env_ids
+        ]
+        print(parity.format_batched_parity_table(rows))
+        failed = [row for row in rows if not parity.batched_parity_passed(row)]
+        for row in failed:
+            print(f"{row['env']}: FAIL, first difference above the tolerance: {row['first_mismatch']}", file=sys.stderr)
+        if failed:
+            names = ", ".join(row["env"] for row in failed)
+            print(f"batched parity NOT met (tolerance {parity.BATCHED_PARITY_TOLERANCE}) for: {names}", file=sys.stderr)
+        return 1 if failed else 0
+    rows = [parity.check_parity(env_id, seeds=seeds, steps=args.steps) for env_id in env_ids]
+    print(parity.format_parity_table(rows))
     mismatched = [
         row["env"]
         for row in rows
@@ -191,6 +208,18 @@ def _parser() -> argparse.ArgumentParser:
     check.add_argument("env_ids", nargs="+", metavar="ENV_ID", help="e.g. HalfCheetah-v5 Ant-v5")
     check.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...)")
     check.add_argument("--steps", type=int, default=1000, help="steps compared per seed")
+    check.add_argument(
+        "--backend",
+        choices=("gymnasium", "batched"),
+        default="gymnasium",
+        help="the preset's backend (default: %(default)s): 'gymnasium' (one Gymnasium env in TorchRL; reward "
+        f"within {PARITY_TOLERANCE}) or 'batched' (BatchedMujocoEnv against one Gymnasium env per batch entry, "
+        "states synchronised after every reset, partial resets forced mid-episode; observation, reward, terms "
+        "and flags within 1e-9)",
+    )
+    check.add_argument(
+        "--envs", type=int, default=None, help="envs of the batched env (--backend batched only; default 3)"
+    )
     check.set_defaults(run=_cmd_check)
 
     bench = commands.add_parser("bench", help="run the benchmark suite (Markdown table and JSON)")
