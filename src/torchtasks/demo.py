@@ -23,12 +23,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import torch
+from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from torchtasks.envs import PendulumEnv, swing_up_task
+from torchtasks.stats import episode_statistics
 from torchtasks.transforms import TaskTransform
 
 __all__ = ["DemoResult", "SwingUpController", "make_swing_up_env", "run_demo"]
@@ -93,10 +95,12 @@ class DemoResult:
 
     ``curves`` holds one value per collected batch: ``"frames"`` (collected so far), ``"noise"`` (the
     standard deviation of the action noise during the batch), ``"episodes"`` (finished in the batch),
-    and ``"return"``, ``"success_rate"`` and ``"episode_<term>"``: means over the episodes finished in
-    the last ``max_steps`` steps (one episode length; it averages out episodes that started together
-    and ends together), ``None`` before the first ``max_steps`` steps (when only quick successes can
-    have finished) and when no episode finished.
+    and ``"return"``, ``"success_rate"`` and ``"episode_<term>"``: :func:`~torchtasks.stats.episode_statistics`
+    of the last ``max_steps`` steps (one episode length): the success rate of the episodes that ended
+    in them, the returns of those that also started in them; ``None`` before the first ``max_steps``
+    steps (when only quick successes can have finished) and when no episode finished. The totals
+    (``episodes``, ``successes``, ``failures``, ``truncations``, ``episode_terms``) are the same
+    statistics over the whole run.
     """
 
     frames: int
@@ -168,13 +172,12 @@ def run_demo(
     collector = Collector(
         env, policy, frames_per_batch=frames_per_batch, total_frames=total_frames, auto_register_policy_transforms=False
     )
-    # per batch: finished episodes, their summed return, successes and summed terms
-    window: list[tuple[int, float, int, dict[str, float]]] = []
+    # every batch ([envs, time]); the rolling statistics join the last `window_batches` of them along time
+    batches: list[TensorDictBase] = []
     window_batches = max(1, math.ceil(MAX_STEPS * num_envs / frames_per_batch))
     keys = ("frames", "noise", "episodes", "return", "success_rate", *(f"episode_{name}" for name in TERMS))
     curves: dict[str, list[float | None]] = {key: [] for key in keys}
-    sums = dict.fromkeys(TERMS, 0.0)
-    frames = episodes = successes = failures = truncations = 0
+    frames = 0
 
     def noise_at(frames_done: int) -> float:
         return noise * max(0.0, 1.0 - frames_done / (NOISE_DECAY_FRACTION * total_frames))
@@ -188,31 +191,20 @@ def run_demo(
     start = time.perf_counter()
     for batch in collector:
         scale = actor.scale
-        nxt = batch["next"]
-        ended = nxt["done"]
-        ended_now, succeeded = int(ended.sum()), int(nxt["success"][ended].sum())
-        terms = {name: float(nxt["task_reward", f"episode_{name}"][ended].sum()) for name in TERMS}
-        episodes += ended_now
-        successes += succeeded
-        failures += int(nxt["failure"].sum())
-        truncations += int((nxt["truncated"] & ~nxt["success"] & ~nxt["failure"]).sum())
+        batches.append(batch)
+        ended = int(batch["next", "done"].sum())
         frames += batch.numel()
-        for name in TERMS:
-            sums[name] += terms[name]
-        window = [*window, (ended_now, float(nxt["episode_reward"][ended].sum()), succeeded, terms)][-window_batches:]
-        count = sum(entry[0] for entry in window)
-        full = len(window) == window_batches and count > 0
-
-        def mean(total: float, count: int = count, full: bool = full) -> float | None:
-            return total / count if full else None
+        # rolling means: the episodes that ended in the last MAX_STEPS steps (one episode length)
+        window = batches[-window_batches:]
+        rolling = episode_statistics(torch.cat(window, dim=-1)) if len(window) == window_batches else {}
 
         curves["frames"].append(frames)
         curves["noise"].append(scale)
-        curves["episodes"].append(ended_now)
-        curves["return"].append(mean(sum(entry[1] for entry in window)))
-        curves["success_rate"].append(mean(sum(entry[2] for entry in window)))
+        curves["episodes"].append(ended)
+        curves["return"].append(rolling.get("return_mean"))
+        curves["success_rate"].append(rolling.get("success_rate"))
         for name in TERMS:
-            curves[f"episode_{name}"].append(mean(sum(entry[3][name] for entry in window)))
+            curves[f"episode_{name}"].append(rolling.get(f"return_mean/{name}"))
         actor.scale = noise_at(frames)
         if bar is not None:
             rate = curves["success_rate"][-1]
@@ -222,7 +214,13 @@ def run_demo(
     collector.shutdown()
     if bar is not None:
         bar.close()
-    episode_terms = {name: value / max(episodes, 1) for name, value in sums.items()}
+    # the whole run's episodes (the demo keeps its frames: a few MB), from the task's own flags and terms
+    totals = episode_statistics(torch.cat(batches, dim=-1))
+    episodes = int(totals["episodes"])
+    successes, failures, truncations = (
+        round(totals.get(rate, 0.0) * episodes) for rate in ("success_rate", "failure_rate", "timeout_rate")
+    )
+    episode_terms = {name: totals.get(f"return_mean/{name}", math.nan) for name in TERMS}
     result = DemoResult(frames, seconds, episodes, successes, failures, truncations, episode_terms, curves, noise)
     if output_dir is not None:
         _write_outputs(result, Path(output_dir))
