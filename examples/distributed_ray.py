@@ -1,25 +1,39 @@
 """Collect with a torchtasks task on a Ray cluster: ``Collector(backend="ray")`` with a ``TaskTransform``.
 
-What it shows: the task travels with the env. Each Ray worker builds its own batched torch pendulum
-(:class:`~torchtasks.envs.PendulumEnv`) with ``StepCounter`` + ``TaskTransform(swing_up_task())`` +
-``RewardSum`` from a picklable module-level constructor, runs a TorchRL ``Collector`` in a Ray actor
-and ships batches back; the task's reward, success flag, episode ends and per-term reward breakdown
-(``("task_reward", "track" | "effort" | "step" | "final")`` and their ``RewardSum`` episode sums)
-arrive in the driver like any other entry. The policy is the classical swing-up controller of the
-``torchtasks demo`` (no learning), so episodes end in success and the counts are meaningful.
+What it shows: the task travels with the env. Each Ray worker builds its own env with ``StepCounter`` +
+``TaskTransform`` + ``RewardSum`` from a picklable module-level constructor, runs a TorchRL
+``Collector`` in a Ray actor and ships batches back; the task's reward, its flags, the episode ends
+and the per-term reward breakdown (``("task_reward", name)`` and their ``RewardSum`` episode sums)
+arrive in the driver like any other entry. The driver then recomputes every collected reward offline
+from the stored states with the task (``TaskTransform.reward_fn``) and prints the largest difference.
+
+Two kinds of env (``--env``):
+
+- a Gymnasium MuJoCo v5 locomotion id (default ``Hopper-v5``): each worker steps ``--envs`` copies
+  in one :class:`~torchtasks.envs.BatchedMujocoEnv` (``gymnasium_env(env_id, num_envs=N,
+  backend="batched")``: Gymnasium's observations, the reward and termination of
+  :func:`~torchtasks.envs.locomotion.locomotion_task`), driven by random actions. Hopper falls within
+  tens of steps, so episodes end by the task's failure and single envs are reset while the others
+  continue; needs the ``mujoco`` extra;
+- ``pendulum``: batched torch pendulums (:class:`~torchtasks.envs.PendulumEnv`) with
+  ``swing_up_task()``, driven by the classical swing-up controller of ``torchtasks demo`` (no
+  learning), so episodes end in success and the success counts are meaningful.
 
 Set-up:
 
 - ``--workers`` remote collectors (one Ray actor each, ``num_cpus=1``), each stepping ``--envs``
-  pendulums as one batch; episodes are truncated after ``MAX_STEPS`` steps.
+  envs as one batch (a batched MuJoCo env steps them in one thread: the actor has one CPU); episodes
+  are truncated after 1000 steps (MuJoCo, Gymnasium's limit) or ``PENDULUM_MAX_STEPS`` (pendulum).
 - Env constructors are ``functools.partial`` objects of the module-level :func:`make_env`, so they
   pickle (a lambda or a closure would not survive the trip to a worker).
 - By default a local Ray cluster is started with ``ray.init(num_cpus=...)`` and shut down at the end.
 
 Run it on this machine::
 
-    python examples/distributed_ray.py            # 2 workers, 64k frames
-    python examples/distributed_ray.py --quick    # a few seconds once Ray is up (used by the tests)
+    python examples/distributed_ray.py                   # 2 workers x 32 batched Hopper envs, 64k frames
+    python examples/distributed_ray.py --quick           # a few seconds once Ray is up (used by the tests)
+    python examples/distributed_ray.py --env Ant-v5      # any id of torchtasks.envs.locomotion.SUPPORTED_ENV_IDS
+    python examples/distributed_ray.py --env pendulum    # the swing-up controller on torch pendulums
 
 Run it on an existing Ray cluster: start the cluster (``ray start --head`` on the head node,
 ``ray start --address=HEAD_IP:6379`` on the others; torch, torchrl and torchtasks must be
@@ -40,6 +54,7 @@ import argparse
 import functools
 import os
 import time
+import warnings
 from pathlib import Path
 
 import ray
@@ -53,20 +68,39 @@ from torchtasks.demo import SwingUpController
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.transforms import TaskTransform
 
-MAX_STEPS = 200  # episode time limit (StepCounter)
-TERMS = ("track", "effort", "step", "final")  # the reward breakdown written by TaskTransform
+PENDULUM = "pendulum"
+PENDULUM_MAX_STEPS = 200  # episode time limit of the pendulum (StepCounter)
 
 
-def make_env(num_envs: int, seed: int) -> TransformedEnv:
-    """Return ``num_envs`` batched pendulums with the swing-up task (module level: picklable for Ray workers)."""
-    return TransformedEnv(
-        PendulumEnv(batch_size=[num_envs], seed=seed),
-        Compose(StepCounter(MAX_STEPS), TaskTransform(swing_up_task()), RewardSum()),
-    )
+def make_env(env: str, num_envs: int, seed: int) -> TransformedEnv:
+    """Return ``num_envs`` batched envs with their task (module level: picklable for Ray workers).
+
+    ``env``: a MuJoCo locomotion id (``gymnasium_env(env, num_envs, backend="batched")``, one thread)
+    or ``"pendulum"`` (torch pendulums with the swing-up task).
+    """
+    if env == PENDULUM:
+        return TransformedEnv(
+            PendulumEnv(batch_size=[num_envs], seed=seed),
+            Compose(StepCounter(PENDULUM_MAX_STEPS), TaskTransform(swing_up_task()), RewardSum()),
+        )
+    from torchtasks.envs.locomotion import gymnasium_env
+
+    return gymnasium_env(env, num_envs=num_envs, seed=seed, backend="batched", num_threads=1)
 
 
-def make_policy() -> TensorDictModule:
-    """The energy-pumping + PD swing-up controller of ``torchtasks demo``, reading ``"observation"``."""
+def make_offline_transform(env: str) -> TaskTransform:
+    """The task of ``env`` as a stand-alone ``TaskTransform``, to recompute rewards from stored transitions."""
+    if env == PENDULUM:
+        return TaskTransform(swing_up_task(), max_steps=PENDULUM_MAX_STEPS)
+    from torchtasks.envs.locomotion import locomotion_state_layout, locomotion_task
+
+    return TaskTransform(locomotion_task(env), state_key=list(locomotion_state_layout(env)))
+
+
+def make_policy(env: str) -> TensorDictModule | None:
+    """The swing-up controller of ``torchtasks demo`` for the pendulum; ``None`` (random actions) for MuJoCo."""
+    if env != PENDULUM:
+        return None
     return TensorDictModule(SwingUpController(), in_keys=["observation"], out_keys=["action"])
 
 
@@ -88,16 +122,19 @@ def start_ray(address: str | None, num_cpus: int) -> None:
 
 
 class EpisodeStats:
-    """Running sums of the episodes that ended in collected batches."""
+    """Running sums of the episodes that ended in collected batches, and the offline recomputation."""
 
-    def __init__(self) -> None:
+    def __init__(self, offline: TaskTransform) -> None:
+        self.offline = offline
         self.frames = 0
         self.batches = 0
         self.episodes = 0
         self.successes = 0
+        self.failures = 0
         self.truncations = 0
         self.episode_reward = 0.0
-        self.terms = dict.fromkeys(TERMS, 0.0)
+        self.terms: dict[str, float] = {}
+        self.max_offline_diff = 0.0
 
     def update(self, batch: TensorDictBase) -> None:
         nxt = batch["next"]
@@ -106,20 +143,29 @@ class EpisodeStats:
         self.batches += 1
         self.episodes += int(ended.sum())
         self.successes += int(nxt["success"].sum())
+        self.failures += int(nxt["failure"].sum())
         self.truncations += int((nxt["truncated"] & ~nxt["success"] & ~nxt["failure"]).sum())
         self.episode_reward += float(nxt["episode_reward"][ended].sum())
-        for name in TERMS:
-            self.terms[name] += float(nxt["task_reward", f"episode_{name}"][ended].sum())
+        for key in nxt["task_reward"].keys():
+            if key.startswith("episode_"):
+                name = key[len("episode_") :]
+                self.terms[name] = self.terms.get(name, 0.0) + float(nxt["task_reward", key][ended].sum())
+        recomputed = self.offline.reward_fn(batch)  # the task on the stored states, actions and memory
+        self.max_offline_diff = max(self.max_offline_diff, float((recomputed - nxt["reward"]).abs().max()))
 
     def report(self) -> str:
         n = max(self.episodes, 1)
         lines = [
             f"frames collected: {self.frames} in {self.batches} batches",
-            f"episodes ended: {self.episodes} (successes: {self.successes}, truncations: {self.truncations})",
+            f"episodes ended: {self.episodes} (successes: {self.successes}, failures: {self.failures}, "
+            f"truncations: {self.truncations})",
             f"mean episode reward: {self.episode_reward / n:+.3f}",
             "mean episode reward per term:",
         ]
         lines += [f"  {name:<7} {value / n:+10.3f}" for name, value in self.terms.items()]
+        lines.append(
+            f"rewards recomputed offline from the stored states: max abs difference {self.max_offline_diff:.1e}"
+        )
         return "\n".join(lines)
 
 
@@ -129,34 +175,42 @@ def main(
     workers: int = 2,
     num_envs: int | None = None,
     total_frames: int | None = None,
+    env: str = "Hopper-v5",
 ) -> EpisodeStats:
-    """Collect ``total_frames`` frames with ``workers`` Ray collectors and print the task's statistics."""
+    """Collect ``total_frames`` frames of ``env`` with ``workers`` Ray collectors and print the task's statistics."""
     num_envs = num_envs or (8 if quick else 32)
     frames_per_batch = num_envs * (50 if quick else 200)
     total_frames = total_frames or (6 * frames_per_batch if quick else 64_000)
     torch.manual_seed(0)
+    stats = EpisodeStats(make_offline_transform(env))  # also checks the env name before Ray starts
     start_ray(address, num_cpus=workers)
-    stats = EpisodeStats()
     try:
-        env_fns = [functools.partial(make_env, num_envs, seed) for seed in range(workers)]
-        policy = make_policy()
+        env_fns = [functools.partial(make_env, env, num_envs, seed) for seed in range(workers)]
+        policy = make_policy(env)
         start = time.perf_counter()
-        collector = Collector(
-            env_fns,
-            policy,
-            backend="ray",
-            frames_per_batch=frames_per_batch,
-            total_frames=total_frames,
-            remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
-        )
-        # the controller has no weights to train, but this also sets up the weight sync (no warning)
-        collector.update_policy_weights_(policy)
-        print(f"Ray collector: {workers} workers x {num_envs} pendulums, {frames_per_batch} frames per batch")
+        with warnings.catch_warnings():
+            # random actions (policy=None) have no weights to send to the workers
+            warnings.filterwarnings("ignore", message=".*policy is not an nn.Module.*")
+            collector = Collector(
+                env_fns,
+                policy,
+                backend="ray",
+                frames_per_batch=frames_per_batch,
+                total_frames=total_frames,
+                remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
+            )
+        if policy is not None:
+            # the controller has no weights to train, but this also sets up the weight sync (no warning)
+            collector.update_policy_weights_(policy)
+        kind = "pendulums" if env == PENDULUM else f"{env} envs (BatchedMujocoEnv)"
+        print(f"Ray collector: {workers} workers x {num_envs} {kind}, {frames_per_batch} frames per batch")
         print(f"collector start-up (Ray actors, env and policy construction): {time.perf_counter() - start:.1f} s")
         start = time.perf_counter()
         try:
-            for batch in collector:
-                stats.update(batch)
+            with warnings.catch_warnings():
+                warnings.filterwarnings("ignore", message=".*before weight synchronization was initialized.*")
+                for batch in collector:
+                    stats.update(batch)
         finally:
             collector.shutdown()
         seconds = time.perf_counter() - start
@@ -174,7 +228,12 @@ if __name__ == "__main__":
         "--address", default=None, help="address of an existing Ray cluster, e.g. HEAD_IP:6379 or 'auto' (ray.init)"
     )
     parser.add_argument("--workers", type=int, default=2, help="number of remote collectors (Ray actors)")
-    parser.add_argument("--envs", type=int, default=None, help="pendulums per worker (default 32, 8 with --quick)")
+    parser.add_argument("--envs", type=int, default=None, help="envs per worker (default 32, 8 with --quick)")
     parser.add_argument("--frames", type=int, default=None, help="total frames to collect")
+    parser.add_argument(
+        "--env",
+        default="Hopper-v5",
+        help="a Gymnasium MuJoCo v5 locomotion id (batched, random actions; default Hopper-v5) or 'pendulum'",
+    )
     args = parser.parse_args()
-    main(args.quick, args.address, args.workers, args.envs, args.frames)
+    main(args.quick, args.address, args.workers, args.envs, args.frames, args.env)

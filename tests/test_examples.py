@@ -54,18 +54,52 @@ def test_quickstart() -> None:
 @pytest.mark.ray
 @pytest.mark.multiprocess
 def test_distributed_ray() -> None:
+    """The default: two Ray actors, each with 8 batched Hopper envs (BatchedMujocoEnv) and random actions."""
     pytest.importorskip("ray")
+    if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("gymnasium") is None:
+        pytest.skip("needs the mujoco extra (mujoco, gymnasium)")
     # Ray start-up (cluster, then two actors importing torch) takes most of the time on a loaded 2-core machine
     out = run_example("distributed_ray.py", timeout=300.0)
-    assert "Ray collector: 2 workers x 8 pendulums" in out
+    assert "Ray collector: 2 workers x 8 Hopper-v5 envs (BatchedMujocoEnv)" in out
     assert _number(r"^frames collected: (\d+)", out) == 2400
     episodes = _number(r"^episodes ended: (\d+)", out)
-    successes = _number(r"successes: (\d+)", out)
-    assert episodes > 0 and successes > 0
-    for term in ("track", "effort", "step", "final"):
+    # random actions: Hopper falls (a task failure) long before the 1000-step limit
+    assert episodes > 0 and _number(r"failures: (\d+)", out) == episodes
+    assert _number(r"successes: (\d+)", out) == 0 and _number(r"truncations: (\d+)", out) == 0
+    for term in ("forward", "ctrl", "survive", "step", "final"):
         assert re.search(rf"^\s+{term}\s+[+-]\d+\.\d+$", out, flags=re.MULTILINE), term
+    assert _number(r"^\s+survive\s+([+-]\d+\.\d+)$", out) > 0  # healthy_reward 1 per healthy step
+    assert _number(r"max abs difference (\S+)$", out) == 0.0
+
+
+def test_distributed_ray_pendulum_pieces() -> None:
+    """``--env pendulum`` without Ray: the worker's env, the controller and the driver's statistics, in-process."""
+    import torch
+    from torchrl.collectors import Collector
+
+    pytest.importorskip("ray")
+    spec = importlib.util.spec_from_file_location("distributed_ray", EXAMPLES / "distributed_ray.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    threads = torch.get_num_threads()
+    stats = module.EpisodeStats(module.make_offline_transform("pendulum"))
+    collector = Collector(
+        module.make_env("pendulum", 8, 0), module.make_policy("pendulum"), frames_per_batch=800, total_frames=2400
+    )
+    try:
+        for batch in collector:
+            stats.update(batch)
+    finally:
+        collector.shutdown()
+        torch.set_num_threads(threads)
+    assert stats.frames == 2400 and stats.successes > 0 and stats.failures == 0
+    assert stats.episodes == stats.successes + stats.truncations
     # the controller only ends episodes by success, each paid +100 once
-    assert _number(r"^\s+final\s+([+-]\d+\.\d+)$", out) == pytest.approx(100.0 * successes / episodes, abs=1e-3)
+    assert stats.terms["final"] == pytest.approx(100.0 * stats.successes)
+    assert stats.max_offline_diff == 0.0
+    assert module.make_policy("Hopper-v5") is None
+    with pytest.raises(ValueError, match="env_id"):
+        module.make_offline_transform("CartPole-v1")
 
 
 def test_her_relabel() -> None:
