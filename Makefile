@@ -3,8 +3,11 @@ PY ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
+BENCH_VENV := .venv-bench
+BENCH_BIN := $(BENCH_VENV)/bin
+BENCH_STAMP := $(BENCH_VENV)/.installed
 
-.PHONY: setup demo test check-base-install lint docs bench clean
+.PHONY: setup demo test check-base-install lint docs bench bench-venv clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -35,5 +38,18 @@ lint: $(STAMP)
 	$(BIN)/ruff check src tests examples benchmarks
 	$(BIN)/ruff format --check src tests examples benchmarks
 
+# A separate venv for the peer columns of benchmarks/batched_mujoco.py: envpool (its raw step and, through
+# TorchRL's MultiThreadedEnv, which also needs gym 0.26 and treevalue). None of these is a dependency of
+# torchtasks, and gym beside gymnasium could change TorchRL's gym backend in the tests, so they stay out of .venv.
+$(BENCH_STAMP): pyproject.toml constraints.txt
+	$(PY) -m venv $(BENCH_VENV)
+	$(BENCH_BIN)/pip install --quiet --upgrade pip
+	$(BENCH_BIN)/pip install --quiet -c constraints.txt torch==2.13.0
+	$(BENCH_BIN)/pip install --quiet -c constraints.txt -e ".[mujoco]"
+	$(BENCH_BIN)/pip install --quiet -c constraints.txt envpool==1.2.5 gym==0.26.2 treevalue==1.5.0
+	touch $(BENCH_STAMP)
+
+bench-venv: $(BENCH_STAMP)
+
 clean:
-	rm -rf $(VENV) docs/_build
+	rm -rf $(VENV) $(BENCH_VENV) docs/_build

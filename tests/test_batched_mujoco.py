@@ -445,8 +445,13 @@ def test_reset_output_of_a_fresh_env_has_every_entry() -> None:
     env.close()
 
 
+@pytest.mark.multiprocess  # the ParallelEnv preset spawns its workers
+@pytest.mark.xdist_group("multiprocess")
 def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
-    """``benchmarks/batched_mujoco.py --tiny``: every code path with tiny sizes (timings mean nothing)."""
+    """``benchmarks/batched_mujoco.py --tiny``: every code path with tiny sizes (timings mean nothing).
+
+    envpool (and gym, treevalue) live in the benchmark venv only: here their columns say "not installed".
+    """
     import importlib.util
     import json
     from pathlib import Path
@@ -458,9 +463,22 @@ def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
     threads = torch.get_num_threads()
     assert module.main(["--tiny", "--output", str(tmp_path)]) == 0
     assert torch.get_num_threads() == threads
-    rows = json.loads((tmp_path / "results.json").read_text())["rows"]
+    results = json.loads((tmp_path / "results.json").read_text())
+    rows = results["rows"]
     assert [(row["env"], row["num_envs"]) for row in rows] == [("Hopper-v5", 2), ("Ant-v5", 3)]
     for row in rows:
         assert all(row[f"{variant}_median"] > 0 for variant in module.VARIANTS)
         assert row["floor_median"] >= row["floor_threads_median"]
-    assert (tmp_path / "results.md").read_text().count("| Hopper-v5 | 2 |") == 1
+        assert row["gym_vector_median"] > 0
+        for peer in module.PEERS:
+            missing = module.peer_status(peer)
+            assert (row[f"{peer}_median"] is None) == (missing is not None)
+            assert row["peer_status"][peer] == missing
+    # --tiny measures the preset for the first env id only
+    assert results["presets"]["Hopper-v5"]["frames_per_second"] > 0
+    assert rows[0]["collector_over_preset"] > 0
+    assert rows[1]["preset_median"] is None
+    table = (tmp_path / "results.md").read_text()
+    assert table.count("| Hopper-v5 | 2 |") == 1
+    if module.peer_status("envpool_raw") is not None:
+        assert "not installed (envpool)" in table
