@@ -1,13 +1,15 @@
 """The training examples run end to end in ``--quick`` mode and write their learning curves.
 
-``examples/train_swingup_ppo.py`` (PPO) and ``examples/differentiable_shaping.py`` (analytic
-policy gradients) are run as scripts, as a user would, in a temporary output directory. The
+``examples/train_swingup_ppo.py`` (PPO), ``examples/differentiable_shaping.py`` (analytic
+policy gradients) and ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
+``mujoco`` extra) are run as scripts, as a user would, in a temporary output directory. The
 quick runs take a few seconds each; they check the code paths (training, evaluation, JSON, PNG,
 the PPO comparison), not the learning.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import subprocess
 import sys
@@ -94,3 +96,31 @@ def test_differentiable_shaping_quick_without_ppo_run(tmp_path: Path) -> None:
     record = load_run(tmp_path / "differentiable_shaping_curve.json")
     assert "ppo" not in record
     assert "no PPO run" in result.stdout
+
+
+def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    result = run_example("train_locomotion_ppo.py", tmp_path, "--seeds", "3")
+    record = json.loads((tmp_path / "locomotion_ppo_seed3.json").read_text())
+    assert record["seed"] == 3 and record["env_id"] == "HalfCheetah-v5" and record["method"] == "PPO"
+    frames = [point["frames"] for point in record["curve"]]
+    assert frames == [2000, 4000] == [2000, record["total_frames"]]
+    assert all(point["seconds"] > 0 and point["load_1min"] >= 0 for point in record["curve"])
+    # 4 envs x 500 steps per batch: every env's first episode ends (truncated at 1000 steps) in the second batch
+    first, last = record["curve"]
+    assert first["train_return"] is None and first["episodes"] == 0
+    assert last["episodes"] == 4 and last["episode_length_mean"] == 1000 and last["timeout_rate"] == 1
+    assert last["train_return"] == pytest.approx(last["train_return/forward"] + last["train_return/ctrl"])
+    assert last["train_return/ctrl"] < 0
+    assert record["final_train_return"] == last["train_return"] and record["final_train_frames"] == 4000
+    (evaluation,) = record["eval_curve"]  # the deterministic evaluation at the end: one 1000-step episode per env
+    assert evaluation["complete_episodes"] == 2 and evaluation["episode_length_mean"] == 1000
+    terms = evaluation["return_mean/forward"] + evaluation["return_mean/ctrl"]
+    assert evaluation["return_mean"] == pytest.approx(terms)
+    assert record["final_eval_return"] == evaluation["return_mean"]
+    assert record["frames_per_second"] > 0 and record["machine_end"]["load_1min"] >= 0
+    assert "seed 3: 4000 frames in" in result.stdout
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (tmp_path / "locomotion_ppo_curve.png").stat().st_size > 0
+        assert "locomotion_ppo_curve.png (1 seed(s))" in result.stdout
