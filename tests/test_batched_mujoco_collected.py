@@ -11,7 +11,7 @@ random actions fall within tens of steps, so TorchRL resets single envs while th
     - the locomotion task evaluated offline on the stored states (``TaskTransform.forward``, the
       task's offline face), and
     - Gymnasium v5's reward formula, written out below from Gymnasium's sources with its default
-      weights and evaluated with numpy on the stored ``qpos``/``qvel``/``x_position``/``x_velocity``/
+      weights and evaluated with numpy on the stored ``qpos``/``qvel``/``x_velocity``/
       ``cfrc_ext`` and actions (the expectation does not come from torchtasks);
 
 (b) episodes end only by the task's failure, which must equal Gymnasium's health condition checked
@@ -90,14 +90,14 @@ def gymnasium_terms(env_id: str, data: TensorDictBase) -> dict[str, np.ndarray]:
     nxt = data["next"]
     action = _numpy(data, "action")
     terms = {"ctrl": -CTRL_WEIGHT[env_id] * np.sum(np.square(action), axis=-1)}
-    if env_id == "HalfCheetah-v5":
-        x_before, x_after = _numpy(data, "x_position")[..., 0], _numpy(nxt, "x_position")[..., 0]
-        terms["forward"] = FORWARD_WEIGHT * (x_after - x_before) / DT[env_id]
-    elif env_id == "Hopper-v5":
+    if env_id == "Hopper-v5":  # recomputed from the stored positions
         x_before, x_after = _numpy(data, "qpos")[..., 0], _numpy(nxt, "qpos")[..., 0]
         terms["forward"] = FORWARD_WEIGHT * (x_after - x_before) / DT[env_id]
-    else:  # Ant: the main body's xpos velocity, which lags qpos by a substep: the stored x_velocity
+    else:
+        # HalfCheetah stores no position, only Gymnasium's x_velocity; Ant's is the main body's xpos velocity,
+        # which lags qpos by a substep: the stored x_velocity (equal to Gymnasium's in the parity tests)
         terms["forward"] = FORWARD_WEIGHT * _numpy(nxt, "x_velocity")[..., 0]
+    if env_id == "Ant-v5":
         forces = np.clip(_numpy(nxt, "cfrc_ext"), *ANT_CONTACT_FORCE_RANGE)
         terms["contact"] = -ANT_CONTACT_WEIGHT * np.sum(np.square(forces), axis=-1)
     if env_id != "HalfCheetah-v5":
@@ -150,7 +150,7 @@ def check_episode_ends(env_id: str, data: TensorDictBase) -> dict[str, int]:
     assert torch.equal(next_count, step_count + 1)
     assert (next_count <= TIME_LIMIT).all()
     # continuity along time: an episode goes on from where it was, a new one starts at step count 0
-    state_key = "x_position" if env_id == "HalfCheetah-v5" else "qpos"
+    state_key = "x_velocity" if env_id == "HalfCheetah-v5" else "qpos"
     flat = data.reshape(-1, data.shape[-1])
     ended = flat["next", "done"][:, :-1, 0]
     state, previous_next_state = flat[state_key][:, 1:], flat["next", state_key][:, :-1]

@@ -233,7 +233,7 @@ def test_hopper_health_reads_the_unclipped_velocities() -> None:
     task = env.transform[1].task
     qvel = td["qvel"].clone()
     qvel[3] = 11.0
-    state = torch.cat([td["qpos"], qvel])[None]
+    state = torch.cat([td["x_velocity"], td["qpos"], qvel])[None]
     assert task.has_failed(state, task.reset(state)).tolist() == [True]
     reference = gymnasium.make("Hopper-v5", **kwargs)
     reference.reset(seed=0)
@@ -279,19 +279,25 @@ def test_contact_and_control_costs_match_gymnasium(env_id: str, kwargs: dict[str
 
 
 @mujoco
-@pytest.mark.parametrize("env_id", ["HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5"])
+@pytest.mark.parametrize("env_id", ENV_IDS)
 @pytest.mark.parametrize("frame_skip", [None, 2])
-def test_forward_term_uses_gymnasium_dt(env_id: str, frame_skip: int | None) -> None:
-    kwargs = {} if frame_skip is None else {"frame_skip": frame_skip}
-    dt = gymnasium.make(env_id, **kwargs).unwrapped.dt
+def test_forward_term_is_gymnasiums_weighted_x_velocity(env_id: str, frame_skip: int | None) -> None:
+    """forward = forward_reward_weight * info["x_velocity"], the velocity Gymnasium computes with its own dt."""
+    kwargs = {"forward_reward_weight": 1.5} if frame_skip is None else {"frame_skip": frame_skip}
+    weight = kwargs.get("forward_reward_weight", gymnasium.make(env_id).unwrapped._forward_reward_weight)
+    gym_env = gymnasium.make(env_id, **kwargs)
+    gym_env.reset(seed=0)
+    x_before = float(gym_env.unwrapped.data.qpos[0])
+    info = gym_env.step(gym_env.action_space.sample())[-1]
+    if env_id not in ("Ant-v5", "Humanoid-v5"):  # their x_velocity is a body's, not qpos[0]'s
+        expected_velocity = (float(gym_env.unwrapped.data.qpos[0]) - x_before) / gym_env.unwrapped.dt
+        assert info["x_velocity"] == pytest.approx(expected_velocity, rel=1e-12)
     task = locomotion_task(env_id, **kwargs)
-    start = torch.zeros(1, task.state_size, dtype=torch.float64)
-    moved = start.clone()
-    moved[0, 0] = 0.3
-    terms, _, _ = task.step_reward_terms(
-        moved, torch.zeros(1, task.action_size, dtype=torch.float64), task.reset(start)
-    )
-    assert terms["forward"].item() == 0.3 / dt
+    state = _task_state(env_id, gym_env.unwrapped, x_velocity=info["x_velocity"])
+    action = torch.zeros(1, task.action_size, dtype=torch.float64)
+    terms, _, _ = task.step_reward_terms(state, action, task.reset(state))
+    assert terms["forward"].item() == weight * info["x_velocity"] == info["reward_forward"]
+    gym_env.close()
 
 
 # ---------------------------------------------------------------------------------- validation

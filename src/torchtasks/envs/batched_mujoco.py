@@ -102,10 +102,11 @@ class BatchedMujocoEnv(EnvBase):
     - ``"observation"``: Gymnasium's observation for these keywords (e.g. without the x position
       by default, Hopper's and Walker2d's velocities clipped to ±10, Ant's clipped contact forces).
     - the task state of :func:`~torchtasks.envs.locomotion.locomotion_state_layout`, a subset of
-      ``"x_position"`` (``qpos[0]``), ``"qpos"``, ``"qvel"`` (unclipped), ``"cfrc_ext"`` (all
-      bodies, flattened) and ``"x_velocity"``: Ant's main-body ``xpos`` and Humanoid's centre of
-      mass (from ``xipos``) finite-differenced over the step exactly as Gymnasium does, so they lag
-      ``qpos`` by one substep like Gymnasium's; 0 after a reset.
+      ``"x_velocity"``, ``"qpos"``, ``"qvel"`` (unclipped) and ``"cfrc_ext"`` (all bodies,
+      flattened). ``"x_velocity"`` is Gymnasium's: ``qpos[0]`` (HalfCheetah, Hopper, Walker2d,
+      Swimmer), Ant's main-body ``xpos`` or Humanoid's centre of mass (from ``xipos``; these two lag
+      ``qpos`` by one substep, like Gymnasium's) finite-differenced over the step exactly as
+      Gymnasium does; 0 after a reset.
 
     The env pays no reward (``"reward"`` is 0, float64) and ends no episode by itself: put a
     :class:`~torchtasks.transforms.TaskTransform` of
@@ -226,15 +227,16 @@ class BatchedMujocoEnv(EnvBase):
 
         self._rne = env_id in _CONTACT_ENVS
         cfrc_ext = reader("cfrc_ext") if self._rne else None
-        # the forward position that Gymnasium finite-differences (None: qpos[0] in the task)
-        self._position: np.ndarray | None = None
+        # the forward position that Gymnasium finite-differences into x_velocity: qpos[0], Ant's main body's
+        # xpos[:2], Humanoid's centre of mass (from xipos, weighted by the body masses)
+        self._position: np.ndarray = qpos[:, :1]
         self._mass_weights: np.ndarray | None = None
         if env_id == "Ant-v5":
             self._position = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
         elif env_id == "Humanoid-v5":
             self._position = reader("xipos")
             self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
-        self._previous_position = None if self._position is None else np.zeros((n, 2))
+        self._previous_position = np.zeros((n, 1 if env_id not in ("Ant-v5", "Humanoid-v5") else 2))
 
         skip = _SKIPPED_POSITIONS[env_id] if config["exclude_current_positions_from_observation"] else 0
         # (source view, clip bounds or None): the observation is their concatenation
@@ -264,7 +266,6 @@ class BatchedMujocoEnv(EnvBase):
         self._observation_size = start
         # the task-state entries, as views of the gather buffers (x_velocity is computed)
         self._entry_sources: dict[str, np.ndarray | None] = {
-            "x_position": qpos[:, :1],
             "qpos": qpos,
             "qvel": qvel,
             "cfrc_ext": None if cfrc_ext is None else cfrc_ext.reshape(n, -1),
@@ -364,7 +365,7 @@ class BatchedMujocoEnv(EnvBase):
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
 
     def _forward_position(self) -> np.ndarray:
-        """The position Gymnasium finite-differences: Ant's main body ``xpos[:2]``, Humanoid's mass centre."""
+        """The position Gymnasium finite-differences: ``qpos[:1]``, Ant's body ``xpos[:2]``, Humanoid's mass centre."""
         if self._mass_weights is None:
             return self._position.copy()
         weights = self._mass_weights
@@ -412,11 +413,9 @@ class BatchedMujocoEnv(EnvBase):
                 RuntimeWarning,
                 stacklevel=2,
             )
-        x_velocity = None
-        if self._position is not None:
-            position = self._forward_position()
-            x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
-            self._previous_position = position
+        position = self._forward_position()
+        x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
+        self._previous_position = position
         return self._outputs(x_velocity, terminated, reward=True)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
@@ -428,8 +427,7 @@ class BatchedMujocoEnv(EnvBase):
         for i in indices:
             self._reset_env(int(i))
         self._time[indices] = self._state[indices, 0]
-        if self._position is not None:
-            self._previous_position[indices] = self._forward_position()[indices]
+        self._previous_position[indices] = self._forward_position()[indices]
         return self._outputs(None, None, reward=False)
 
     def _set_seed(self, seed: int | None) -> None:

@@ -18,20 +18,22 @@ assembled from float64 root entries of the tensordict (read from ``info`` on the
 =============  ======================================  =============================================
 env            task state (info keys, concatenated)    where the entries come from
 =============  ======================================  =============================================
-HalfCheetah    ``x_position``                          Gymnasium's info (``qpos[0]``)
-Swimmer        ``x_position``                          Gymnasium's info (``qpos[0]``)
-Hopper         ``qpos``, ``qvel``                      :class:`MujocoStateInfo` (unclipped qvel)
-Walker2d       ``qpos``                                :class:`MujocoStateInfo`
+HalfCheetah    ``x_velocity``                          Gymnasium's info (``qpos[0]`` velocity)
+Swimmer        ``x_velocity``                          Gymnasium's info (``qpos[0]`` velocity)
+Hopper         ``x_velocity``, ``qpos``, ``qvel``      Gymnasium's info, then :class:`MujocoStateInfo`
+                                                       (unclipped qvel)
+Walker2d       ``x_velocity``, ``qpos``                Gymnasium's info, then :class:`MujocoStateInfo`
 Ant            ``x_velocity``, ``qpos``, ``qvel``,     Gymnasium's info (torso ``xpos`` velocity),
                ``cfrc_ext``                            then :class:`MujocoStateInfo`
 Humanoid       ``x_velocity``, ``qpos``, ``cfrc_ext``  Gymnasium's info (centre-of-mass velocity),
                                                        then :class:`MujocoStateInfo`
 =============  ======================================  =============================================
 
-The forward term finite-differences ``qpos[0]`` (HalfCheetah, Swimmer, Hopper, Walker2d; memory holds
-the previous position) or reads Gymnasium's ``x_velocity`` (Ant: the main body's ``xpos``; Humanoid:
-the centre of mass from ``xipos``; both lag ``qpos`` by one MuJoCo substep, so they cannot be
-recomputed from ``qpos``).
+The forward term is ``forward_reward_weight * x_velocity`` with Gymnasium's ``x_velocity``: the
+change of ``qpos[0]`` over the step divided by ``dt`` (HalfCheetah, Swimmer, Hopper, Walker2d), of the
+main body's ``xpos`` (Ant) or of the centre of mass from ``xipos`` (Humanoid; both lag ``qpos`` by one
+MuJoCo substep, so they cannot be recomputed from ``qpos``). The tasks therefore keep no memory: a
+step's reward and failure depend on the state after the step alone.
 """
 
 from __future__ import annotations
@@ -54,7 +56,6 @@ from torchtasks._checks import check_finite_scalar
 from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
-from torchtasks.rewards.locomotion import ForwardVelocityReward
 from torchtasks.rewards.terms import (
     ContactCostReward,
     ControlCostReward,
@@ -198,11 +199,11 @@ def _model_facts(env_id: str, gym_kwargs: Mapping[str, Any]) -> _ModelFacts:
 def _layout(env_id: str, facts: _ModelFacts) -> dict[str, int]:
     """The task's state: ``{info key: size}`` in concatenation order."""
     if env_id in ("HalfCheetah-v5", "Swimmer-v5"):
-        return {"x_position": 1}
+        return {"x_velocity": 1}
     if env_id == "Hopper-v5":
-        return {"qpos": facts.nq, "qvel": facts.nv}
+        return {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv}
     if env_id == "Walker2d-v5":
-        return {"qpos": facts.nq}
+        return {"x_velocity": 1, "qpos": facts.nq}
     if env_id == "Ant-v5":
         return {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
     return {"x_velocity": 1, "qpos": facts.nq, "cfrc_ext": facts.n_contact_forces}  # Humanoid-v5
@@ -218,13 +219,8 @@ def _labels(layout: Mapping[str, int]) -> list[str]:
 def _terms(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> dict[str, RewardFunction]:
     """The named reward terms of ``env_id`` on the state of :func:`_layout` (order: forward, ctrl, contact, survive)."""
     forward_weight = config["forward_reward_weight"]
-    terms: dict[str, RewardFunction] = {}
-    if env_id in ("Ant-v5", "Humanoid-v5"):
-        terms["forward"] = VelocityReward(forward_weight, index=0)
-    else:  # x_position or qpos[0] sits at index 0
-        terms["forward"] = ForwardVelocityReward(
-            facts.dt, index=0, forward_reward_weight=forward_weight, ctrl_cost_weight=0.0
-        )
+    # Gymnasium's forward_reward_weight * x_velocity, with x_velocity (index 0) as Gymnasium computes it
+    terms: dict[str, RewardFunction] = {"forward": VelocityReward(forward_weight, index=0)}
     terms["ctrl"] = ControlCostReward(config["ctrl_cost_weight"])
     nq, nv = facts.nq, facts.nv
     terminate = bool(config.get("terminate_when_unhealthy", False))
@@ -265,7 +261,7 @@ def _terms(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> dict[s
             high[1] = low[1]
         terms["survive"] = HealthyReward(
             config["healthy_reward"],
-            index=list(range(1, nq + nv)),
+            index=list(range(2, 1 + nq + nv)),  # (qpos ⊕ qvel)[1:] after x_velocity
             low=low,
             high=high,
             terminate_when_unhealthy=terminate,
@@ -274,7 +270,7 @@ def _terms(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> dict[s
         (z_low, z_high), (angle_low, angle_high) = config["healthy_z_range"], config["healthy_angle_range"]
         terms["survive"] = HealthyReward(
             config["healthy_reward"],
-            index=[1, 2],
+            index=[2, 3],  # qpos[1], qpos[2] after x_velocity
             low=[z_low, angle_low],
             high=[z_high, angle_high],
             terminate_when_unhealthy=terminate,
@@ -295,8 +291,7 @@ def locomotion_task(env_id: str, **gym_kwargs: Any) -> GoallessTask:
 
     A :class:`~torchtasks.tasks.GoallessTask` with a :class:`~torchtasks.rewards.CompoundReward`
     whose terms are named like Gymnasium's ``info["reward_*"]``: ``forward``
-    (:class:`~torchtasks.rewards.ForwardVelocityReward` on ``qpos[0]``, or
-    :class:`~torchtasks.rewards.terms.VelocityReward` on ``x_velocity`` for Ant and Humanoid),
+    (:class:`~torchtasks.rewards.terms.VelocityReward` on Gymnasium's ``x_velocity``),
     ``ctrl`` (:class:`~torchtasks.rewards.terms.ControlCostReward`), ``contact`` (Ant, Humanoid:
     :class:`~torchtasks.rewards.terms.ContactCostReward`) and ``survive`` (Hopper, Walker2d, Ant,
     Humanoid: :class:`~torchtasks.rewards.terms.HealthyReward`, a failure when unhealthy and
@@ -322,8 +317,8 @@ def locomotion_task(env_id: str, **gym_kwargs: Any) -> GoallessTask:
         >>> task = locomotion_task("Walker2d-v5", healthy_reward=2.0)
         >>> task.term_names
         ('forward', 'ctrl', 'survive')
-        >>> start = torch.zeros(1, 9, dtype=torch.float64); start[:, 1] = 1.25
-        >>> moved = start.clone(); moved[:, 0] = 0.008  # 8 mm forward in one 8 ms step
+        >>> start = torch.zeros(1, 10, dtype=torch.float64); start[:, 2] = 1.25  # [x_velocity, qpos]: z = 1.25 m
+        >>> moved = start.clone(); moved[:, 0] = 1.0  # moving forward at 1 m/s
         >>> action = torch.zeros(1, 6, dtype=torch.float64)
         >>> terms, reward, memory = task.step_reward_terms(moved, action, task.reset(start))
         >>> reward, task.has_failed(moved, memory)
@@ -339,7 +334,7 @@ def locomotion_state_layout(env_id: str, **gym_kwargs: Any) -> dict[str, int]:
     Example:
         >>> from torchtasks.envs.locomotion import locomotion_state_layout
         >>> locomotion_state_layout("Hopper-v5")
-        {'qpos': 6, 'qvel': 6}
+        {'x_velocity': 1, 'qpos': 6, 'qvel': 6}
         >>> locomotion_state_layout("Ant-v5")
         {'x_velocity': 1, 'qpos': 15, 'qvel': 14, 'cfrc_ext': 84}
     """
@@ -476,7 +471,7 @@ def make_base_env(
     Example:
         >>> from torchtasks.envs.locomotion import make_base_env
         >>> env = make_base_env("Swimmer-v5")
-        >>> env.reset()["x_position"].dtype, env.observation_spec["observation"].shape
+        >>> env.reset()["x_velocity"].dtype, env.observation_spec["observation"].shape
         (torch.float64, torch.Size([8]))
     """
     from torchrl.envs.libs.gym import GymWrapper
