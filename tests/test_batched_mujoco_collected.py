@@ -4,15 +4,19 @@
 locomotion task's ``TaskTransform`` and ``RewardSum``) is run with random actions by ``env.rollout``,
 by a ``Collector``, inside and outside a ``ParallelEnv`` and by a Ray collector. Hopper and Ant under
 random actions fall within tens of steps, so TorchRL resets single envs while the others continue
-(partial resets); HalfCheetah never falls and runs into the 1000-step limit. For every transition:
+(partial resets); HalfCheetah never falls and runs into the 1000-step limit (it runs with
+``exclude_current_positions_from_observation=False``, so that its stored observation holds ``qpos[0]``:
+the preset's task state is Gymnasium's ``x_velocity`` only). For every transition:
 
 (a) the reward and each stored term ``("task_reward", name)`` equal
 
     - the locomotion task evaluated offline on the stored states (``TaskTransform.forward``, the
       task's offline face), and
     - Gymnasium v5's reward formula, written out below from Gymnasium's sources with its default
-      weights and evaluated with numpy on the stored ``qpos``/``qvel``/``x_velocity``/
-      ``cfrc_ext`` and actions (the expectation does not come from torchtasks);
+      weights and evaluated with numpy on the stored ``qpos``/``qvel``/``cfrc_ext``, observations
+      and actions: the forward term of HalfCheetah and Hopper from the positions ``qpos[0]`` before and
+      after the step, not from the env's ``x_velocity`` (Ant's main-body velocity lags ``qpos`` by a
+      substep and is read from the stored ``x_velocity``); the expectation does not come from torchtasks;
 
 (b) episodes end only by the task's failure, which must equal Gymnasium's health condition checked
     here on the stored next state, or by the time limit (``truncated`` exactly where the step count
@@ -85,18 +89,26 @@ def gymnasium_healthy(env_id: str, qpos: np.ndarray, qvel: np.ndarray) -> np.nda
     return np.isfinite(state).all(axis=-1) & (ANT_HEALTHY_Z[0] <= z) & (z <= ANT_HEALTHY_Z[1])
 
 
+def x_position(state: TensorDictBase) -> np.ndarray:
+    """``qpos[0]`` of stored states: from ``qpos``, or from an observation that starts with it (HalfCheetah)."""
+    if "qpos" in state.keys():
+        return _numpy(state, "qpos")[..., 0]
+    observation = _numpy(state, "observation")
+    assert observation.shape[-1] == 18, "HalfCheetah needs exclude_current_positions_from_observation=False"
+    return observation[..., 0]
+
+
 def gymnasium_terms(env_id: str, data: TensorDictBase) -> dict[str, np.ndarray]:
     """Gymnasium v5's ``info["reward_<name>"]`` of every stored transition, shape ``data.shape``."""
     nxt = data["next"]
     action = _numpy(data, "action")
     terms = {"ctrl": -CTRL_WEIGHT[env_id] * np.sum(np.square(action), axis=-1)}
-    if env_id == "Hopper-v5":  # recomputed from the stored positions
-        x_before, x_after = _numpy(data, "qpos")[..., 0], _numpy(nxt, "qpos")[..., 0]
-        terms["forward"] = FORWARD_WEIGHT * (x_after - x_before) / DT[env_id]
-    else:
-        # HalfCheetah stores no position, only Gymnasium's x_velocity; Ant's is the main body's xpos velocity,
-        # which lags qpos by a substep: the stored x_velocity (equal to Gymnasium's in the parity tests)
+    if env_id == "Ant-v5":
+        # the main body's xpos velocity, which lags qpos by a substep: the stored x_velocity (equal to
+        # Gymnasium's in the parity tests)
         terms["forward"] = FORWARD_WEIGHT * _numpy(nxt, "x_velocity")[..., 0]
+    else:  # Gymnasium's (qpos[0] after - qpos[0] before) / dt, from the stored positions
+        terms["forward"] = FORWARD_WEIGHT * (x_position(nxt) - x_position(data)) / DT[env_id]
     if env_id == "Ant-v5":
         forces = np.clip(_numpy(nxt, "cfrc_ext"), *ANT_CONTACT_FORCE_RANGE)
         terms["contact"] = -ANT_CONTACT_WEIGHT * np.sum(np.square(forces), axis=-1)
@@ -150,10 +162,9 @@ def check_episode_ends(env_id: str, data: TensorDictBase) -> dict[str, int]:
     assert torch.equal(next_count, step_count + 1)
     assert (next_count <= TIME_LIMIT).all()
     # continuity along time: an episode goes on from where it was, a new one starts at step count 0
-    state_key = "x_velocity" if env_id == "HalfCheetah-v5" else "qpos"
     flat = data.reshape(-1, data.shape[-1])
     ended = flat["next", "done"][:, :-1, 0]
-    state, previous_next_state = flat[state_key][:, 1:], flat["next", state_key][:, :-1]
+    state, previous_next_state = flat["observation"][:, 1:], flat["next", "observation"][:, :-1]
     same_state = (state == previous_next_state).all(-1)
     assert torch.equal(same_state, ~ended), "a state changed within an episode, or an ended one was continued"
     assert torch.equal(flat["step_count"][:, 1:, 0] == 0, ended)
@@ -173,10 +184,12 @@ def check_collected(env_id: str, data: TensorDictBase) -> dict[str, int]:
 # ------------------------------------------------------------------------ rollout and Collector
 #: (env_id, num_envs, steps): Hopper and Ant fall (partial resets), HalfCheetah reaches the time limit
 CASES = [("Hopper-v5", 4, 250), ("HalfCheetah-v5", 2, TIME_LIMIT + 20), ("Ant-v5", 3, 250)]
+#: Gymnasium keywords of the presets: HalfCheetah observes qpos[0], the forward term is recomputed from it
+KWARGS = {"HalfCheetah-v5": {"exclude_current_positions_from_observation": False}}
 
 
 def _collect(env_id: str, num_envs: int, steps: int, how: str) -> TensorDictBase:
-    env = gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched")
+    env = gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", **KWARGS.get(env_id, {}))
     assert isinstance(env.base_env, BatchedMujocoEnv)
     torch.manual_seed(0)
     if how == "rollout":
@@ -224,7 +237,7 @@ def test_checks_catch_a_wrong_reward_or_a_hidden_episode_end() -> None:
         with pytest.raises(AssertionError):
             check_episode_ends("Hopper-v5", hidden)
     skipped = data.clone()  # a reset that no end explains: the next step starts elsewhere
-    skipped["qpos"][1, 7] += 1e-3
+    skipped["observation"][1, 7] += 1e-3
     with pytest.raises(AssertionError, match="within an episode"):
         check_episode_ends("Hopper-v5", skipped)
 
@@ -236,30 +249,31 @@ def test_gymnasium_formulas_match_gymnasium_itself() -> None:
 
     rng = np.random.default_rng(0)
     for env_id in TERMS:
-        env = gymnasium.make(env_id)
-        env.reset(seed=0)
+        env = gymnasium.make(env_id, **KWARGS.get(env_id, {}))
+        observation, _ = env.reset(seed=0)
         data = env.unwrapped.data
         rows: list[dict[str, Any]] = []
         for _ in range(40):
-            before = {"x_position": data.qpos[:1].copy(), "qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+            before = {"observation": observation, "qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
             action = rng.uniform(env.action_space.low, env.action_space.high)
-            _, reward, terminated, _, info = env.step(action)
-            after = {"x_position": data.qpos[:1].copy(), "qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
+            observation, reward, terminated, _, info = env.step(action)
+            after = {"observation": observation, "qpos": data.qpos.copy(), "qvel": data.qvel.copy()}
             after["cfrc_ext"] = data.cfrc_ext.ravel().copy()
             after["x_velocity"] = np.array([info.get("x_velocity", 0.0)])
             rows.append({"before": before, "after": after, "action": action, "reward": reward, "info": info})
             rows[-1]["terminated"] = terminated
             if terminated:
-                env.reset()
+                observation, _ = env.reset()
 
         def stack(part: str, key: str, rows: list[dict[str, Any]] = rows) -> torch.Tensor:
             return torch.as_tensor(np.stack([row[part][key] for row in rows]))
 
+        keys = ("observation",) if env_id == "HalfCheetah-v5" else ("observation", "qpos", "qvel")
         transitions = TensorDict(
             {
                 "action": torch.as_tensor(np.stack([row["action"] for row in rows])),
-                **{key: stack("before", key) for key in ("x_position", "qpos", "qvel")},
-                "next": {key: stack("after", key) for key in ("x_position", "qpos", "qvel", "cfrc_ext", "x_velocity")},
+                **{key: stack("before", key) for key in keys},
+                "next": {key: stack("after", key) for key in (*keys, "cfrc_ext", "x_velocity")},
             },
             batch_size=[len(rows)],
         )
@@ -267,7 +281,7 @@ def test_gymnasium_formulas_match_gymnasium_itself() -> None:
         for name in TERMS[env_id]:
             np.testing.assert_allclose(expected[name], [row["info"][f"reward_{name}"] for row in rows], atol=1e-12)
         np.testing.assert_allclose(sum(expected.values()), [row["reward"] for row in rows], atol=1e-12)
-        healthy = gymnasium_healthy(env_id, transitions["next", "qpos"].numpy(), transitions["next", "qvel"].numpy())
+        healthy = stored_healthy(env_id, transitions["next"])
         np.testing.assert_array_equal(~healthy, [row["terminated"] for row in rows])
         env.close()
 
