@@ -670,7 +670,9 @@ class TaskTransform(Transform):
         return self._transition(tensordict, next_tensordict)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        init_state = self._read_state(tensordict_reset)
+        # a task without memory and without an achieved goal needs no state at reset (the step checks it)
+        needs_state = self._has_memory or self.achieved_goal_key is not None
+        init_state = self._read_state(tensordict_reset) if needs_state else None
         if self._has_memory:
             memory = self.task._reset(init_state, self._overrides(init_state))
             reset_mask = None if tensordict is None else tensordict.get("_reset", None)
@@ -678,13 +680,19 @@ class TaskTransform(Transform):
             if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
                 memory = where_memory(reset_mask.reshape(memory.batch_size), memory, old)
             tensordict_reset.set(self.memory_key, memory)
-        flags = torch.zeros(
-            (*init_state.shape[:-1], 1) if self.parent is None else self.parent.full_done_spec["done"].shape,
-            dtype=torch.bool,
-            device=init_state.device,
-        )
-        tensordict_reset.set(self.success_key, flags)
-        tensordict_reset.set(self.failure_key, flags.clone())
+        done = td_get(tensordict_reset, "done")  # the env's reset flags (TorchRL completes them before transforms)
+        if done is not None and done.dtype == torch.bool:
+            flags = torch.zeros_like(done)
+        else:
+            if init_state is None:
+                init_state = self._read_state(tensordict_reset)
+            flags = torch.zeros(
+                (*init_state.shape[:-1], 1) if self.parent is None else self.parent.full_done_spec["done"].shape,
+                dtype=torch.bool,
+                device=init_state.device,
+            )
+        td_set(tensordict_reset, self.success_key, flags)
+        td_set(tensordict_reset, self.failure_key, flags.clone())
         if self.achieved_goal_key is not None:
             tensordict_reset.set(self.achieved_goal_key, self._goal_slot.achieved(init_state))
         return tensordict_reset
