@@ -14,7 +14,7 @@ the batch layout and the minibatch size):
 - Env: ``gymnasium_env("HalfCheetah-v5", num_envs=N, seed=seed, num_threads=2)``, then
   ``VecNormV2`` on ``"observation"`` (running mean and variance of every observation collected,
   ``decay=1``, ``reduce_batch_dims=True``), ``ClipTransform`` to ±10 and ``DoubleToFloat``. The task
-  still reads the raw float64 state (``x_position``); only the policy's input is normalised.
+  still reads its raw float64 state entries (``x_velocity``); only the policy's input is normalised.
 - Rewards for learning are divided by the running standard deviation of the discounted return
   (:class:`ReturnScaler`, as Gymnasium's ``NormalizeReward``) and clipped to ±10. The returns that
   are logged are the task's rewards, unscaled: Gymnasium's episode return.
