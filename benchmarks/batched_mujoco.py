@@ -13,9 +13,10 @@ ratio compares numbers taken under the same machine load:
   substeps from the ``mjSTATE_FULLPHYSICS`` states of all envs per step (best of two chunk sizes).
   The floor is the faster of the two.
 - ``env``: ``BatchedMujocoEnv(...).rollout(steps, break_when_any_done=False)`` (random actions).
-- ``collector`` (the pipeline): a ``torchrl.collectors.Collector`` with ``policy=None`` (random
-  actions) and one torch thread over ``TransformedEnv(BatchedMujocoEnv(...), Compose(StepCounter(1000),
-  TaskTransform(locomotion_task(env_id), state_key=...), RewardSum()))``, the first batch not timed.
+- ``collector`` (the pipeline): a ``torchrl.collectors.Collector`` with uniform random actions
+  (:class:`UniformActions`, the policy of every Collector column) and one torch thread over
+  ``TransformedEnv(BatchedMujocoEnv(...), Compose(StepCounter(1000), TaskTransform(locomotion_task(env_id),
+  state_key=...), RewardSum()))``, the first batch not timed.
 
 and the peers (each can be left out with ``--skip``; one that cannot be imported is reported as
 "not installed" instead of measured):
@@ -74,6 +75,7 @@ import mujoco
 import numpy as np
 import torch
 from mujoco import rollout as mujoco_rollout
+from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEnv
 
@@ -192,8 +194,31 @@ def make_task_env(env_id: str, num_envs: int, num_threads: int) -> TransformedEn
     return TransformedEnv(base, Compose(StepCounter(1000), task, RewardSum()))
 
 
+class UniformActions(torch.nn.Module):
+    """The benchmarks' policy: actions drawn uniformly within the env's action bounds, one ``torch.rand`` per step.
+
+    Every Collector column uses it. ``policy=None`` (TorchRL's ``RandomPolicy``) would add ~0.3–0.5 ms per
+    step to every column: ``Composite.rand`` builds a TensorDict through ``from_dict``, which searches
+    the import path for pandas on every call (tensordict 0.14.3), a cost no user policy has.
+    """
+
+    def __init__(self, env: EnvBase) -> None:
+        super().__init__()
+        space = env.action_spec.space
+        self.register_buffer("low", torch.as_tensor(space.low).expand(env.action_spec.shape).clone())
+        self.register_buffer("width", torch.as_tensor(space.high).expand(env.action_spec.shape) - self.low)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return torch.rand(self.low.shape, dtype=self.low.dtype) * self.width + self.low
+
+
+def uniform_policy(env: EnvBase) -> TensorDictModule:
+    """:class:`UniformActions` for ``env`` as a TensorDictModule reading ``"observation"``, writing ``"action"``."""
+    return TensorDictModule(UniformActions(env), in_keys=["observation"], out_keys=["action"])
+
+
 def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int, steps: int) -> float:
-    """Frames/s of a Collector (random policy, one torch thread) over ``make_env()``; first batch untimed."""
+    """Frames/s of a Collector (uniform random actions, one torch thread) over ``make_env()``; first batch untimed."""
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
@@ -202,7 +227,14 @@ def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int,
         frames_per_batch = num_envs * steps_per_batch
         # endless (total_frames=-1) and stopped by hand: a collector that reaches total_frames closes the env
         # before it returns the last batch, which would time the env's close (seconds for a ParallelEnv)
-        data_collector = Collector(make_env(), policy=None, frames_per_batch=frames_per_batch, total_frames=-1)
+        env = make_env()
+        data_collector = Collector(
+            env,
+            policy=uniform_policy(env),
+            frames_per_batch=frames_per_batch,
+            total_frames=-1,
+            auto_register_policy_transforms=False,
+        )
         iterator = iter(data_collector)
         next(iterator)
         frames = 0
@@ -307,7 +339,13 @@ def preset_collector(env_id: str, num_envs: int, frames: int) -> dict[str, float
         batches = max(1, math.ceil(frames / frames_per_batch))
         started = time.perf_counter()
         env = gymnasium_env(env_id, num_envs=num_envs, backend="gymnasium", seed=0)
-        data_collector = Collector(env, policy=None, frames_per_batch=frames_per_batch, total_frames=-1)
+        data_collector = Collector(
+            env,
+            policy=uniform_policy(env),
+            frames_per_batch=frames_per_batch,
+            total_frames=-1,
+            auto_register_policy_transforms=False,
+        )
         iterator = iter(data_collector)
         next(iterator)
         startup = time.perf_counter() - started
@@ -438,7 +476,7 @@ def legend(num_threads: int, preset_envs: int) -> str:
             "the same repeat as the row's other columns; every ratio to the floor divides by the floor of its "
             "own repeat (the median ratio is shown).",
             f"- BatchedMujocoEnv alone: `BatchedMujocoEnv(env_id, N, num_threads={num_threads}).rollout(steps)`.",
-            "- pipeline: a `Collector` (random policy, one torch thread) over BatchedMujocoEnv + "
+            "- pipeline: a `Collector` (uniform random actions, one torch thread) over BatchedMujocoEnv + "
             "`StepCounter(1000)` + `TaskTransform(locomotion_task(env_id))` + `RewardSum()`.",
             f"- ParallelEnv preset: the same Collector over `gymnasium_env(env_id, num_envs={preset_envs}, "
             f'backend="gymnasium")` (a ParallelEnv of {preset_envs} spawned Gymnasium workers + StepCounter + '
