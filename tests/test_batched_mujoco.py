@@ -482,3 +482,29 @@ def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
     assert table.count("| Hopper-v5 | 2 |") == 1
     if module.peer_status("envpool_raw") is not None:
         assert "not installed (envpool)" in table
+
+
+def test_pipeline_costs_script_runs(tmp_path: Any) -> None:
+    """``benchmarks/pipeline_costs.py`` on a tiny case: every variant measured, the table written."""
+    import importlib.util
+    import json
+    import sys
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    sys.path.insert(0, str(folder))  # the script imports its helpers from batched_mujoco.py beside it
+    try:
+        spec = importlib.util.spec_from_file_location("pipeline_costs_benchmark", folder / "pipeline_costs.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(folder))
+    threads = torch.get_num_threads()
+    arguments = ["--cases", "Hopper-v5:2", "--repeats", "1", "--steps", "3", "--threads", "1"]
+    assert module.main([*arguments, "--output", str(tmp_path)]) == 0
+    assert torch.get_num_threads() == threads
+    (row,) = json.loads((tmp_path / "results.json").read_text())["rows"]
+    assert row["env_id"] == "Hopper-v5" and row["num_envs"] == 2
+    assert set(row["frames_per_second"]) == set(module.VARIANTS)
+    assert all(value > 0 for value in row["frames_per_second"].values())
+    assert "| Hopper-v5 × 2 |" in (tmp_path / "results.md").read_text()
