@@ -34,6 +34,7 @@ from torchrl.objectives.value import GAE
 from tqdm import tqdm
 
 from torchtasks.envs import PendulumEnv
+from torchtasks.stats import episode_statistics
 from torchtasks.tasks import Task
 from torchtasks.transforms import TaskTransform
 
@@ -295,15 +296,20 @@ def ppo_update(
 
 
 def episode_stats(batch: TensorDictBase) -> dict[str, float | None]:
-    """Success rate and mean episode reward of the episodes that ended in a training batch (None if none)."""
-    nxt = batch["next"]
-    ended = nxt["done"]
-    count = int(ended.sum())
+    """Success rate and mean episode reward of the episodes that ended in a training batch (None if none).
+
+    The count and the success rate are :func:`~torchtasks.stats.episode_statistics` of the batch (the
+    task's own flags). The reward is RewardSum's sum at each episode's last frame: a batch of 32 steps
+    holds few whole episodes, and ``episode_statistics`` sums only those.
+    """
+    stats = episode_statistics(batch)
+    count = int(stats["episodes"])
     if count == 0:
         return {"train_success_rate": None, "train_episode_reward": None, "train_episodes": 0}
+    nxt = batch["next"]
     return {
-        "train_success_rate": nxt["success"][ended].float().mean().item(),
-        "train_episode_reward": nxt["episode_reward"][ended].mean().item(),
+        "train_success_rate": stats["success_rate"],
+        "train_episode_reward": nxt["episode_reward"][nxt["done"]].mean().item(),
         "train_episodes": count,
     }
 
