@@ -217,6 +217,21 @@ def uniform_policy(env: EnvBase) -> TensorDictModule:
     return TensorDictModule(UniformActions(env), in_keys=["observation"], out_keys=["action"])
 
 
+def endless_collector(env: EnvBase, frames_per_batch: int) -> Collector:
+    """A Collector over ``env`` with :func:`uniform_policy`, endless (``total_frames=-1``): stopped by hand.
+
+    A collector that reaches ``total_frames`` closes the env before it returns the last batch, which
+    would time the env's close (seconds for a ParallelEnv).
+    """
+    return Collector(
+        env,
+        policy=uniform_policy(env),
+        frames_per_batch=frames_per_batch,
+        total_frames=-1,
+        auto_register_policy_transforms=False,
+    )
+
+
 def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int, steps: int) -> float:
     """Frames/s of a Collector (uniform random actions, one torch thread) over ``make_env()``; first batch untimed."""
     threads = torch.get_num_threads()
@@ -225,16 +240,7 @@ def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int,
         steps_per_batch = max(1, min(steps, 100))
         batches = max(1, steps // steps_per_batch)
         frames_per_batch = num_envs * steps_per_batch
-        # endless (total_frames=-1) and stopped by hand: a collector that reaches total_frames closes the env
-        # before it returns the last batch, which would time the env's close (seconds for a ParallelEnv)
-        env = make_env()
-        data_collector = Collector(
-            env,
-            policy=uniform_policy(env),
-            frames_per_batch=frames_per_batch,
-            total_frames=-1,
-            auto_register_policy_transforms=False,
-        )
+        data_collector = endless_collector(make_env(), frames_per_batch)
         iterator = iter(data_collector)
         next(iterator)
         frames = 0
@@ -339,13 +345,7 @@ def preset_collector(env_id: str, num_envs: int, frames: int) -> dict[str, float
         batches = max(1, math.ceil(frames / frames_per_batch))
         started = time.perf_counter()
         env = gymnasium_env(env_id, num_envs=num_envs, backend="gymnasium", seed=0)
-        data_collector = Collector(
-            env,
-            policy=uniform_policy(env),
-            frames_per_batch=frames_per_batch,
-            total_frames=-1,
-            auto_register_policy_transforms=False,
-        )
+        data_collector = endless_collector(env, frames_per_batch)
         iterator = iter(data_collector)
         next(iterator)
         startup = time.perf_counter() - started

@@ -168,6 +168,19 @@ def _number(value: float) -> str:
     return "0" if value == 0 else f"{value:.1e}"
 
 
+def _row_name(row: object, producer: str, entries: set[str]) -> str:
+    """Check one row of ``producer``'s results and return its table name: the env id and its keywords."""
+    if not isinstance(row, Mapping):
+        raise TypeError(f"rows must be {producer} results (mappings), got {type(row).__name__}")
+    missing = {"env", "seeds", "steps", "max_abs_term_diff", *entries} - set(row)
+    if missing:
+        raise ValueError(f"a row lacks the {producer} entries {sorted(missing)}")
+    name = row["env"]
+    if row.get("kwargs"):
+        name += " (" + ", ".join(f"{key}={value!r}" for key, value in row["kwargs"].items()) + ")"
+    return name
+
+
 def format_parity_table(rows: Iterable[Mapping[str, Any]]) -> str:
     """Render :func:`check_parity` results as a Markdown table (one row per result).
 
@@ -188,14 +201,7 @@ def format_parity_table(rows: Iterable[Mapping[str, Any]]) -> str:
     )
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     for row in rows:
-        if not isinstance(row, Mapping):
-            raise TypeError(f"rows must be check_parity results (mappings), got {type(row).__name__}")
-        missing = {"env", "seeds", "steps", "max_abs_reward_diff", "max_abs_term_diff"} - set(row)
-        if missing:
-            raise ValueError(f"a row lacks the check_parity entries {sorted(missing)}")
-        name = row["env"]
-        if row.get("kwargs"):
-            name += " (" + ", ".join(f"{key}={value!r}" for key, value in row["kwargs"].items()) + ")"
+        name = _row_name(row, "check_parity", {"max_abs_reward_diff"})
         terms = row["max_abs_term_diff"]
         cells = [
             name,
@@ -601,14 +607,7 @@ def format_batched_parity_table(rows: Iterable[Mapping[str, Any]], tolerance: fl
     )
     lines = [header, "|" + "---|" * (header.count("|") - 1)]
     for row in rows:
-        if not isinstance(row, Mapping):
-            raise TypeError(f"rows must be check_batched_parity results (mappings), got {type(row).__name__}")
-        missing = {"env", "seeds", "steps", "max_abs_diff", "max_abs_term_diff"} - set(row)
-        if missing:
-            raise ValueError(f"a row lacks the check_batched_parity entries {sorted(missing)}")
-        name = row["env"]
-        if row.get("kwargs"):
-            name += " (" + ", ".join(f"{key}={value!r}" for key, value in row["kwargs"].items()) + ")"
+        name = _row_name(row, "check_batched_parity", {"max_abs_diff"})
         differences, terms = row["max_abs_diff"], row["max_abs_term_diff"]
         cells = [
             name,
