@@ -8,9 +8,9 @@ from collections.abc import Sequence
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from torchtasks.envs._specs import set_box_env_specs
 from torchtasks.rewards import CompoundReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import FinalRewardTask, RadiallySymmetricDesiredStateTask, Task, proximity_succeeded
@@ -94,19 +94,7 @@ class PendulumEnv(EnvBase):
         self.dtype_ = dtype
         self.rng = torch.Generator(device=self.device or "cpu")
         self._set_seed(seed)
-        batch = self.batch_size
-        self.observation_spec = Composite(
-            observation=Unbounded(shape=(*batch, 2), dtype=dtype, device=self.device), shape=batch
-        )
-        self.action_spec = Bounded(
-            low=-self.max_torque, high=self.max_torque, shape=(*batch, 1), dtype=dtype, device=self.device
-        )
-        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=dtype, device=self.device)
-        self.done_spec = Composite(
-            done=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
-            terminated=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
-            shape=batch,
-        )
+        set_box_env_specs(self, state_size=2, action_size=1, action_bound=self.max_torque, dtype=dtype)
 
     def _sample_state(self) -> torch.Tensor:
         shape = (*self.batch_size, 2)
