@@ -7,10 +7,8 @@ import math
 from collections.abc import Sequence
 
 import torch
-from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
 
-from torchtasks.envs._specs import set_box_env_specs
+from torchtasks.envs._state_env import StateEnv
 from torchtasks.rewards import CompoundReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import FinalRewardTask, RadiallySymmetricDesiredStateTask, Task, proximity_succeeded
@@ -45,7 +43,7 @@ def pendulum_dynamics(
     return torch.stack((theta + dt * speed, speed), dim=-1)
 
 
-class PendulumEnv(EnvBase):
+class PendulumEnv(StateEnv):
     """A batch of torque-limited pendulums simulated in torch, for swing-up tasks (see :func:`swing_up_task`).
 
     The observation is the raw state ``[θ, θ̇]`` (θ = 0 upright, not wrapped). The env pays no
@@ -70,8 +68,6 @@ class PendulumEnv(EnvBase):
         torch.Size([3, 2])
     """
 
-    batch_locked = True
-
     def __init__(
         self,
         batch_size: Sequence[int] | torch.Size = (),
@@ -85,16 +81,20 @@ class PendulumEnv(EnvBase):
         dtype: torch.dtype = torch.float32,
         seed: int | None = None,
     ) -> None:
-        super().__init__(batch_size=torch.Size(batch_size), device=device)
+        super().__init__(
+            batch_size,
+            state_size=2,
+            action_size=1,
+            action_bound=float(max_torque),
+            dtype=dtype,
+            device=device,
+            seed=seed,
+        )
         self.dt = float(dt)
         self.max_torque = float(max_torque)
         self.max_speed = float(max_speed)
         self.init_angle = float(init_angle)
         self.init_speed = float(init_speed)
-        self.dtype_ = dtype
-        self.rng = torch.Generator(device=self.device or "cpu")
-        self._set_seed(seed)
-        set_box_env_specs(self, state_size=2, action_size=1, action_bound=self.max_torque, dtype=dtype)
 
     def _sample_state(self) -> torch.Tensor:
         shape = (*self.batch_size, 2)
@@ -102,38 +102,9 @@ class PendulumEnv(EnvBase):
         scale = torch.tensor([self.init_angle, self.init_speed], dtype=self.dtype_, device=self.rng.device)
         return ((2 * uniform - 1) * scale).to(self.device or "cpu")
 
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
-        state = self._sample_state()
-        if tensordict is not None and "_reset" in tensordict.keys() and "observation" in tensordict.keys():
-            reset = tensordict.get("_reset").reshape(*self.batch_size, 1)
-            state = torch.where(reset, state, tensordict.get("observation"))
-        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
-        return TensorDict(
-            {"observation": state, "done": flags, "terminated": flags.clone()},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
-
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        state = tensordict.get("observation")
-        torque = tensordict.get("action").clamp(-self.max_torque, self.max_torque)
-        next_state = pendulum_dynamics(state, torque, dt=self.dt, max_speed=self.max_speed)
-        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
-        return TensorDict(
-            {
-                "observation": next_state,
-                "reward": state.new_zeros((*self.batch_size, 1)),
-                "done": flags,
-                "terminated": flags.clone(),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
-
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is None:
-            seed = int(torch.empty((), dtype=torch.int64).random_().item())
-        self.rng.manual_seed(seed)
+    def _next_state(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        torque = action.clamp(-self.max_torque, self.max_torque)
+        return pendulum_dynamics(state, torque, dt=self.dt, max_speed=self.max_speed)
 
 
 def swing_up_task(

@@ -5,10 +5,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import EnvBase
 
-from torchtasks.envs._specs import set_box_env_specs
+from torchtasks.envs._state_env import StateEnv
 
 __all__ = ["PointMassEnv", "point_mass_dynamics"]
 
@@ -42,7 +40,7 @@ def point_mass_dynamics(
     return torch.cat((clamped, velocity), dim=-1)
 
 
-class PointMassEnv(EnvBase):
+class PointMassEnv(StateEnv):
     """A batch of force-driven 2-D point masses in a box, simulated in torch, for goal-reaching tasks.
 
     The observation is the raw state ``[x, y, vx, vy]``; the action is a 2-D force, clipped to
@@ -71,7 +69,6 @@ class PointMassEnv(EnvBase):
         torch.Size([3, 4])
     """
 
-    batch_locked = True
     #: the names of the state entries (for ``EnvSpec``/``MaskedTask`` selections)
     labels = ("x", "y", "vx", "vy")
 
@@ -87,55 +84,30 @@ class PointMassEnv(EnvBase):
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
     ) -> None:
-        super().__init__(batch_size=torch.Size(batch_size), device=device)
         if not (dt > 0 and max_force > 0 and damping >= 0 and bound > 0):
             raise ValueError(
                 f"PointMassEnv needs dt > 0, max_force > 0, damping >= 0 and bound > 0, got dt={dt}, "
                 f"max_force={max_force}, damping={damping}, bound={bound}"
             )
+        super().__init__(
+            batch_size,
+            state_size=4,
+            action_size=2,
+            action_bound=float(max_force),
+            dtype=dtype,
+            device=device,
+            seed=seed,
+        )
         self.dt = float(dt)
         self.max_force = float(max_force)
         self.damping = float(damping)
         self.bound = float(bound)
-        self.dtype_ = dtype
-        self.rng = torch.Generator(device=self.device or "cpu")
-        self._set_seed(seed)
-        set_box_env_specs(self, state_size=4, action_size=2, action_bound=self.max_force, dtype=dtype)
 
     def _sample_state(self) -> torch.Tensor:
         uniform = torch.rand((*self.batch_size, 2), generator=self.rng, device=self.rng.device, dtype=self.dtype_)
         position = (2 * uniform - 1) * self.bound
         return torch.cat((position, torch.zeros_like(position)), dim=-1).to(self.device or "cpu")
 
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
-        state = self._sample_state()
-        if tensordict is not None and "_reset" in tensordict.keys() and "observation" in tensordict.keys():
-            reset = tensordict.get("_reset").reshape(*self.batch_size, 1)
-            state = torch.where(reset, state, tensordict.get("observation"))
-        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
-        return TensorDict(
-            {"observation": state, "done": flags, "terminated": flags.clone()},
-            batch_size=self.batch_size,
-            device=self.device,
-        )
-
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        state = tensordict.get("observation")
-        force = tensordict.get("action").clamp(-self.max_force, self.max_force)
-        next_state = point_mass_dynamics(state, force, dt=self.dt, damping=self.damping, bound=self.bound)
-        flags = torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=state.device)
-        return TensorDict(
-            {
-                "observation": next_state,
-                "reward": state.new_zeros((*self.batch_size, 1)),
-                "done": flags,
-                "terminated": flags.clone(),
-            },
-            batch_size=self.batch_size,
-            device=self.device,
-        )
-
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is None:
-            seed = int(torch.empty((), dtype=torch.int64).random_().item())
-        self.rng.manual_seed(seed)
+    def _next_state(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        force = action.clamp(-self.max_force, self.max_force)
+        return point_mass_dynamics(state, force, dt=self.dt, damping=self.damping, bound=self.bound)

@@ -1,0 +1,95 @@
+"""The base of the batched torch envs (pendulum, point mass): the observation is the state, nothing ends by itself."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+
+class StateEnv(EnvBase):
+    """A batch of simulated systems whose observation is their raw state, stepped as one tensor.
+
+    Subclasses give the initial-state distribution (:meth:`_sample_state`) and the dynamics
+    (:meth:`_next_state`); this class holds the specs (``observation [*B, state_size]``, an action
+    in ``±action_bound`` of ``[*B, action_size]``, ``done``/``terminated`` flags), the env's own
+    random generator, partial resets (only the entries of ``"_reset"`` get a new state) and a step
+    that pays no reward and ends no episode: the task on the env does both.
+    """
+
+    batch_locked = True
+
+    def __init__(
+        self,
+        batch_size: Sequence[int] | torch.Size,
+        *,
+        state_size: int,
+        action_size: int,
+        action_bound: float,
+        dtype: torch.dtype,
+        device: torch.device | str | None,
+        seed: int | None,
+    ) -> None:
+        super().__init__(batch_size=torch.Size(batch_size), device=device)
+        self.dtype_ = dtype
+        self.rng = torch.Generator(device=self.device or "cpu")
+        self._set_seed(seed)
+        batch = self.batch_size
+        self.observation_spec = Composite(
+            observation=Unbounded(shape=(*batch, state_size), dtype=dtype, device=self.device), shape=batch
+        )
+        self.action_spec = Bounded(
+            low=-action_bound, high=action_bound, shape=(*batch, action_size), dtype=dtype, device=self.device
+        )
+        self.reward_spec = Unbounded(shape=(*batch, 1), dtype=dtype, device=self.device)
+        self.done_spec = Composite(
+            done=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
+            terminated=Categorical(2, shape=(*batch, 1), dtype=torch.bool, device=self.device),
+            shape=batch,
+        )
+
+    def _sample_state(self) -> torch.Tensor:
+        """Initial states of the whole batch, ``[*B, state_size]``, drawn with ``self.rng``."""
+        raise NotImplementedError
+
+    def _next_state(self, state: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The states after one step from ``state`` with ``action`` (clipping the action is the subclass's)."""
+        raise NotImplementedError
+
+    def _flags(self, reference: torch.Tensor) -> torch.Tensor:
+        return torch.zeros((*self.batch_size, 1), dtype=torch.bool, device=reference.device)
+
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs: object) -> TensorDictBase:
+        state = self._sample_state()
+        if tensordict is not None and "_reset" in tensordict.keys() and "observation" in tensordict.keys():
+            reset = tensordict.get("_reset").reshape(*self.batch_size, 1)
+            state = torch.where(reset, state, tensordict.get("observation"))
+        flags = self._flags(state)
+        return TensorDict(
+            {"observation": state, "done": flags, "terminated": flags.clone()},
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        state = tensordict.get("observation")
+        next_state = self._next_state(state, tensordict.get("action"))
+        flags = self._flags(state)
+        return TensorDict(
+            {
+                "observation": next_state,
+                "reward": state.new_zeros((*self.batch_size, 1)),
+                "done": flags,
+                "terminated": flags.clone(),
+            },
+            batch_size=self.batch_size,
+            device=self.device,
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is None:
+            seed = int(torch.empty((), dtype=torch.int64).random_().item())
+        self.rng.manual_seed(seed)
