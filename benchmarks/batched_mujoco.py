@@ -232,6 +232,15 @@ def endless_collector(env: EnvBase, frames_per_batch: int) -> Collector:
     )
 
 
+def _timed_batches(iterator: Any, batches: int) -> tuple[int, float]:
+    """Draw ``batches`` batches from a collector's iterator: ``(frames, seconds)``."""
+    frames = 0
+    started = time.perf_counter()
+    for _ in range(batches):
+        frames += next(iterator).numel()
+    return frames, time.perf_counter() - started
+
+
 def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int, steps: int) -> float:
     """Frames/s of a Collector (uniform random actions, one torch thread) over ``make_env()``; first batch untimed."""
     threads = torch.get_num_threads()
@@ -243,11 +252,7 @@ def _collector_frames_per_second(make_env: Callable[[], EnvBase], num_envs: int,
         data_collector = endless_collector(make_env(), frames_per_batch)
         iterator = iter(data_collector)
         next(iterator)
-        frames = 0
-        started = time.perf_counter()
-        for _ in range(batches):
-            frames += next(iterator).numel()
-        elapsed = time.perf_counter() - started
+        frames, elapsed = _timed_batches(iterator, batches)
         data_collector.shutdown()
     finally:
         torch.set_num_threads(threads)
@@ -349,11 +354,7 @@ def preset_collector(env_id: str, num_envs: int, frames: int) -> dict[str, float
         iterator = iter(data_collector)
         next(iterator)
         startup = time.perf_counter() - started
-        counted = 0
-        started = time.perf_counter()
-        for _ in range(batches):
-            counted += next(iterator).numel()
-        elapsed = time.perf_counter() - started
+        counted, elapsed = _timed_batches(iterator, batches)
         data_collector.shutdown()
     finally:
         torch.set_num_threads(threads)
