@@ -181,3 +181,8 @@ def test_her_relabelled_batches_carry_the_tasks_reward_success_and_episode_end()
     assert torch.equal(out.success, batch["next", "success"][..., 0])
     assert torch.equal(out.terminated, batch["next", "terminated"][..., 0])
     assert torch.equal(out.done, batch["next", "done"][..., 0])
+    # the rest of the relabelled transition too: the breakdown adds up to the reward, the next memory is the task's
+    torch.testing.assert_close(
+        batch["next", "task_reward", "step"] + batch["next", "task_reward", "final"], batch["next", "reward"]
+    )
+    assert (batch["next", "task"] == out.memory).all()

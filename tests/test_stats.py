@@ -15,16 +15,19 @@ from pathlib import Path
 import pytest
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
+from torch import nn
 from torchrl.collectors import Collector
 from torchrl.collectors.utils import split_trajectories
 from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter, TransformedEnv
 from torchrl.record import CSVLogger
 
-from torchtasks.envs import PendulumEnv
-from torchtasks.rewards import CompoundReward, QuadraticErrorReward
+from torchtasks.commands import GoalCommand
+from torchtasks.envs import PendulumEnv, PointMassEnv
+from torchtasks.rewards import CompoundReward, ConstantReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
-from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
+from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
 
 MAX_STEPS = 8
 TERMS = ("step", "final", "track", "effort")
@@ -111,10 +114,8 @@ def reference_statistics(data: TensorDictBase, *, use_step_count: bool = True, g
             episode["length"] = data["next", "step_count"][e, t].item() if use_step_count else frames
             episode["complete"] = known_start
             episode["returns"] = dict(returns)
-            if goal is not None:
-                episode["distance"] = math.dist(
-                    _item(data, ("next", *goal[0]), e, t), _item(data, ("next", goal[1]), e, t)
-                )
+            if goal is not None:  # the goal at the root (the one that judged the step), the achieved one after it
+                episode["distance"] = math.dist(_item(data, goal[0], e, t), _item(data, ("next", goal[1]), e, t))
             ended.append(episode)
             known_start, frames, returns = True, 0, dict.fromkeys(returns, 0.0)
 
@@ -186,9 +187,14 @@ def test_rollout_matches_the_loop(data: TensorDictBase) -> None:
 def test_goal_distance(data: TensorDictBase) -> None:
     stats = episode_statistics(data, goal_key=GOAL, achieved_goal_key="observation")
     assert_same(stats, reference_statistics(data, goal=(GOAL, "observation")))
-    # read at the root when the goal is not under "next" (the memory before the step holds the same goal)
-    at_root = data.exclude(("next", "task"))
-    assert episode_statistics(at_root, goal_key=GOAL, achieved_goal_key="observation") == stats
+    # the goal is read at the root and the achieved goal under "next", never the other way round
+    with pytest.raises(KeyError, match=r"goal_key=.*looked at the root"):
+        episode_statistics(data.exclude(GOAL), goal_key=GOAL, achieved_goal_key="observation")
+    with pytest.raises(KeyError, match=r"achieved_goal_key='observation'.*looked under 'next'"):
+        episode_statistics(data.exclude(("next", "observation")), goal_key=GOAL, achieved_goal_key="observation")
+    # a ("next", ...) key is read as written (here the memory after the step holds the same desired state)
+    after = episode_statistics(data.exclude(GOAL), goal_key=("next", *GOAL), achieved_goal_key=("next", "observation"))
+    assert after == stats
 
 
 def test_several_env_dims_and_time_dim(data: TensorDictBase) -> None:
@@ -290,6 +296,118 @@ def test_flat_collector_batch(collector_batches: list[TensorDictBase]) -> None:
                 assert stats["episodes"] == episode_statistics(flat)["episodes"]
                 holes += 1
     assert holes > 0
+
+
+# --------------------------------------------------------------------------------------------------
+# Goals from a GoalCommand: the final distance is to the goal that judged the last step
+# --------------------------------------------------------------------------------------------------
+
+GOAL_RADIUS = 0.1  # success: the point mass within this distance of its goal
+MAX_FORCE = 4.0
+
+
+def reach_task() -> FinalRewardTask:
+    """-1 per step until the point mass is within GOAL_RADIUS of the goal; success ends the episode."""
+    inf = float("inf")
+    states = Box([-1.0, -1.0, -inf, -inf], [1.0, 1.0, inf, inf], labels=PointMassEnv.labels)
+    spec = EnvSpec(states, Box([-MAX_FORCE] * 2, [MAX_FORCE] * 2))
+    near = functools.partial(proximity_succeeded, threshold=GOAL_RADIUS)
+    reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), success=near)
+    return FinalRewardTask(MaskedTask(spec, reach, ["x", "y"]), factor=10.0)
+
+
+class NoisyReacher(nn.Module):
+    """A PD controller towards the goal the policy sees, with Gaussian noise: some episodes succeed, some time out."""
+
+    def forward(self, observation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        force = 8.0 * (goal - observation[..., :2]) - observation[..., 2:] + torch.randn_like(goal)
+        return force.clamp(-MAX_FORCE, MAX_FORCE)
+
+
+def make_goal_env(seed: int = 0) -> TransformedEnv:
+    """Point masses whose goal is redrawn after every success and when a 5-15 step timer runs out; 30-step limit."""
+    from torchtasks.transforms import TaskTransform
+
+    command = GoalCommand(Box([-0.7, -0.7], [0.7, 0.7]), resample_steps=(5, 15), resample_on_success=True, seed=seed)
+    return TransformedEnv(
+        PointMassEnv(batch_size=[8], max_force=MAX_FORCE, seed=seed),
+        Compose(
+            StepCounter(30), TaskTransform(reach_task(), goal_key="goal", achieved_goal_key="achieved_goal"), command
+        ),
+    )
+
+
+def reacher() -> TensorDictModule:
+    return TensorDictModule(NoisyReacher(), in_keys=["observation", "goal"], out_keys=["action"])
+
+
+@pytest.fixture(scope="module")
+def goal_batches() -> list[TensorDictBase]:
+    """An env.rollout [8, 100] and four Collector batches [8, 20] (these start in the middle of episodes)."""
+    torch.manual_seed(0)
+    with torch.no_grad():
+        rollout_data = make_goal_env().rollout(100, reacher(), break_when_any_done=False)
+    threads = torch.get_num_threads()
+    torch.manual_seed(1)
+    collector = Collector(
+        functools.partial(make_goal_env, 1), reacher(), frames_per_batch=160, total_frames=640, split_trajs=False
+    )
+    try:
+        batches = [batch.clone() for batch in collector]
+    finally:
+        collector.shutdown()
+        torch.set_num_threads(threads)
+    return [rollout_data, *batches]
+
+
+def test_final_goal_distance_is_to_the_goal_that_judged_the_last_step(goal_batches: list[TensorDictBase]) -> None:
+    """Issue 22, item 4: under "next" of an episode's last frame is the goal drawn for the step after it."""
+    task = reach_task()
+    redrawn = {"success": 0, "timeout": 0}
+    for batch in goal_batches:
+        nxt = batch["next"]
+        # the goal at the root is the one the task judged the step with: its verdicts are the stored ones
+        out = task.transition(
+            batch["observation"], batch["action"], nxt["observation"], batch["task"], goal=batch["goal"]
+        )
+        assert torch.equal(out.success, nxt["success"][..., 0])
+        # the final distance of every ended episode, by hand, from the stored next state and that goal
+        distances, successes = [], []
+        envs, steps = batch.shape
+        for e in range(envs):
+            for t in range(steps):
+                if not nxt["done"][e, t].item():
+                    continue
+                distance = math.dist(nxt["observation"][e, t, :2].tolist(), batch["goal"][e, t].tolist())
+                success = bool(nxt["success"][e, t].item())
+                assert not success or distance < GOAL_RADIUS, (e, t, distance)
+                distances.append(distance)
+                successes.append(success)
+                if not torch.equal(nxt["goal"][e, t], batch["goal"][e, t]):  # the command drew the next goal
+                    redrawn["success" if success else "timeout"] += 1
+        stats = episode_statistics(batch, goal_key="goal", achieved_goal_key="achieved_goal")
+        assert stats["episodes"] == len(distances) > 0
+        assert stats["final_goal_distance_mean"] == pytest.approx(sum(distances) / len(distances), rel=1e-6)
+        assert stats["success_rate"] == pytest.approx(sum(successes) / len(successes))
+    # the data holds both cases of the issue: goals redrawn after a success and by a timer on the last step
+    assert redrawn["success"] >= 5 and redrawn["timeout"] >= 2, redrawn
+
+
+def test_final_goal_distance_of_successful_episodes(goal_batches: list[TensorDictBase]) -> None:
+    """The episodes that ended in success, selected by trajectory id: all of them within the success radius."""
+    checked = 0
+    for batch in goal_batches[1:]:
+        flat = batch.reshape(-1)
+        traj_ids = flat["collector", "traj_ids"]
+        ends = flat["next", "done"][..., 0] & flat["next", "success"][..., 0]
+        successful = flat[torch.isin(traj_ids, traj_ids[ends])]
+        if not ends.any():
+            continue
+        stats = episode_statistics(successful, goal_key="goal", achieved_goal_key="achieved_goal")
+        assert stats["success_rate"] == 1.0
+        assert stats["final_goal_distance_mean"] < GOAL_RADIUS
+        checked += 1
+    assert checked >= 2
 
 
 # --------------------------------------------------------------------------------------------------

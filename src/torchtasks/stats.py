@@ -54,11 +54,8 @@ class _Frames:
         self.count = self.rows * self.steps
 
     def get(self, key: tuple[str, ...], *, where: str = "next") -> torch.Tensor | None:
-        """The entry ``("next", *key)`` (``where="next"``), ``key`` (``"root"``) or the first of both found
-        (``"either"``) as ``[F, *rest]``; None when missing."""
-        value = self.batch.get(("next", *key), None) if where in ("next", "either") else None
-        if value is None and where in ("root", "either"):
-            value = self.batch.get(key, None)
+        """The entry ``("next", *key)`` (``where="next"``) or ``key`` (``"root"``) as ``[F, *rest]``, or None."""
+        value = self.batch.get(("next", *key) if where == "next" else key, None)
         if value is None:
             return None
         if isinstance(value, TensorDictBase):
@@ -189,15 +186,24 @@ def episode_statistics(
     - ``episode_length_mean``: transitions per episode.
     - ``return_mean`` and ``return_mean/<term>`` for every entry of the breakdown (TaskTransform writes
       ``step``, ``final`` and one per named reward term; nested names are joined with ``/``).
-    - ``final_goal_distance_mean`` (with ``goal_key`` and ``achieved_goal_key``): the L2 distance
-      between the goal and the achieved goal at the last frame of every ended episode, read under
-      ``"next"`` (or at the root when not there).
+    - ``final_goal_distance_mean`` (with ``goal_key`` and ``achieved_goal_key``): the mean over the
+      ended episodes of the L2 distance between the goal that judged the episode's last step and the
+      goal achieved by it. The goal is read at the root of the last frame: the goal of step ``t``,
+      the one the policy saw and the one ``TaskTransform(goal_key=...)`` passed to the task (under
+      ``"next"`` is the goal of the step after, which a :class:`~torchtasks.commands.GoalCommand`
+      may already have redrawn: after a success with ``resample_on_success``, or when its timer ran
+      out in that step). The achieved goal is read under ``"next"`` (that of ``s_{t+1}``, as
+      ``TaskTransform(achieved_goal_key=...)`` writes it).
 
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
         reward_key, success_key, failure_key, terms_key: entries under ``"next"``; ``None`` skips the
             statistics that need one. A key that is given but missing raises ``KeyError``.
-        goal_key, achieved_goal_key: entries ``[*B, k]`` holding the goal and the achieved goal.
+        goal_key, achieved_goal_key: entries ``[*B, k]`` holding the goal (read at the root) and the
+            achieved goal (read under ``"next"``). A key that starts with ``"next"`` is read as
+            written: a goal carried in the task memory is the one the step was judged with in the
+            memory after the step (e.g. ``("next", "task", "wrapped", "state_des")``; the memory at
+            the root holds the previous step's goal when a ``goal_key`` feeds the task).
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
 
@@ -261,9 +267,9 @@ def _statistics(
             returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
     goals = None
     if keys["goal_key"] is not None:
-        goals = (
-            _required_vector(frames, keys["goal_key"], "goal_key"),
-            _required_vector(frames, keys["achieved_goal_key"], "achieved_goal_key"),
+        goals = (  # the goal that judged step t, and the goal achieved by it
+            _required_vector(frames, keys["goal_key"], "goal_key", where="root"),
+            _required_vector(frames, keys["achieved_goal_key"], "achieved_goal_key", where="next"),
         )
         if goals[0].shape != goals[1].shape:
             raise ValueError(
@@ -353,11 +359,15 @@ def _mean(values: torch.Tensor) -> torch.Tensor:
     return values.to(torch.float64).mean()
 
 
-def _required_vector(frames: _Frames, key: tuple[str, ...], name: str) -> torch.Tensor:
-    value = frames.get(key, where="either")
+def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where: str) -> torch.Tensor:
+    """The entry ``key`` at the root or under ``"next"`` (``where``) as ``[F, k]``; a ``("next", ...)`` key as is."""
+    if key[0] == "next":
+        where = "root"
+    value = frames.get(key, where=where)
     if value is None:
+        place = "at the root" if where == "root" else "under 'next'"
         raise KeyError(
-            f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked under "
-            f"'next' and at the root); available keys are {_keys_text(frames.batch)}"
+            f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked {place}); "
+            f"available keys are {_keys_text(frames.batch)}"
         )
     return value.reshape(frames.count, -1)

@@ -615,12 +615,17 @@ class TaskTransform(Transform):
         return done, terminated.reshape(batch), truncated, has_terminated
 
     def _transition(
-        self, tensordict: TensorDictBase, next_tensordict: TensorDictBase, *, offline: bool = False
+        self,
+        tensordict: TensorDictBase,
+        next_tensordict: TensorDictBase,
+        *,
+        offline: bool = False,
+        write_memory: bool | None = None,
     ) -> TensorDictBase:
         """Evaluate the task on one batch of transitions and write its outputs into ``next_tensordict``.
 
         The evaluation is :meth:`Task._transition`, the function behind :meth:`Task.transition`.
-        Offline, the stored next memory is left as it was.
+        Offline, the stored next memory is left as it was, unless ``write_memory`` (:meth:`relabel`).
         """
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
@@ -655,7 +660,7 @@ class TaskTransform(Transform):
         if has_terminated:
             td_set(next_tensordict, "terminated", terminated.reshape(shape))
         td_set(next_tensordict, "done", done_now.reshape(shape))
-        if not offline and self._has_memory:
+        if (not offline if write_memory is None else write_memory) and self._has_memory:
             td_set(next_tensordict, self.memory_key, memory)
         if not offline and self.achieved_goal_key is not None:
             td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
@@ -745,10 +750,31 @@ class TaskTransform(Transform):
         TorchRL's ``HERReplayBuffer`` writes a relabelled goal into a sampled batch and asks its
         ``reward_fn`` for the new reward only; but where reaching the goal ends the episode, the
         relabelled transition's ``success``, ``terminated`` and ``done`` change too, and bootstrapping
-        with the stored ones is wrong. This function writes the task's ``success``, ``failure``,
-        ``terminated``, ``done`` and reward breakdown for the goal now in the data into the batch, in
-        place (so into the buffer's sampled batch), keeping truncation and the env's own termination,
-        and returns the reward ``[*B, 1]``. Use it as
+        with the stored ones is wrong. This function judges every transition of the batch anew for the
+        goal now in the data (``goal_key`` at the root, or the desired state in the memory at the root
+        without a ``goal_key``), through the same evaluation as the online step, and writes everything
+        the online step derives from the goal into ``"next"``, so that the batch is consistent in every
+        entry it holds (``reward == step + final``, ``done == terminated | truncated``):
+
+        - ``reward`` (cast to the stored reward's dtype and ``[*B, 1]`` shape), ``success``,
+          ``failure``, ``terminated`` (the env's own termination OR-ed with the new verdict) and
+          ``done`` (that OR-ed with the truncation);
+        - the reward breakdown (:attr:`term_keys`: ``step``, ``final``, the named terms);
+        - the task memory after the step (``memory_key``): it carries the goal the step was judged with
+          and the latches the step sets (e.g. a final reward's "paid").
+
+        Entries are overwritten in place (``copy_``), so a view of a larger batch (the slice the
+        buffer hands to its ``reward_fn``) is rewritten too; an entry the batch lacks is added.
+        Left as stored: the inputs (states, action, the memory and the goal at the root, the goal and
+        the achieved goal under ``"next"``), ``truncated`` and ``step_count``, and running sums over
+        the episode such as ``RewardSum``'s ``episode_reward``: each transition is judged on its own,
+        from the memory stored before it, and a sampled batch holds no earlier frames to sum (recount
+        them with :func:`~torchtasks.stats.episode_statistics`, which sums the rewards). In a
+        relabelled trajectory an episode may now end before the stored one did; its later frames
+        keep their stored step counts. An env termination that coincided with an old success or
+        failure cannot be told from it and is judged anew (see :meth:`forward`).
+
+        Returns the reward ``[*B, 1]`` (equal to the one written). Use it as
         ``HERReplayBuffer(reward_fn=transform.relabel, goal_key=<this transform's goal_key>,
         achieved_goal_key=...)``.
 
@@ -770,16 +796,28 @@ class TaskTransform(Transform):
             >>> reward = transform.relabel(data)
             >>> bool(data["next", "success"].all()), bool(data["next", "done"].all())
             (True, True)
+            >>> torch.equal(data["next", "reward"], reward), bool((reward == 0).all())
+            (True, True)
         """
         next_tensordict = self._offline_next(tensordict)
         work = next_tensordict.copy()
-        self._transition(tensordict, work, offline=True)
-        keys = [self.success_key, self.failure_key, "terminated", "done", *self._term_keys]
-        for key in keys:
+        self._transition(tensordict, work, offline=True, write_memory=True)
+        for key in self._relabelled_keys():
+            value = work.get(key, None)
+            if value is None:  # "terminated" in data that has only "done"
+                continue
             stored = next_tensordict.get(key, None)
-            if stored is not None:
-                stored.copy_(work.get(key))
+            if stored is None:
+                next_tensordict.set(key, value)
+            else:
+                stored.copy_(value)
         return work.get(self.reward_key)
+
+    def _relabelled_keys(self) -> list[NestedKey]:
+        """The ``"next"`` entries :meth:`relabel` rewrites: every output of the step that depends on the goal."""
+        memory_keys = [self.memory_key] if self._has_memory else []
+        flags = [self.success_key, self.failure_key, "terminated", "done"]
+        return [self.reward_key, *flags, *self._term_keys, *memory_keys]
 
     def __repr__(self) -> str:
         name = type(self.task).__name__
