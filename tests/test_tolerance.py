@@ -115,6 +115,140 @@ def test_gradients_are_finite_everywhere_and_nonzero_where_the_sigmoid_slopes(si
         assert (grad != 0).all(), (sigmoid, bounds, grad)
 
 
+# ----------------------------------------- issue 22, item 6: tiny value_at_margin, margin=0, x = ±inf
+# values at and beyond ±inf, huge finite ones (whose distance or scaled distance overflows), the bounds, inside
+FAR = [-math.inf, -1e308, -1e30, -3.0, -1.0, -0.5, 0.0, 0.75, 1.0, 1.2, 4.0, 1e30, 1e308, math.inf]
+
+
+def _assert_equals_dm_control(got: torch.Tensor, x: np.ndarray, bounds, margin, sigmoid: str, value: float) -> None:
+    with np.errstate(all="ignore"):  # dm_control's own inf * 0, inf / inf and cosh overflows
+        expected = dm_rewards.tolerance(x, bounds=bounds, margin=margin, sigmoid=sigmoid, value_at_margin=value)
+    # dm_control's values in float64 (to 1e-12, as the grids above), exactly at x = ±inf, and NaN exactly where
+    # dm_control's is NaN (inf / inf with an infinite margin, 0 * inf with an infinite scale)
+    got = got.detach().numpy()
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12, err_msg=str((sigmoid, value, bounds, margin)))
+    exact = np.isnan(expected) | np.isinf(x)
+    np.testing.assert_array_equal(got[exact], expected[exact], err_msg=str((sigmoid, value, bounds, margin)))
+
+
+@pytest.mark.parametrize("value", [1.1e-16, 1e-17, 1e-100, 1e-300, 5e-324])
+def test_tanh_squared_with_value_at_margin_below_1e_16_equals_dm_control(value: float) -> None:
+    # 1 - value rounds to 1 below ~1.1e-16: atanh(1) raised a bare "math domain error"; dm_control (numpy) gets an
+    # infinite scale: 0 outside the bounds, 1 inside (and NaN where the distance over the margin is 0 outside)
+    for bounds, margin in itertools.product(BOUNDS, [*MARGINS, 1e-10, 1e10, math.inf]):
+        x = torch.tensor(FAR, dtype=torch.float64, requires_grad=True)
+        y = tolerance(x, bounds=bounds, margin=margin, sigmoid="tanh_squared", value_at_margin=value)
+        _assert_equals_dm_control(y, np.array(FAR), bounds, margin, "tanh_squared", value)
+        (grad,) = torch.autograd.grad(y.sum(), x)
+        assert torch.isfinite(grad).all(), (value, bounds, margin, grad)
+    x = torch.tensor(GRID)
+    _assert_equals_dm_control(
+        tolerance(x, (-1.0, 1.0), 0.5, "tanh_squared", value), GRID, (-1.0, 1.0), 0.5, "tanh_squared", value
+    )
+    reward = ToleranceReward(bounds=(-1.0, 1.0), margin=0.5, sigmoid="tanh_squared", value_at_margin=value)
+    _assert_equals_dm_control(reward(x[:, None], None), GRID, (-1.0, 1.0), 0.5, "tanh_squared", value)
+
+
+def test_tanh_squared_keeps_dm_controls_value_errors() -> None:
+    x = torch.zeros(3, dtype=torch.float64)
+    for bad in (0.0, -1e-300, 1.0):
+        with pytest.raises(ValueError, match="value_at_1"):
+            tolerance(x, (0.0, 1.0), 1.0, "tanh_squared", bad)
+        with pytest.raises(ValueError, match="value_at_1"):
+            dm_rewards.tolerance(np.zeros(3) + 5, (0.0, 1.0), 1.0, "tanh_squared", bad)
+
+
+@pytest.mark.parametrize("sigmoid", ["hyperbolic", "long_tail", "reciprocal"])
+def test_subnormal_value_at_margin_infinite_scale_equals_dm_control_with_finite_gradients(sigmoid: str) -> None:
+    # 1 / 5e-324 overflows: an infinite scale as for tanh_squared above, whose d * inf had a NaN gradient
+    for bounds, margin in itertools.product(BOUNDS, [0.3, 1.0, math.inf]):
+        x = torch.tensor(FAR, dtype=torch.float64, requires_grad=True)
+        y = tolerance(x, bounds=bounds, margin=margin, sigmoid=sigmoid, value_at_margin=5e-324)
+        _assert_equals_dm_control(y, np.array(FAR), bounds, margin, sigmoid, 5e-324)
+        (grad,) = torch.autograd.grad(y.sum(), x)
+        assert torch.isfinite(grad).all(), (sigmoid, bounds, margin, grad)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_margin_zero_output_is_on_the_graph_with_zero_gradients(dtype: torch.dtype) -> None:
+    # the 0/1 indicator was built from constants only: no grad_fn, so backward() raised
+    for bounds in BOUNDS:
+        x = torch.tensor([*FAR, math.nan], dtype=dtype, requires_grad=True)
+        lower = torch.tensor(bounds[0], dtype=dtype, requires_grad=True)
+        upper = torch.tensor(bounds[1], dtype=dtype, requires_grad=True)
+        for sigmoid in SIGMOIDS:
+            y = tolerance(x, bounds=(lower, upper), margin=0, sigmoid=sigmoid)
+            assert y.requires_grad
+            expected = dm_rewards.tolerance(x.detach().double().numpy(), bounds=bounds, margin=0.0)  # NaN x: 0
+            np.testing.assert_array_equal(y.detach().double().numpy(), expected)
+            y.sum().backward()
+            for grad in (x.grad, lower.grad, upper.grad):
+                assert grad is not None and torch.equal(grad, torch.zeros_like(grad)), (bounds, sigmoid, grad)
+            x.grad = lower.grad = upper.grad = None
+    x = torch.tensor([-2.0, 0.5, 3.0], dtype=dtype, requires_grad=True)
+    tolerance(x, bounds=(0.0, 1.0)).sum().backward()  # margin=0 is the default
+    assert torch.equal(x.grad, torch.zeros_like(x))
+
+
+@pytest.mark.parametrize("sigmoid", SIGMOIDS)
+def test_infinite_and_huge_x_equal_dm_control_with_finite_gradients(sigmoid: str) -> None:
+    # at x = ±inf (and where distance / margin or its scaled value overflows) the sigmoids' derivatives were
+    # 0 * inf = NaN, and cos(pi * z) of the cosine NaN where pi * z overflows
+    margins = [0.3, 1.0, 2.5, 1e-10, 1e10, math.inf]
+    for value, bounds, margin in itertools.product(_values_at_margin(sigmoid), BOUNDS, margins):
+        x = torch.tensor(FAR, dtype=torch.float64, requires_grad=True)
+        y = tolerance(x, bounds=bounds, margin=margin, sigmoid=sigmoid, value_at_margin=value)
+        _assert_equals_dm_control(y, np.array(FAR), bounds, margin, sigmoid, value)
+        (grad,) = torch.autograd.grad(y.sum(), x)
+        assert torch.isfinite(grad).all(), (value, bounds, margin, grad)
+        assert grad[0] == 0 and grad[-1] == 0, (value, bounds, margin, grad)  # flat at ±inf
+    # tensor bounds and margins (per entry): finite gradients for x, the bounds and the margin
+    x = torch.tensor(FAR, dtype=torch.float64, requires_grad=True)
+    lower = torch.tensor([-1.0, -math.inf] * 7, dtype=torch.float64, requires_grad=True)
+    upper = torch.tensor([1.0, 1.0, math.inf, 0.5] * 3 + [1.0, 1.0], dtype=torch.float64, requires_grad=True)
+    margin = torch.tensor([0.0, 0.5, 2.0, math.inf, 1.0, 1e-3, 7.0] * 2, dtype=torch.float64, requires_grad=True)
+    value = _values_at_margin(sigmoid)[1]
+    y = tolerance(x, bounds=(lower, upper), margin=margin, sigmoid=sigmoid, value_at_margin=value)
+    for i, point in enumerate(FAR):
+        with np.errstate(all="ignore"):
+            expected = dm_rewards.tolerance(point, (lower[i].item(), upper[i].item()), margin[i].item(), sigmoid, value)
+        got = y[i].item()
+        assert abs(got - expected) <= 1e-12 or (math.isnan(expected) and math.isnan(got)), (i, got, expected)
+    y.sum().backward()
+    for grad in (x.grad, lower.grad, upper.grad, margin.grad):
+        assert torch.isfinite(grad).all(), (sigmoid, grad)
+
+
+@pytest.mark.parametrize("sigmoid", SIGMOIDS)
+def test_infinite_x_in_float32_is_right_with_finite_gradients(sigmoid: str) -> None:
+    # float32 too, with value_at_margin whose scale overflows float32 (long_tail, reciprocal at 1e-300)
+    values = [*_values_at_margin(sigmoid), 1e-300] if sigmoid not in COMPACT else _values_at_margin(sigmoid)
+    for value, bounds in itertools.product(values, BOUNDS):
+        x = torch.tensor(FAR, dtype=torch.float32, requires_grad=True)
+        y = tolerance(x, bounds=bounds, margin=1.0, sigmoid=sigmoid, value_at_margin=value)
+        with np.errstate(all="ignore"):
+            expected = dm_rewards.tolerance(x.detach().double().numpy(), bounds, 1.0, sigmoid, value)
+        np.testing.assert_allclose(y.detach().double().numpy(), expected, rtol=0, atol=1e-6)
+        (grad,) = torch.autograd.grad(y.sum(), x)
+        assert torch.isfinite(grad).all(), (value, bounds, grad)
+
+
+def test_the_new_paths_compile_with_fullgraph() -> None:
+    x = torch.tensor(FAR, dtype=torch.float64)
+    for args in [
+        ((-1.0, 1.0), 0.0, "gaussian", 0.1),
+        ((-1.0, 1.0), 1.0, "tanh_squared", 1e-17),
+        ((0.5, math.inf), 1.0, "cosine", 0.0),
+    ]:
+        compiled = torch.compile(lambda t, args=args: tolerance(t, *args), fullgraph=True, backend="aot_eager")
+        a, b = x.clone().requires_grad_(), x.clone().requires_grad_()
+        y = compiled(a)
+        torch.testing.assert_close(y, tolerance(b, *args), equal_nan=True)
+        y.sum().backward()
+        tolerance(b, *args).sum().backward()
+        assert torch.isfinite(a.grad).all() and torch.equal(a.grad, b.grad)
+
+
 # -------------------------------------------------------------------------------------------- errors
 def test_errors_are_dm_controls() -> None:
     x = torch.zeros(3, dtype=torch.float64)

@@ -5,9 +5,9 @@
 ``value_at_margin`` at a distance ``margin`` from the nearest bound (0 outside when ``margin == 0``).
 It has the semantics and the argument names of ``dm_control.utils.rewards.tolerance``, which
 dm_control, MuJoCo Playground and Meta-World build their rewards from, and works on tensors of any
-shape, with per-entry (per-env) bounds and margins, on any device, differentiably (finite gradients
-everywhere, also at the bounds, at the ends of the compact sigmoids and with infinite bounds) and
-under ``torch.compile(fullgraph=True)``.
+shape, with per-entry (per-env) bounds and margins, on any device, differentiably (the output is always on
+the graph, with finite gradients for every non-NaN input: see :func:`tolerance`) and under
+``torch.compile(fullgraph=True)``.
 """
 
 from __future__ import annotations
@@ -63,11 +63,26 @@ def _scale(sigmoid: str, value_at_1: float) -> float:
         return 1 - value_at_1
     if sigmoid == "quadratic":
         return math.sqrt(1 - value_at_1)
-    return math.atanh(math.sqrt(1 - value_at_1))  # tanh_squared
+    # tanh_squared: below ~1.1e-16, 1 - value_at_1 rounds to 1 and atanh(1) is infinite; numpy's arctanh
+    # (dm_control's) returns inf, math.atanh raises a bare "math domain error"
+    root = math.sqrt(1 - value_at_1)
+    return math.inf if root >= 1 else math.atanh(root)
 
 
 def _sigmoid(d: torch.Tensor, sigmoid: str, scale: float) -> torch.Tensor:
-    """The sigmoid of a distance ``d >= 0`` (in units of the margin), written so gradients stay finite."""
+    """The sigmoid of a distance ``d >= 0`` (in units of the margin), written so gradients stay finite.
+
+    ``d * scale`` must not overflow where the result is used (:func:`_tolerance` sets such distances aside).
+    """
+    if scale > torch.finfo(d.dtype).max:
+        # a value_at_margin so small that the scale is infinite (tanh_squared below ~1.1e-16: atanh(1) = inf;
+        # hyperbolic, long_tail and reciprocal below ~5.6e-309: 1 / value_at_margin overflows), or beyond
+        # d's dtype (long_tail, reciprocal in float32). dm_control's sigmoid of d * scale is then 0 for d > 0,
+        # and at d == 0 1 (a finite scale) or NaN (0 * inf); the same values, without d * inf (whose gradient is
+        # 0 * inf = NaN), NaN for a NaN d, and on d's graph with a zero gradient
+        zero = torch.zeros((), dtype=d.dtype, device=d.device)
+        at_zero = torch.full((), math.nan if math.isinf(scale) else 1.0, dtype=d.dtype, device=d.device)
+        return torch.where(d > 0, zero, at_zero) + d * 0
     z = d * scale
     if sigmoid == "gaussian":
         return torch.exp(-0.5 * z * z)
@@ -83,7 +98,9 @@ def _sigmoid(d: torch.Tensor, sigmoid: str, scale: float) -> torch.Tensor:
         return 1 - torch.tanh(z) ** 2
     inside = z.abs() < 1
     zero = torch.zeros((), dtype=z.dtype, device=z.device)
-    # the compact sigmoids: the formula is finite everywhere, so where() passes finite gradients
+    # the compact sigmoids: z is set to 0 outside *before* the formula, so that where() passes finite gradients
+    # also where pi * z overflows (cos and sin of inf are NaN)
+    z = torch.where(inside, z, zero)
     if sigmoid == "cosine":
         return torch.where(inside, (1 + torch.cos(math.pi * z)) / 2, zero)
     if sigmoid == "linear":
@@ -116,18 +133,30 @@ def _tolerance(
     in_bounds = (lower <= x) & (x <= upper)
     one = torch.ones((), dtype=x.dtype, device=x.device)
     zero = torch.zeros((), dtype=x.dtype, device=x.device)
-    if isinstance(margin, (int, float)) and margin == 0:
-        return torch.where(in_bounds, one, zero).expand(torch.broadcast_shapes(in_bounds.shape, x.shape))
-    # distance to the nearest bound; inside the bounds it is replaced by 0 *before* the sigmoid, so
-    # that no infinite distance (an infinite bound) reaches a sigmoid and its gradient
     distance = torch.where(x < lower, lower - x, x - upper)
-    distance = torch.where(in_bounds, zero, distance)
+    if isinstance(margin, (int, float)) and margin == 0:
+        # the 0/1 indicator, plus a zero built from the distance so the output stays on the graph of x and of
+        # the bounds (backward works, gradients 0); nan_to_num keeps the zero exact and its gradient 0 at ±inf/NaN
+        return torch.where(in_bounds, one, zero) + distance.nan_to_num(0.0, 0.0, 0.0) * 0
+    positive: torch.Tensor | None = None
     if isinstance(margin, torch.Tensor):
         positive = margin > 0
-        d = distance / torch.where(positive, margin, one)
-        value = torch.where(positive, _sigmoid(d, sigmoid, scale), zero)
+        margin = torch.where(positive, margin, one)
+    # Inside the bounds, and where the distance or the scaled distance is infinite (x = ±inf beyond a finite
+    # bound, or an overflow), the distance is replaced by 0 *before* the division and the sigmoid, whose
+    # derivatives there would be 0 * inf = NaN (the "double where"); those far entries get the sigmoid's limit:
+    # 0, or NaN for inf / inf (x = ±inf with an infinite margin) as dm_control's (the compact sigmoids give 0).
+    raw = distance / margin
+    far = torch.isinf(distance) | torch.isinf(raw * scale)
+    distance = torch.where(in_bounds | far, zero, distance)
+    value = _sigmoid(distance / margin, sigmoid, scale)
+    if sigmoid in _COMPACT:
+        far_value = zero
     else:
-        value = _sigmoid(distance / margin, sigmoid, scale)
+        far_value = torch.where(torch.isnan(raw), torch.full((), math.nan, dtype=x.dtype, device=x.device), zero)
+    value = torch.where(far, far_value, value)
+    if positive is not None:
+        value = torch.where(positive, value, zero)
     return torch.where(in_bounds, one, value)
 
 
@@ -154,7 +183,22 @@ def tolerance(
 
     Returns:
         a tensor of the broadcast shape of ``x``, the bounds and the margin, in ``x``'s dtype and device,
-        with values in ``[0, 1]``.
+        with values in ``[0, 1]``; NaN only where dm_control's value is NaN too: for a NaN ``x`` (with
+        ``margin > 0``; the compact sigmoids give 0), for ``x = ±inf`` beyond a finite bound with an infinite
+        margin (inf / inf; the compact sigmoids give 0), and outside the bounds where the distance over the
+        margin is exactly 0 (an infinite margin, or an underflow) when the sigmoid's scale is infinite
+        (``tanh_squared`` with ``value_at_margin`` below ~1.1e-16, ``hyperbolic``, ``long_tail`` and
+        ``reciprocal`` below ~5.6e-309: dm_control's 0 * inf).
+
+    Note:
+        Gradients. The output is on the graph of ``x``, the bounds and a tensor margin even where it is
+        constant (also for ``margin=0``), so ``backward()`` always works. For every non-NaN ``x``, finite or
+        infinite bounds, margins in ``[0, inf]`` and every allowed ``value_at_margin``, the gradients with
+        respect to ``x`` and the bounds are finite: 0 where the output is flat (inside the bounds, with ``margin=0``, at
+        ``x = ±inf``, where the sigmoid's argument overflows, and everywhere with an infinite scale), and one
+        of the one-sided derivatives at the bounds and at the ends of the compact sigmoids. The gradient with
+        respect to a tensor margin is finite as well, unless ``distance / margin**2`` overflows the dtype (a
+        margin tiny against the distance, which autograd's division rule then turns into 0 * inf).
 
     Raises:
         ValueError: as dm_control: ``lower > upper``, a negative margin, ``value_at_margin`` outside the
