@@ -20,6 +20,7 @@ in float64: with a float32 action Gymnasium computes its control cost in float32
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import warnings
@@ -302,11 +303,59 @@ def test_a_diverged_state_ends_the_episode_instead_of_mujocos_silent_reset(steps
 
 
 @pytest.mark.parametrize(
+    ("value", "error", "message"),
+    [
+        (-1, ValueError, "reset_noise_scale must be non-negative, got -1"),
+        (math.nan, ValueError, "reset_noise_scale must be finite, got nan"),
+        (math.inf, ValueError, "reset_noise_scale must be finite, got inf"),
+        ("0.1", TypeError, "reset_noise_scale must be a real number, got '0.1'"),
+        (None, TypeError, "reset_noise_scale must be a real number, got None"),
+    ],
+)
+def test_reset_noise_scale_is_checked_at_construction(value: Any, error: type[Exception], message: str) -> None:
+    """Before, -1 and NaN were accepted and '0.1' failed at the first reset with numpy's message."""
+    builders = {
+        "BatchedMujocoEnv": lambda: BatchedMujocoEnv("Hopper-v5", 2, reset_noise_scale=value),
+        "gymnasium_env batched": lambda: gymnasium_env("Hopper-v5", num_envs=2, reset_noise_scale=value),
+        "gymnasium_env gymnasium": lambda: gymnasium_env("Hopper-v5", reset_noise_scale=value),
+        "locomotion_task": lambda: locomotion_task("Hopper-v5", reset_noise_scale=value),
+    }
+    for name, build in builders.items():
+        with pytest.raises(error) as caught:
+            build()
+        assert message in str(caught.value), name
+
+
+def test_reset_noise_scale_accepts_zero_and_numpy_numbers() -> None:
+    env = BatchedMujocoEnv("Hopper-v5", 2, seed=0, reset_noise_scale=np.float64(0.0))
+    qpos = env.reset()["qpos"]
+    torch.testing.assert_close(qpos, torch.as_tensor(env.init_qpos).expand(2, -1), rtol=0, atol=0)
+    env.close()
+
+
+def test_numpy_integers_are_accepted_as_num_envs_everywhere() -> None:
+    """Before, gymnasium_env rejected num_envs=np.int64(2) while BatchedMujocoEnv accepted it."""
+    env = BatchedMujocoEnv("Swimmer-v5", np.int64(2), num_threads=np.int32(1))
+    assert env.batch_size == (2,) and type(env.num_envs) is int and type(env.num_threads) is int
+    env.close()
+    preset = gymnasium_env("Swimmer-v5", num_envs=np.int64(2), frame_skip=np.int64(2), num_threads=1)
+    assert preset.batch_size == (2,) and preset.base_env.frame_skip == 2
+    preset.close()
+    parallel = gymnasium_env("Swimmer-v5", num_envs=np.int64(2), backend="gymnasium")
+    assert parallel.batch_size == (2,)  # not started: no worker is spawned here
+    with pytest.raises(TypeError, match=r"num_envs must be a positive int, got 2\.0"):
+        gymnasium_env("Swimmer-v5", num_envs=2.0)
+
+
+@pytest.mark.parametrize(
     ("kwargs", "error", "match"),
     [
         ({"num_envs": 0}, ValueError, "num_envs"),
-        ({"num_envs": True}, ValueError, "num_envs"),
+        ({"num_envs": True}, TypeError, "num_envs"),
+        ({"num_envs": 2.0}, TypeError, "num_envs"),
         ({"num_threads": 0}, ValueError, "num_threads"),
+        ({"num_threads": np.float64(2)}, TypeError, "num_threads"),
+        ({"frame_skip": True}, TypeError, "frame_skip"),
         ({"seed": "0"}, TypeError, "seed"),
         ({"render_mode": "rgb_array"}, ValueError, "render"),
         ({"no_such_keyword": 1}, TypeError, "no_such_keyword"),

@@ -341,7 +341,7 @@ def test_bad_arguments_are_rejected_by_name(env_id: Any, kwargs: dict[str, Any],
 def test_gymnasium_env_rejects_bad_num_envs_and_seed() -> None:
     with pytest.raises(ValueError, match="num_envs"):
         gymnasium_env("Swimmer-v5", num_envs=0)
-    with pytest.raises(ValueError, match="num_envs"):
+    with pytest.raises(TypeError, match="num_envs"):
         gymnasium_env("Swimmer-v5", num_envs=True)
     with pytest.raises(TypeError, match="seed"):
         gymnasium_env("Swimmer-v5", seed="0")
@@ -382,8 +382,11 @@ def test_float64_info_reader_reshapes_scalars_and_fills_missing_entries() -> Non
     assert reader({}, TensorDict())["qpos"].tolist() == [0.0, 0.0, 0.0]
     assert reader.info_spec["qpos"].shape == (3,)
     assert reader.info_spec["qpos"].dtype == torch.float64
-    with pytest.raises(ValueError, match="sizes"):
+    with pytest.raises(ValueError, match="the layout size of 'qpos' must be a positive int, got 0"):
         Float64InfoReader({"qpos": 0})
+    with pytest.raises(TypeError, match="the layout size of 'qpos' must be a positive int"):
+        Float64InfoReader({"qpos": 2.0})
+    assert Float64InfoReader({"qpos": np.int64(3)}).layout == {"qpos": 3}
     with pytest.raises(TypeError, match="layout"):
         Float64InfoReader({})
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 FLOAT64 = torch.float64
@@ -77,6 +78,19 @@ def check_index(index: object, name: str) -> int:
     if isinstance(index, bool) or not isinstance(index, int):
         raise TypeError(f"{name} must be an int, got {index!r}")
     return index
+
+
+def check_positive_int(value: object, name: str) -> int:
+    """Return ``value`` as a Python int; raise unless it is an integer >= 1.
+
+    Python ints and NumPy integers (``np.int64(2)``, e.g. from an array of sizes) are accepted; bools,
+    floats (also integral ones such as ``2.0``) and strings are not.
+    """
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+        raise TypeError(f"{name} must be a positive int, got {value!r} of type {type(value).__name__}")
+    if value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+    return int(value)
 
 
 def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -36,6 +36,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from torchtasks._checks import check_positive_int
 from torchtasks._optional import missing_extra
 
 try:
@@ -71,12 +72,6 @@ _SKIPPED_POSITIONS = {
 _NORMAL_VELOCITY_NOISE = ("HalfCheetah-v5", "Ant-v5")
 #: Hopper and Walker2d clip the observed velocities to this bound
 _VELOCITY_CLIP = 10.0
-
-
-def _check_positive_int(value: object, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive int, got {value!r}")
-    return int(value)
 
 
 def _default_threads() -> int:
@@ -133,7 +128,8 @@ class BatchedMujocoEnv(EnvBase):
         num_threads: threads that step the envs (the calling thread included); default: the CPUs
             this process may use, at most ``num_envs``.
         **gym_kwargs: the env's Gymnasium keyword arguments (validated as by
-            :func:`~torchtasks.envs.locomotion.locomotion_task`). Rendering is not supported.
+            :func:`~torchtasks.envs.locomotion.locomotion_task`, e.g. ``reset_noise_scale`` must be a
+            finite, non-negative number). Rendering is not supported.
 
     Example:
         >>> from torchtasks.envs import BatchedMujocoEnv
@@ -159,9 +155,9 @@ class BatchedMujocoEnv(EnvBase):
         **gym_kwargs: Any,
     ) -> None:
         config = _config(env_id, gym_kwargs)
-        num_envs = _check_positive_int(num_envs, "num_envs")
+        num_envs = check_positive_int(num_envs, "num_envs")
         num_threads = min(
-            _default_threads() if num_threads is None else _check_positive_int(num_threads, "num_threads"), num_envs
+            _default_threads() if num_threads is None else check_positive_int(num_threads, "num_threads"), num_envs
         )
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise TypeError(f"seed must be an int or None, got {seed!r}")

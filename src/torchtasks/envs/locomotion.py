@@ -52,7 +52,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
-from torchtasks._checks import check_finite_scalar
+from torchtasks._checks import check_finite_scalar, check_positive_int
 from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
@@ -152,15 +152,15 @@ def _config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, Any]:
         "healthy_state_range": _check_pair,
         "contact_force_range": _check_pair,
         "contact_cost_range": _check_pair,
+        # Gymnasium's resets draw uniform(-scale, scale): checked here, not at the first reset by numpy
+        "reset_noise_scale": _check_weight,
     }
     for name, check in checks.items():
         if name in config:
             config[name] = check(config[name], name)
     if "terminate_when_unhealthy" in config and not isinstance(config["terminate_when_unhealthy"], (bool, np.bool_)):
         raise TypeError(f"terminate_when_unhealthy must be a bool, got {config['terminate_when_unhealthy']!r}")
-    frame_skip = config["frame_skip"]
-    if isinstance(frame_skip, bool) or not isinstance(frame_skip, (int, np.integer)) or frame_skip < 1:
-        raise ValueError(f"frame_skip must be a positive int, got {frame_skip!r}")
+    check_positive_int(config["frame_skip"], "frame_skip")
     return config
 
 
@@ -418,12 +418,11 @@ class Float64InfoReader(default_info_dict_reader):
     def __init__(self, layout: Mapping[str, int]) -> None:
         if not isinstance(layout, Mapping) or not layout:
             raise TypeError(f"layout must be a non-empty mapping {{info key: size}}, got {layout!r}")
+        self.layout: dict[str, int] = {}
         for key, size in layout.items():
             if not isinstance(key, str):
                 raise TypeError(f"layout keys must be strings, got {key!r}")
-            if isinstance(size, bool) or not isinstance(size, int) or size < 1:
-                raise ValueError(f"layout sizes must be positive ints, got {size!r} for {key!r}")
-        self.layout = dict(layout)
+            self.layout[key] = check_positive_int(size, f"the layout size of {key!r}")
         spec = Composite(
             {key: Unbounded(shape=(size,), dtype=torch.float64) for key, size in self.layout.items()}, shape=()
         )
@@ -533,8 +532,7 @@ def gymnasium_env(
         torch.Size([2, 3, 1])
     """
     config = _config(env_id, gym_kwargs)
-    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
-        raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+    num_envs = check_positive_int(num_envs, "num_envs")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
         raise TypeError(f"seed must be an int or None, got {seed!r}")
     if backend is None:
