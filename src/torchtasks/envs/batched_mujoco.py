@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import os
 import warnings
-from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -57,6 +56,14 @@ _DIVERGENCE_WARNINGS = (
 )
 #: what one ``mj_getState`` call gathers per env: ``[time, qpos, qvel]``
 _STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
+#: what a copy or a pickle of the env keeps of each ``MjData``: everything ``mj_step`` starts from (time, qpos,
+#: qvel, act, the constraint solver's warm start, ctrl, applied forces, mocap, ...), so a copy continues the
+#: same trajectory bit for bit
+_INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+#: attributes rebuilt when a copy or a pickle is restored: the thread pool (threads cannot be copied), the
+#: MjData (restored from their integration state on the one MjModel) and the gather buffers with the
+#: observation plan (numpy views of each other, which a copy would turn into independent arrays)
+_REBUILT = ("_pool", "datas", "_state", "_readers", "_observation_plan", "_entry_sources", "_position", "_mass_weights")
 #: envs whose state layout reads the external contact forces (Gymnasium calls mj_rnePostConstraint for them)
 _CONTACT_ENVS = ("Ant-v5", "Humanoid-v5")
 #: leading qpos entries Gymnasium drops from the observation with exclude_current_positions_from_observation
@@ -113,6 +120,11 @@ class BatchedMujocoEnv(EnvBase):
     both end with ``terminated = done = True`` and a ``RuntimeWarning``, and the next reset starts a
     fresh episode. Gymnasium would continue silently from MuJoCo's reset state.
 
+    ``copy.deepcopy(env)`` and ``pickle`` give an independent env in the same state (MuJoCo states
+    with the solver's warm start, generators, episode clocks) with its own threads: stepped with
+    the same actions, it continues the same trajectories bit for bit. After ``env.close()`` (which
+    stops the threads) stepping or resetting raises a ``RuntimeError``.
+
     Resets draw Gymnasium v5's initial state distribution of ``env_id`` (``init_qpos`` plus uniform
     noise of half-width ``reset_noise_scale``, ``init_qvel`` plus uniform or, for HalfCheetah and
     Ant, normal noise), from one numpy generator per env (``np_random``, spawned from
@@ -124,7 +136,8 @@ class BatchedMujocoEnv(EnvBase):
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
         num_envs: number of environments.
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
-        device: device of the output tensors (the simulation runs on the CPU).
+        device: device of the output tensors (the simulation runs on the CPU); ``env.to(device)``
+            moves them.
         num_threads: threads that step the envs (the calling thread included); default: the CPUs
             this process may use, at most ``num_envs``.
         **gym_kwargs: the env's Gymnasium keyword arguments (validated as by
@@ -192,13 +205,9 @@ class BatchedMujocoEnv(EnvBase):
                 f"{observation_size}; this Gymnasium version is not supported by BatchedMujocoEnv"
             )
         self._chunks = [(int(c[0]), int(c[-1]) + 1) for c in np.array_split(np.arange(num_envs), num_threads)]
-        self._pool = ThreadPoolExecutor(num_threads - 1, "batched-mujoco") if num_threads > 1 else None
-        to_device = self.device is not None and self.device != torch.device("cpu")
-        self._to_torch: Callable[[np.ndarray], torch.Tensor] = (
-            (lambda array: torch.from_numpy(array).to(self.device, non_blocking=True))
-            if to_device
-            else torch.from_numpy
-        )
+        self._closed = False
+        self._pool: ThreadPoolExecutor | None = None
+        self._start_threads()
         self._make_specs(facts)
         self.np_random: list[np.random.Generator] = []
         self._set_seed(seed)
@@ -268,6 +277,11 @@ class BatchedMujocoEnv(EnvBase):
             "x_velocity": None,
         }
 
+    def _start_threads(self) -> None:
+        """Start the pool of ``num_threads - 1`` threads (the calling thread steps the first share itself)."""
+        if self.num_threads > 1:
+            self._pool = ThreadPoolExecutor(self.num_threads - 1, "batched-mujoco")
+
     def _make_specs(self, facts: _ModelFacts) -> None:
         n, device = self.num_envs, self.device
         batch = torch.Size([n])
@@ -320,6 +334,12 @@ class BatchedMujocoEnv(EnvBase):
         for future in futures:
             future.result()
 
+    def _forward(self, data: mujoco.MjData) -> None:
+        """Recompute what depends on the state (``mj_forward``, and the contact forces where Gymnasium reads them)."""
+        mujoco.mj_forward(self.model, data)
+        if self._rne:
+            mujoco.mj_rnePostConstraint(self.model, data)
+
     def _reset_env(self, i: int) -> None:
         """Gymnasium v5's ``reset`` of env ``i`` (``mj_resetData``, ``reset_model``) and a gather of its state."""
         model, data, rng, scale = self.model, self.datas[i], self.np_random[i], self.reset_noise_scale
@@ -336,7 +356,7 @@ class BatchedMujocoEnv(EnvBase):
 
     # ------------------------------------------------------------------ outputs
     def _outputs(self, x_velocity: np.ndarray | None, terminated: np.ndarray | None, reward: bool) -> TensorDictBase:
-        """Fresh tensors of the observation, the task-state entries and the flags (and a zero reward)."""
+        """Fresh tensors on ``self.device``: the observation, the task-state entries, the flags (and a zero reward)."""
         n = self.num_envs
         observation = np.empty((n, self._observation_size))
         for columns, source, bounds in self._observation_plan:
@@ -344,7 +364,15 @@ class BatchedMujocoEnv(EnvBase):
                 observation[:, columns] = source
             else:
                 np.clip(source, bounds[0], bounds[1], out=observation[:, columns])
-        to_torch = self._to_torch
+        # the device is read at every call: env.to(device) moves the outputs of the next step
+        device = self.device
+        if device is None or device.type == "cpu":
+            to_torch = torch.from_numpy
+        else:
+
+            def to_torch(array: np.ndarray) -> torch.Tensor:
+                return torch.from_numpy(array).to(device, non_blocking=True)
+
         out: dict[str, torch.Tensor] = {"observation": to_torch(observation)}
         for key in self.state_layout:
             if key == "x_velocity":
@@ -358,7 +386,7 @@ class BatchedMujocoEnv(EnvBase):
         out["truncated"] = to_torch(np.zeros((n, 1), dtype=bool))
         if reward:
             out["reward"] = to_torch(np.zeros((n, 1)))
-        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=self.device)
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
 
     def _forward_position(self) -> np.ndarray:
         """The position Gymnasium finite-differences: ``qpos[:1]``, Ant's body ``xpos[:2]``, Humanoid's mass centre."""
@@ -378,7 +406,15 @@ class BatchedMujocoEnv(EnvBase):
             )
         return action.detach().to("cpu", torch.float64).numpy()
 
+    def _check_open(self) -> None:
+        if self._closed:
+            raise RuntimeError(
+                f"{self!r} is closed: close() stopped its threads, so it can no longer step or reset. Build a new "
+                "env (or deep-copy this one before closing it)."
+            )
+
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        self._check_open()
         ctrl = self._check_action(tensordict.get("action", None))
         skipped = None if np.isfinite(ctrl).all() else ~np.isfinite(ctrl).all(axis=1)
         previous_time = self._time
@@ -415,6 +451,7 @@ class BatchedMujocoEnv(EnvBase):
         return self._outputs(x_velocity, terminated, reward=True)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        self._check_open()
         reset = None if tensordict is None else tensordict.get("_reset", None)
         if reset is None:
             indices = range(self.num_envs)
@@ -430,13 +467,57 @@ class BatchedMujocoEnv(EnvBase):
         children = np.random.SeedSequence(None if seed is None else int(seed)).spawn(self.num_envs)
         self.np_random = [np.random.Generator(np.random.PCG64(child)) for child in children]
 
+    # ------------------------------------------------------------------ copies and pickles
+    def __getstate__(self) -> dict[str, Any]:
+        """The env's state without its threads and with each ``MjData`` as its integration state.
+
+        The gather buffers are kept as plain copies (the observation of non-reset envs after a
+        partial reset is read from them); :meth:`__setstate__` rebuilds the views on them.
+        """
+        state = dict(super().__getstate__())
+        for key in _REBUILT:
+            state.pop(key, None)
+        datas = self.__dict__.get("datas")
+        if datas is not None:
+            model = self.model
+            saved = np.empty((len(datas), mujoco.mj_stateSize(model, _INTEGRATION_STATE)))
+            for i, data in enumerate(datas):
+                mujoco.mj_getState(model, data, saved[i], _INTEGRATION_STATE)
+            state["_saved_datas"] = saved
+            state["_saved_buffers"] = (self._state.copy(), [buffer.copy() for _, _, buffer in self._readers])
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        state = dict(state)
+        saved_datas = state.pop("_saved_datas", None)
+        saved_buffers = state.pop("_saved_buffers", None)
+        super().__setstate__(state)
+        self._pool = None
+        if saved_datas is None:  # pickled before __init__ had built the simulation
+            return
+        model = self.model
+        self.datas = [mujoco.MjData(model) for _ in range(self.num_envs)]
+        kept = {key: state[key] for key in ("_time", "_previous_position")}
+        self._setup_buffers(_config(self.env_id, self.gym_kwargs))
+        self.__dict__.update(kept)
+        for data, saved in zip(self.datas, saved_datas, strict=True):
+            mujoco.mj_setState(model, data, saved, _INTEGRATION_STATE)
+            self._forward(data)  # the derived quantities of the state (the next step recomputes them anyway)
+        gathered, buffers = saved_buffers
+        self._state[:] = gathered
+        for (_, _, buffer), values in zip(self._readers, buffers, strict=True):
+            buffer[:] = values
+        if not self._closed:
+            self._start_threads()
+
     # ------------------------------------------------------------------ lifetime
     def close(self, *, raise_if_closed: bool = True) -> None:
+        """Stop the threads; stepping or resetting afterwards raises a ``RuntimeError``. Closing twice is allowed."""
         pool = self.__dict__.get("_pool")
         if pool is not None:
             pool.shutdown(wait=True)
             self._pool = None
-            self._chunks = [(0, self.num_envs)]
+        self.__dict__["_closed"] = True
         super().close(raise_if_closed=raise_if_closed)
 
     def __repr__(self) -> str:
