@@ -37,7 +37,7 @@ from tensordict import TensorDict  # noqa: E402
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
-from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
+from torchtasks.envs import BatchedMujocoEnv, ZeroBrokenStepReward  # noqa: E402
 from torchtasks.envs.locomotion import gymnasium_env, locomotion_state_layout, locomotion_task  # noqa: E402
 from torchtasks.parity import compare_batched_with_gymnasium  # noqa: E402
 from torchtasks.transforms import TaskTransform  # noqa: E402
@@ -293,6 +293,9 @@ def test_a_diverged_state_ends_the_episode_instead_of_mujocos_silent_reset(steps
     assert tensordict["next", "terminated"][2].item()
     assert tensordict["next", "done"][2].item()
     assert not tensordict["next", "terminated"][:2].any()
+    assert tensordict["next", "broken"][:, 0].tolist() == [False, False, True]
+    assert tensordict["next", "reward"][2].item() == 0.0 and tensordict["next", "x_velocity"][2].item() == 0.0
+    assert tensordict["next", "episode_reward"].isfinite().all()
     # TorchRL reset env 2: it continues normally from a fresh episode
     assert next_root["step_count"][2].item() == 0
     with warnings.catch_warnings():
@@ -300,6 +303,117 @@ def test_a_diverged_state_ends_the_episode_instead_of_mujocos_silent_reset(steps
         tensordict, _ = env.step_and_maybe_reset(env.rand_action(next_root))
     assert not tensordict["next", "done"].any()
     env.close()
+
+
+def _fixed_actions(num_envs: int, size: int, steps: int) -> list[torch.Tensor]:
+    generator = torch.Generator().manual_seed(0)
+    return [2 * torch.rand(num_envs, size, generator=generator) - 1 for _ in range(steps)]
+
+
+def test_a_broken_step_writes_finite_entries_and_marks_the_env() -> None:
+    """The env alone: the skipped env repeats its state, moves at 0, pays 0 and is marked "broken"."""
+    env = BatchedMujocoEnv("HalfCheetah-v5", 4, seed=0)
+    root = env.reset()
+    assert not root["broken"].any()
+    action = torch.zeros(4, 6)
+    action[1, 3] = float("nan")
+    with pytest.warns(RuntimeWarning, match="non-finite action in envs \\[1\\]"):
+        out = env.step(root.clone().set("action", action))["next"]
+    for key in ("broken", "terminated", "done"):
+        assert out[key][:, 0].tolist() == [False, True, False, False], key
+    assert not out["truncated"].any()
+    for key in ("observation", "x_velocity", "reward"):
+        assert out[key].isfinite().all(), key
+    assert out["reward"][1].item() == 0.0 and out["x_velocity"][1].item() == 0.0
+    assert torch.equal(out["observation"][1], root["observation"][1])  # not simulated: the state before the step
+    # the next step is not marked, whatever became of env 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        out = env.step(env.step_mdp(env.step(root.clone().set("action", action.nan_to_num()))))
+    assert not out["next", "broken"].any()
+    env.close()
+
+
+def test_a_non_finite_state_is_restarted_like_mujoco_does_and_marked() -> None:
+    """A non-finite state that MuJoCo's own checks do not see (here: an env that is not simulated) is not written."""
+    env = BatchedMujocoEnv("Hopper-v5", 3, seed=0)
+    root = env.reset()
+    env.datas[2].qpos[:] = float("nan")
+    action = torch.zeros(3, 3)
+    action[2, 0] = float("nan")
+    with pytest.warns(RuntimeWarning, match="broken step"):
+        out = env.step(root.clone().set("action", action))["next"]
+    assert out["broken"][:, 0].tolist() == [False, False, True]
+    for key in ("observation", "x_velocity", "qpos", "qvel", "reward"):
+        assert out[key].isfinite().all(), key
+    np.testing.assert_array_equal(env.datas[2].qpos, env.model.qpos0)
+    # its clock restarted with it: the next step is not taken for a diverged one
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        out = env.step(env.step_mdp(env.step(root.clone().set("action", torch.zeros(3, 3)))))
+    assert not out["next", "broken"].any()
+    env.close()
+
+
+def test_a_broken_step_pays_zero_in_the_preset_and_leaves_the_other_envs_alone() -> None:
+    """gymnasium_env with one NaN action: the reward, its terms and the episode sums stay finite.
+
+    Before, the task's control cost of the NaN action was NaN, and RewardSum carried it into
+    ``episode_reward`` (and a training batch's statistics). A twin env, stepped with the same actions
+    but a finite one for the broken env, gives the other envs' expected values.
+    """
+    env, twin = (gymnasium_env("HalfCheetah-v5", num_envs=4, seed=0, num_threads=2) for _ in range(2))
+    roots = [env.reset(), twin.reset()]
+    actions = _fixed_actions(4, 6, 6)
+    broken_at = 3
+    for t, action in enumerate(actions):
+        twin_action = action
+        if t == broken_at:
+            action = action.clone()
+            action[1, 2] = float("nan")
+            before = roots[0].clone()  # the episode sums before the broken step
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            (out, root), (twin_out, twin_root) = (
+                e.step_and_maybe_reset(r.set("action", a))
+                for e, r, a in ((env, roots[0], action), (twin, roots[1], twin_action))
+            )
+        nxt, twin_nxt = out["next"], twin_out["next"]
+        reward_keys = ["reward", "episode_reward", *(("task_reward", k) for k in nxt["task_reward"].keys())]
+        for key in reward_keys:
+            assert nxt[key].isfinite().all(), (t, key)
+        if t != broken_at:
+            assert not caught and not nxt["broken"].any()
+            for key in (*reward_keys, "observation", "done"):
+                if t < broken_at:
+                    assert torch.equal(nxt[key], twin_nxt[key]), (t, key)
+        else:
+            assert len(caught) == 1 and "non-finite action in envs [1]" in str(caught[0].message)
+            others = [0, 2, 3]
+            for key in ("broken", "terminated", "done"):
+                assert nxt[key][:, 0].tolist() == [False, True, False, False], key
+            assert not nxt["failure"].any()
+            for key in reward_keys:
+                is_sum = (key if isinstance(key, str) else key[-1]).startswith("episode_")
+                expected = before[key][1] if is_sum else torch.zeros_like(nxt[key][1])
+                assert torch.equal(nxt[key][1], expected), key
+                assert torch.equal(nxt[key][others], twin_nxt[key][others]), key  # the others are unaffected
+            assert torch.equal(nxt["observation"][others], twin_nxt["observation"][others])
+            assert root["step_count"][:, 0].tolist() == [t + 1, 0, t + 1, t + 1]  # only env 1 starts again
+            assert not root["broken"].any()
+        roots = [root, twin_root]
+    env.close()
+    twin.close()
+
+
+def test_zero_broken_step_reward_needs_the_marker() -> None:
+    from torchtasks.envs import PendulumEnv
+
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), ZeroBrokenStepReward())
+    with pytest.raises(KeyError, match="broken"):
+        env.observation_spec  # noqa: B018
+    with pytest.raises(TypeError, match="broken_key"):
+        ZeroBrokenStepReward(broken_key=("next", "broken"))
 
 
 @pytest.mark.parametrize(
@@ -383,7 +497,8 @@ def test_specs(env_id: str) -> None:
     assert env.observation_spec["observation"].shape == (2, *reference.observation_space.shape)
     assert env.observation_spec["observation"].dtype == torch.float64
     layout = locomotion_state_layout(env_id)
-    assert set(env.observation_spec.keys()) == {"observation", *layout}
+    assert set(env.observation_spec.keys()) == {"observation", "broken", *layout}
+    assert env.observation_spec["broken"].dtype == torch.bool and env.observation_spec["broken"].shape == (2, 1)
     for key, size in layout.items():
         assert env.observation_spec[key].shape == (2, size)
         assert env.observation_spec[key].dtype == torch.float64
@@ -470,6 +585,7 @@ def test_collector_over_the_batched_preset() -> None:
     after_reset = torch.zeros_like(done)
     after_reset[:, 1:] = done[:, :-1]
     assert (batch["step_count"][..., 0][after_reset] == 0).all()
+    assert not batch["next", "broken"].any()  # the marker is collected (and no step was broken)
     assert torch.equal(nxt["failure"][..., 0], nxt["terminated"][..., 0])
 
 

@@ -18,8 +18,9 @@ _LOCOMOTION = (
     "make_gymnasium_env",
 )
 
-#: the batched MuJoCo env (torchtasks.envs.batched_mujoco), imported on first access for the same reason
-_BATCHED_MUJOCO = ("BatchedMujocoEnv",)
+#: the batched MuJoCo env and its broken-step transform (torchtasks.envs.batched_mujoco), imported on first
+#: access for the same reason
+_BATCHED_MUJOCO = ("BatchedMujocoEnv", "ZeroBrokenStepReward")
 
 __all__ = ["PendulumEnv", "PointMassEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION, *_BATCHED_MUJOCO]
 

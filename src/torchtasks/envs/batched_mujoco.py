@@ -33,7 +33,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, Transform
 
 from torchtasks._checks import check_positive_int
 from torchtasks._optional import missing_extra
@@ -46,7 +46,10 @@ except ImportError as _error:
 
 from torchtasks.envs.locomotion import _config, _layout, _ModelFacts
 
-__all__ = ["BatchedMujocoEnv"]
+__all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
+
+#: the entry that marks a broken step (bool ``[num_envs, 1]``, observation spec)
+BROKEN_KEY = "broken"
 
 #: MuJoCo warnings raised when it resets a diverged state itself (mj_checkPos/Vel/Acc)
 _DIVERGENCE_WARNINGS = (
@@ -119,6 +122,16 @@ class BatchedMujocoEnv(EnvBase):
     simulation time running back, the divergence warnings and non-finite states) is not continued;
     both end with ``terminated = done = True`` and a ``RuntimeWarning``, and the next reset starts a
     fresh episode. Gymnasium would continue silently from MuJoCo's reset state.
+
+    What a broken step writes, so that one broken env cannot poison a training batch: ``"broken"``
+    (bool ``[num_envs, 1]``, in the observation spec, so collectors keep it) is True for that env
+    only (and False at every reset); its reward is 0; its ``"x_velocity"`` is 0; its observation
+    and state entries are finite (the state before the step for a skipped action, MuJoCo's
+    ``qpos0`` reset for a diverged state; a non-finite state is reset to ``qpos0`` here, as MuJoCo
+    does). A task on the env still reads the policy's non-finite action (a control cost of NaN):
+    put :class:`ZeroBrokenStepReward` after the ``TaskTransform`` and before ``RewardSum`` (as
+    ``gymnasium_env`` does) to pay 0 for the broken step in the reward and every term. Filter
+    ``("next", "broken")`` out of statistics that should count only real episodes.
 
     ``copy.deepcopy(env)`` and ``pickle`` give an independent env in the same state (MuJoCo states
     with the solver's warm start, generators, episode clocks) with its own threads: stepped with
@@ -288,6 +301,7 @@ class BatchedMujocoEnv(EnvBase):
         entries = {"observation": Unbounded(shape=(n, self._observation_size), dtype=torch.float64, device=device)}
         for key, size in self.state_layout.items():
             entries[key] = Unbounded(shape=(n, size), dtype=torch.float64, device=device)
+        entries[BROKEN_KEY] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
         self.observation_spec = Composite(entries, shape=batch, device=device)
         # Gymnasium's action space: the actuators' ctrlrange as float32
         low = torch.as_tensor(facts.action_low.astype(np.float32)).expand(n, -1)
@@ -354,9 +368,19 @@ class BatchedMujocoEnv(EnvBase):
         mujoco.mj_forward(model, data)
         self._gather(i, data)
 
+    def _restart_env(self, i: int) -> None:
+        """Put env ``i``, whose state is not finite, back to ``qpos0`` as MuJoCo does with a diverged state."""
+        data = self.datas[i]
+        mujoco.mj_resetData(self.model, data)
+        self._forward(data)
+        self._gather(i, data)
+
     # ------------------------------------------------------------------ outputs
-    def _outputs(self, x_velocity: np.ndarray | None, terminated: np.ndarray | None, reward: bool) -> TensorDictBase:
-        """Fresh tensors on ``self.device``: the observation, the task-state entries, the flags (and a zero reward)."""
+    def _outputs(self, x_velocity: np.ndarray | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
+        """Fresh tensors on ``self.device``: the observation, the task-state entries, the flags (and a zero reward).
+
+        ``broken`` (the envs of a broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
+        """
         n = self.num_envs
         observation = np.empty((n, self._observation_size))
         for columns, source, bounds in self._observation_plan:
@@ -380,8 +404,9 @@ class BatchedMujocoEnv(EnvBase):
             else:
                 value = self._entry_sources[key].copy()
             out[key] = to_torch(value)
-        flags = np.zeros((n, 1), dtype=bool) if terminated is None else terminated.reshape(n, 1)
-        out["terminated"] = to_torch(flags)
+        flags = np.zeros((n, 1), dtype=bool) if broken is None else broken.reshape(n, 1)
+        out[BROKEN_KEY] = to_torch(flags)
+        out["terminated"] = to_torch(flags.copy())
         out["done"] = to_torch(flags.copy())
         out["truncated"] = to_torch(np.zeros((n, 1), dtype=bool))
         if reward:
@@ -420,6 +445,11 @@ class BatchedMujocoEnv(EnvBase):
         previous_time = self._time
         self._simulate(ctrl, skipped)
         state = self._state
+        restarted = None
+        if not np.isfinite(state).all():  # not caught by MuJoCo's own checks: restart it as MuJoCo would
+            restarted = ~np.isfinite(state).all(axis=1)
+            for i in np.flatnonzero(restarted):
+                self._restart_env(int(i))
         time = state[:, 0].copy()
         self._time = time
         # MuJoCo resets a diverged state to qpos0 and time 0 by itself: the clock runs back. The first
@@ -428,27 +458,25 @@ class BatchedMujocoEnv(EnvBase):
         for i in np.flatnonzero(previous_time == 0.0):
             warning = self.datas[i].warning
             broken[i] = broken[i] or any(warning[w].number for w in _DIVERGENCE_WARNINGS)
-        if not np.isfinite(state).all():
-            broken |= ~np.isfinite(state).all(axis=1)
+        if restarted is not None:
+            broken |= restarted
         if skipped is not None:
             broken |= skipped
-        terminated = None
-        if broken.any():
-            terminated = broken
-            invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
-            diverged = (
-                np.flatnonzero(broken).tolist() if skipped is None else np.flatnonzero(broken & ~skipped).tolist()
-            )
-            warnings.warn(
-                f"BatchedMujocoEnv({self.env_id}): episodes ended by a broken step (terminated=True): "
-                f"non-finite action in envs {invalid}, diverged state in envs {diverged}",
-                RuntimeWarning,
-                stacklevel=2,
-            )
         position = self._forward_position()
         x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
         self._previous_position = position
-        return self._outputs(x_velocity, terminated, reward=True)
+        if not broken.any():
+            return self._outputs(x_velocity, None, reward=True)
+        invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
+        diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
+        warnings.warn(
+            f"BatchedMujocoEnv({self.env_id}): episodes ended by a broken step (terminated=True, broken=True, "
+            f"reward 0): non-finite action in envs {invalid}, diverged state in envs {diverged}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        x_velocity[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
+        return self._outputs(x_velocity, broken, reward=True)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         self._check_open()
@@ -525,3 +553,70 @@ class BatchedMujocoEnv(EnvBase):
             f"{type(self).__name__}(env_id={self.env_id!r}, num_envs={self.num_envs}, "
             f"num_threads={self.num_threads}, frame_skip={self.frame_skip}, device={self.device})"
         )
+
+
+class ZeroBrokenStepReward(Transform):
+    """Pay 0 for a broken step of a :class:`BatchedMujocoEnv`: in the reward and every other reward entry.
+
+    A task reads the policy's action: a non-finite action (which the env does not simulate and
+    ends the episode on, marking it ``("next", "broken")``) gives a non-finite control cost and so
+    a non-finite reward, which a following ``RewardSum`` would carry into ``"episode_reward"`` and
+    a training batch. Put this transform after the task's ``TaskTransform`` and before
+    ``RewardSum``: where ``("next", broken_key)`` is True it writes 0 into every entry of the
+    reward spec (``"reward"`` and the task's named terms); elsewhere nothing changes.
+    :func:`~torchtasks.envs.locomotion.gymnasium_env` puts it there for the batched backend.
+
+    Args:
+        broken_key: the entry marking broken steps (``[*B, 1]`` bool).
+
+    Example:
+        >>> import torch, warnings
+        >>> from torchtasks.envs.locomotion import gymnasium_env
+        >>> env = gymnasium_env("Swimmer-v5", num_envs=2, seed=0)
+        >>> action = torch.zeros(2, 2); action[1, 0] = float("nan")
+        >>> with warnings.catch_warnings():
+        ...     warnings.simplefilter("ignore", RuntimeWarning)
+        ...     out = env.step(env.reset().set("action", action))["next"]
+        >>> out["broken"][:, 0], out["terminated"][:, 0], out["reward"][1, 0].item()
+        (tensor([False,  True]), tensor([False,  True]), 0.0)
+        >>> bool(out["episode_reward"].isfinite().all())
+        True
+        >>> env.close()
+    """
+
+    def __init__(self, broken_key: str = BROKEN_KEY) -> None:
+        if not isinstance(broken_key, str):
+            raise TypeError(f"broken_key must be a string, got {broken_key!r}")
+        super().__init__(in_keys=[], out_keys=[])
+        self.broken_key = broken_key
+        self._reward_keys: list[Any] | None = None
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        if self.broken_key not in observation_spec.keys():
+            raise KeyError(
+                f"ZeroBrokenStepReward: the env has no {self.broken_key!r} entry (a BatchedMujocoEnv writes one); "
+                f"its observation keys are {sorted(map(str, observation_spec.keys()))}"
+            )
+        return observation_spec
+
+    def transform_reward_spec(self, reward_spec: Composite) -> Composite:
+        self._reward_keys = list(reward_spec.keys(True, True))
+        return reward_spec
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        broken = next_tensordict.get(self.broken_key, None)
+        if broken is None:
+            return next_tensordict
+        keys = self._reward_keys
+        if keys is None:  # the specs were not built yet: the reward entries of the env before this transform
+            keys = self._reward_keys = list(self.parent.full_reward_spec.keys(True, True))
+        for key in keys:
+            value = next_tensordict.get(key, None)
+            if value is None:
+                continue
+            mask = broken.reshape(*broken.shape[:-1], *([1] * (value.ndim - broken.ndim + 1)))
+            next_tensordict.set(key, torch.where(mask, torch.zeros((), dtype=value.dtype, device=value.device), value))
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset

@@ -49,7 +49,7 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
-from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
 from torchtasks._checks import check_finite_scalar, check_positive_int
@@ -505,7 +505,10 @@ def gymnasium_env(
     root entries. ``"reward"`` is the task reward (float64 with the batched backend, float32 with
     Gymnasium's), ``"success"``/``"failure"`` the task flags (failure = unhealthy with
     ``terminate_when_unhealthy``), ``("task_reward", name)`` the named terms and ``RewardSum``
-    writes ``"episode_reward"`` and the per-term episode sums.
+    writes ``"episode_reward"`` and the per-term episode sums. The batched backend adds
+    :class:`~torchtasks.envs.batched_mujoco.ZeroBrokenStepReward` before ``RewardSum``: a broken
+    step (a non-finite action or a diverged simulation, marked ``("next", "broken")``) ends that
+    env's episode and pays 0 in the reward and every term, so the episode sums stay finite.
 
     Args:
         env_id: one of :data:`SUPPORTED_ENV_IDS`.
@@ -545,18 +548,19 @@ def gymnasium_env(
     task = _build_task(env_id, config, facts)
     if device is not None:
         task = task.to(device)
+    transforms: list[Transform] = [
+        StepCounter(MAX_EPISODE_STEPS),
+        TaskTransform(task, state_key=list(_layout(env_id, facts))),
+    ]
     if backend == "batched":
-        from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
+        from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
 
         base = BatchedMujocoEnv(env_id, num_envs, seed=seed, device=device, num_threads=num_threads, **gym_kwargs)
+        transforms.append(ZeroBrokenStepReward())  # a broken step (marked "broken") pays 0, not a NaN control cost
     else:
         create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
         base = create_env() if num_envs == 1 else ParallelEnv(num_envs, create_env, device=device)
-    transform = Compose(
-        StepCounter(MAX_EPISODE_STEPS),
-        TaskTransform(task, state_key=list(_layout(env_id, facts))),
-        RewardSum(),
-    )
+    transform = Compose(*transforms, RewardSum())
     env = TransformedEnv(base, transform)
     if seed is not None and backend == "gymnasium":
         env.set_seed(int(seed))
