@@ -118,6 +118,18 @@ def _check_vector_gym(base_env: Any) -> None:
     )
 
 
+def _check_within_limit(
+    remaining: torch.Tensor, step_count: torch.Tensor, max_steps: int, step_count_key: NestedKey
+) -> None:
+    """Refuse step counts beyond the time limit (their remaining steps would be negative)."""
+    if bool((remaining < 0).any()):
+        raise ValueError(
+            f"TaskTransform: step counts up to {int(step_count.max())} under ('next', {step_count_key!r}) exceed "
+            f"max_steps={max_steps}: the remaining steps would be negative and flip the sign of a time-dependent "
+            "final reward. Pass the limit the data was collected with (TaskTransform(..., max_steps=...))."
+        )
+
+
 class TaskTransform(Transform):
     """Apply a task to a TorchRL env: task reward, success, failure and termination on every step.
 
@@ -288,10 +300,11 @@ class TaskTransform(Transform):
             return None
 
     def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
-        """Return ``(max_steps, step_count_key, counted)`` for the env the transform is in now.
+        """Return ``(max_steps, step_count_key, enforced)`` for the env the transform is in now.
 
-        ``max_steps`` is the explicit one or that of the first ``StepCounter`` preceding this transform (in
-        its Compose, or in a TransformedEnv it wraps); ``counted`` says whether such a StepCounter exists.
+        ``max_steps`` is the explicit one or that of the first ``StepCounter`` with a limit preceding this
+        transform (in its Compose, or in a TransformedEnv it wraps); ``enforced`` says whether that
+        StepCounter truncates there (an explicit limit must then equal it: ``ValueError`` otherwise).
         Derived from the current container every time (never cached here): a transform moved, cloned or
         deep-copied into another env finds that env's limit. Raises ``ValueError`` for a StepCounter after
         the transform and, given the observation spec, for a time-dependent task in an env that counts
@@ -316,10 +329,17 @@ class TaskTransform(Transform):
                 counters[:0] = [t for t in _flat_transforms(inner.transform) if isinstance(t, StepCounter)]
                 inner = inner.base_env
             _check_vector_gym(container.base_env)
+        counter = next((c for c in counters if c.max_steps is not None), None)
         if max_steps is None:
-            counter = next((c for c in counters if c.max_steps is not None), None)
             if counter is not None:
                 max_steps, step_count_key = counter.max_steps, counter.step_count_key
+        elif counter is not None and counter.max_steps != max_steps:
+            raise ValueError(
+                f"TaskTransform(max_steps={max_steps}) disagrees with the preceding StepCounter(max_steps="
+                f"{counter.max_steps}): the remaining steps max_steps - step_count would be wrong"
+                + (f", and negative after step {max_steps}" if counter.max_steps > max_steps else "")
+                + ". Leave max_steps out (the transform reads the StepCounter's limit) or pass the same limit."
+            )
         if (
             max_steps is None
             and not counters
@@ -335,13 +355,14 @@ class TaskTransform(Transform):
                 "Pass TaskTransform(..., max_steps=<the env's limit>), or put StepCounter(max_steps) before "
                 "TaskTransform in the same Compose."
             )
-        return max_steps, step_count_key, bool(counters)
+        return max_steps, step_count_key, counter is not None
 
-    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey]:
+    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
         """Derive the time limit for the current container and store what the step reads (at spec building)."""
-        max_steps, step_count_key, _ = self._time_limit(observation_spec)
-        # the step computes the remaining steps only for a task tree that reads them and a known limit
-        limit = (max_steps if self._uses_remaining else None, step_count_key)
+        max_steps, step_count_key, enforced = self._time_limit(observation_spec)
+        # the step computes the remaining steps only for a task tree that reads them and a known limit;
+        # a limit no StepCounter enforces (given as max_steps) is checked against the step counts it meets
+        limit = (max_steps if self._uses_remaining else None, step_count_key, enforced)
         self.__dict__["_limit"] = limit
         return limit
 
@@ -545,11 +566,11 @@ class TaskTransform(Transform):
             )
         return goal if goal.dtype == state.dtype else goal.to(state.dtype)
 
-    def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor) -> torch.Tensor:
+    def _remaining(self, next_tensordict: TensorDictBase, reference: torch.Tensor, offline: bool) -> torch.Tensor:
         limit = self.__dict__.get("_limit")
         if limit is None:
             limit = self._setup()
-        max_steps, step_count_key = limit
+        max_steps, step_count_key, enforced = limit
         if max_steps is None:
             # no limit (Pyrado passes 0), or no task of the tree reads it: skip the arithmetic
             return self.task.no_remaining_steps
@@ -562,7 +583,10 @@ class TaskTransform(Transform):
                 f"max_steps={max_steps}: the data must hold the step count after each step under "
                 f"('next', {step_count_key!r}) (as written by StepCounter).",
             )
-        return max_steps - step_count.reshape(reference.shape[:-1])
+        remaining = max_steps - step_count.reshape(reference.shape[:-1])
+        if offline or not enforced:  # a limit no StepCounter enforces here: check the counts it meets
+            _check_within_limit(remaining, step_count, max_steps, step_count_key)
+        return remaining
 
     def _empty_memory(self, state: torch.Tensor) -> TensorDictBase:
         """The memory of a task tree without memory tensors, for the batch of ``state`` (cached per batch shape)."""
@@ -645,7 +669,7 @@ class TaskTransform(Transform):
         done, env_terminated, truncated, has_terminated = self._episode_end_flags(
             next_tensordict, state.shape[:-1], offline
         )
-        remaining = self._remaining(next_tensordict, state)
+        remaining = self._remaining(next_tensordict, state, offline)
         reward, step_reward, final, success, failure, terminated, done_now, memory, terms = self._evaluator()(
             state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
         )

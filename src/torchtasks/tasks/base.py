@@ -90,6 +90,9 @@ class Task(nn.Module):
 
     #: names of the per-environment overrides this task's ``reset`` understands
     reset_keys: tuple[str, ...] = ()
+    #: this task's own memory entries that stay as they are when it starts as the current sub-task of a
+    #: :class:`SequentialTasks` (its goal, a final-reward latch); the rest is re-initialised
+    kept_at_start: tuple[str, ...] = ()
 
     def __init__(self, spec: EnvSpec) -> None:
         super().__init__()
@@ -138,6 +141,13 @@ class Task(nn.Module):
         for key, child in zip(self._child_memory_keys(), self.children_tasks(), strict=True):
             slots += child._goal_slots(prefix if key is None else (*prefix, key), indices)
         return slots
+
+    def _kept_paths(self, prefix: tuple[str, ...] = ()) -> list[tuple[str, ...]]:
+        """The memory paths of the entries this subtree keeps when it starts (see :attr:`kept_at_start`)."""
+        paths = [(*prefix, key) for key in self.kept_at_start]
+        for key, child in zip(self._child_memory_keys(), self.children_tasks(), strict=True):
+            paths += child._kept_paths(prefix if key is None else (*prefix, key))
+        return paths
 
     @property
     def goal_slots(self) -> tuple[GoalSlot, ...]:
@@ -290,6 +300,11 @@ class Task(nn.Module):
         if isinstance(remaining_steps, bool):
             raise TypeError("remaining_steps must be an int or an integer tensor, got a bool")
         if isinstance(remaining_steps, int):
+            if remaining_steps < 0:
+                raise ValueError(
+                    f"remaining_steps must be >= 0 (the steps left before the time limit; 0 without a limit), "
+                    f"got {remaining_steps}"
+                )
             if not self._static_facts()[1]:  # nobody reads it: no tensor to build
                 return self.no_remaining_steps
             return torch.tensor(remaining_steps, device=state.device)
@@ -306,6 +321,18 @@ class Task(nn.Module):
             raise ValueError(
                 f"remaining_steps must be broadcastable to the batch shape {tuple(batch)}, "
                 f"got shape {tuple(remaining_steps.shape)}"
+            )
+        # a value check (one host sync) in the checked public calls; a compiled graph and meta tensors skip it
+        if (
+            not torch.compiler.is_compiling()
+            and remaining_steps.device.type != "meta"
+            and bool((remaining_steps < 0).any())
+        ):
+            raise ValueError(
+                "remaining_steps must be >= 0 (the steps left before the time limit; 0 without a limit), got "
+                f"values down to {int(remaining_steps.min())}: a step count beyond the limit (data collected with "
+                "a longer limit, or a max_steps below the env's own) would flip the sign of a time-dependent "
+                "final reward"
             )
         return remaining_steps
 
@@ -457,8 +484,8 @@ class Task(nn.Module):
             next_state: ``s_{t+1}``, the shape and dtype of ``state``.
             memory: the task memory from :meth:`reset` or the previous call's ``out.memory``.
             remaining_steps: steps left before the time limit (int, or an int tensor broadcastable
-                to ``[*B]``; 0 when there is no limit, as in Pyrado). Only time-dependent final
-                rewards read it.
+                to ``[*B]``; 0 when there is no limit, as in Pyrado), never negative (``ValueError``).
+                Only time-dependent final rewards read it.
             terminated: the env's own termination, ``bool[*B]``, or None.
             truncated: truncation (time limit), ``bool[*B]``, or None.
             reward_on: ``"next"`` or ``"state"``: the state the step reward is evaluated on.
@@ -511,12 +538,17 @@ class Task(nn.Module):
 
         ``with_terms=False`` skips the named terms (returned empty) where nobody reads them.
         """
-        source = next_state if reward_on == "next" else state
+        # the step reward sees next_state (and then the env's own termination of this transition, which
+        # shaping treats as absorbing) or, in Pyrado's order, state (whose step does not end here)
+        if reward_on == "next":
+            source, step_terminated = next_state, terminated
+        else:
+            source, step_terminated = state, None
         if with_terms and self._static_facts()[0]:
-            terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps)
+            terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps, step_terminated)
         else:
             terms = {}
-            step_reward, memory = self._step_reward(source, action, memory, remaining_steps)
+            step_reward, memory = self._step_reward(source, action, memory, remaining_steps, step_terminated)
         success = self._has_succeeded(next_state, memory)
         failure = self._has_failed(next_state, memory)
         ended = success | failure
@@ -531,14 +563,24 @@ class Task(nn.Module):
         return make_memory({}, init_state.shape[:-1])
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         raise NotImplementedError
 
     def _step_terms(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        reward, memory = self._step_reward(state, action, memory, remaining_steps)
+        reward, memory = self._step_reward(state, action, memory, remaining_steps, terminated)
         return {}, reward, memory
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
@@ -639,15 +681,29 @@ class TaskWrapper(Task):
         return self._replace(memory, wrapped=inner)
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        reward, inner = self.wrapped_task._step_reward(state, action, read(memory, "wrapped"), remaining_steps)
+        reward, inner = self.wrapped_task._step_reward(
+            state, action, read(memory, "wrapped"), remaining_steps, terminated
+        )
         return reward, self._after_step(reward, memory, inner)
 
     def _step_terms(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        terms, reward, inner = self.wrapped_task._step_terms(state, action, read(memory, "wrapped"), remaining_steps)
+        terms, reward, inner = self.wrapped_task._step_terms(
+            state, action, read(memory, "wrapped"), remaining_steps, terminated
+        )
         return terms, reward, self._after_step(reward, memory, inner)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:

@@ -61,6 +61,7 @@ class DesiredStateTask(RewardTask):
     """
 
     reset_keys = ("state_des",)
+    kept_at_start = (GOAL_ENTRY,)
     reward_sees_state = False
 
     def __init__(

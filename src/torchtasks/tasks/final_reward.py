@@ -123,6 +123,8 @@ class FinalRewardTask(TaskWrapper):
     def uses_remaining_steps(self) -> bool:
         return self.mode.time_dependent or super().uses_remaining_steps
 
+    kept_at_start = ("paid",)
+
     def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
         return {"paid": torch.zeros(init_state.shape[:-1], dtype=torch.bool, device=init_state.device)}
 
@@ -201,6 +203,8 @@ class BestStateFinalRewardTask(TaskWrapper):
     def __init__(self, task: Task, factor: float) -> None:
         super().__init__(task)
         self.factor = check_finite_scalar(factor, "factor")
+
+    kept_at_start = ("paid",)
 
     def _own_memory(self, init_state: torch.Tensor) -> dict[str, torch.Tensor]:
         batch = init_state.shape[:-1]

@@ -119,7 +119,12 @@ class FlippingTask(RewardTask):
         return torch.where(take_down, down, up), torch.where(take_down, error_down, error_up)
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         target, error = self._closest_target(state, memory)
         value = self.reward._value(error.unsqueeze(-1), -action)

@@ -146,7 +146,12 @@ class ConditionTask(Task):
         self.is_success = is_success
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return state.new_zeros(state.shape[:-1]), memory
 

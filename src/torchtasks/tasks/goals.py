@@ -17,7 +17,7 @@ from tensordict import TensorDictBase
 
 from torchtasks._memory import copy_entries, make_memory, read
 
-__all__ = ["GoalSlot", "replace_goals"]
+__all__ = ["GoalSlot", "replace_entry", "replace_goals"]
 
 #: the memory key of a desired state
 GOAL_ENTRY = "state_des"
@@ -48,17 +48,18 @@ class GoalSlot(NamedTuple):
         return state.index_select(-1, index)
 
 
-def _replace(memory: TensorDictBase, path: tuple[str, ...], value: torch.Tensor) -> TensorDictBase:
+def replace_entry(memory: TensorDictBase, path: tuple[str, ...], value: torch.Tensor) -> TensorDictBase:
+    """Return ``memory`` with the entry at ``path`` (a tuple of keys into nested memory) replaced by ``value``."""
     entries = copy_entries(memory)
     if len(path) == 1:
         entries[path[0]] = value
     else:
-        entries[path[0]] = _replace(read(memory, path[0]), path[1:], value)
+        entries[path[0]] = replace_entry(read(memory, path[0]), path[1:], value)
     return make_memory(entries, memory.batch_size)
 
 
 def replace_goals(memory: TensorDictBase, goals: Mapping[GoalSlot, torch.Tensor]) -> TensorDictBase:
     """Return ``memory`` with the desired state of every slot replaced by its goal (``[*B, k]``, unchecked)."""
     for slot, goal in goals.items():
-        memory = _replace(memory, slot.path, goal)
+        memory = replace_entry(memory, slot.path, goal)
     return memory

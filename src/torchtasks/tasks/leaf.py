@@ -71,7 +71,12 @@ class RewardTask(Task):
         return value, make_memory(entries, memory.batch_size)
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return self._evaluate_reward(state, action, memory)
 
@@ -80,10 +85,15 @@ class RewardTask(Task):
         return self.reward.term_names
 
     def _step_terms(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
         if not self.term_names:
-            reward, memory = self._step_reward(state, action, memory, remaining_steps)
+            reward, memory = self._step_reward(state, action, memory, remaining_steps, terminated)
             return {}, reward, memory
         inputs = self._reward_inputs(state, action, memory)
         step_terms = getattr(self.reward, "_step_terms", self.reward.step_terms)

@@ -103,16 +103,26 @@ class MaskedTask(Task):
         return self.wrapped_task._reset(self._state(init_state), overrides)
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         action = self._action(action)
-        return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps)
+        return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps, terminated)
 
     def _step_terms(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
         action = self._action(action)
-        return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps)
+        return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps, terminated)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._has_succeeded(self._state(state), memory)

@@ -62,7 +62,12 @@ class ParallelTasks(CompositeTask):
         self.easily_satisfied = easily_satisfied
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         succeeded = list(read(memory, "succeeded").unbind(-1))
         failed = list(read(memory, "failed").unbind(-1))
@@ -75,7 +80,7 @@ class ParallelTasks(CompositeTask):
         stepped: list[TensorDictBase] = []
         for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
             is_active = ~(succeeded[i] | failed[i])
-            value, sub_memory = task._step_reward(state, action, read(memory, key), remaining_steps)
+            value, sub_memory = task._step_reward(state, action, read(memory, key), remaining_steps, terminated)
             total = total + torch.where(is_active, value, zero)
             if held is not None:
                 total = total + torch.where(is_active, zero, held[i])
@@ -89,7 +94,7 @@ class ParallelTasks(CompositeTask):
             final, sub_memory = task._final_reward(state, sub_memory, remaining_steps, newly_done, flags)
             total = total + torch.where(newly_done, final, zero)
             if held is not None:
-                value, after_hold = task._step_reward(state, action, sub_memory, remaining_steps)
+                value, after_hold = task._step_reward(state, action, sub_memory, remaining_steps, terminated)
                 held[i] = torch.where(newly_done, value, held[i])
                 sub_memory = self._gate(newly_done, after_hold, sub_memory)
             entries[key] = self._gate(active[i], sub_memory, read(memory, key))

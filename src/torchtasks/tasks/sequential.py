@@ -11,9 +11,21 @@ from tensordict import TensorDictBase
 from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
-from torchtasks.tasks.memory import make_memory
+from torchtasks.tasks.goals import replace_entry
+from torchtasks.tasks.memory import MemoryLayout, make_memory
 
 __all__ = ["SequentialTasks"]
+
+
+def _leaf_paths(layout: MemoryLayout, prefix: tuple[str, ...] = ()) -> set[tuple[str, ...]]:
+    """The paths of the tensor entries of a memory layout."""
+    paths: set[tuple[str, ...]] = set()
+    for key in layout.keys:
+        if key in layout.nested:
+            paths |= _leaf_paths(layout.nested[key], (*prefix, key))
+        else:
+            paths.add((*prefix, key))
+    return paths
 
 
 class SequentialTasks(CompositeTask):
@@ -24,12 +36,18 @@ class SequentialTasks(CompositeTask):
     done on this state it is marked succeeded or failed, its step reward is held (evaluated
     once more with 0 remaining steps), its final reward is paid and the index moves on
     (wrapping to 0 after the last). Goals reached out of order are ignored until they are
-    current. Where the episode ends, every sub-task that has not finished is judged on the final
-    state, as in Pyrado: its own final reward (e.g. a :class:`FinalRewardTask`'s success or failure
-    value, if the final state meets its goal or leaves its box) is paid then, whether or not it was
-    current; a :class:`BestStateFinalRewardTask` that never became current pays 0. The task
-    succeeds when every sub-task succeeded; it fails when the state leaves the first sub-task's
-    state box (a failed sub-task does not end the episode by itself).
+    current. A sub-task starts when it becomes current: its memory is re-initialised as
+    ``reset`` would on the state of that step (the state the finished sub-task was judged on, which
+    is the state the next step starts from), keeping its goal and whether its final reward was paid
+    (:attr:`~Task.kept_at_start`). So a shaped sub-task's first step pays
+    ``γ·Φ(s') − Φ(s)`` from where it took over, a forward-velocity reward measures from there, a
+    :class:`BestStateFinalRewardTask` tracks the best of its own steps and a :class:`FlippingTask`
+    counts flips from 0, as at an episode start. Where the episode ends, every sub-task that has not
+    finished is judged on the final state, as in Pyrado: its own final reward (e.g. a
+    :class:`FinalRewardTask`'s success or failure value, if the final state meets its goal or leaves
+    its box) is paid then, whether or not it was current; a :class:`BestStateFinalRewardTask` that
+    never became current pays 0. The task succeeds when every sub-task succeeded; it fails when the
+    state leaves the first sub-task's state box (a failed sub-task does not end the episode by itself).
 
     Args:
         tasks: the sub-tasks in order (same state and action sizes).
@@ -89,8 +107,33 @@ class SequentialTasks(CompositeTask):
         entries["index"] = index
         return entries
 
+    @property
+    def _keeps_progress(self) -> tuple[bool, ...]:
+        """Per sub-task: whether its memory holds anything a start re-initialises (beyond kept entries)."""
+        flags = self.__dict__.get("_keeps_progress_cache")
+        if flags is None:
+            flags = tuple(bool(_leaf_paths(task.memory_layout) - set(task._kept_paths())) for task in self.tasks)
+            self.__dict__["_keeps_progress_cache"] = flags
+        return flags
+
+    @staticmethod
+    def _restart(task: Task, state: torch.Tensor, memory: TensorDictBase) -> TensorDictBase:
+        """``task``'s memory at an episode start in ``state``, its kept entries (goal, latch) taken from ``memory``."""
+        fresh = task._reset(state, {})
+        for path in task._kept_paths():
+            value = memory
+            for key in path:
+                value = read(value, key)
+            fresh = replace_entry(fresh, path, value)
+        return fresh
+
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         index = read(memory, "index")
         succeeded = list(read(memory, "succeeded").unbind(-1))
@@ -103,21 +146,31 @@ class SequentialTasks(CompositeTask):
                 total = total + torch.where(succeeded[i] | failed[i], held[i], zero)
         new_index = index
         entries = copy_entries(memory)
+        finished: list[torch.Tensor] = []
         for i, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
             active = (index == i) & ~(succeeded[i] | failed[i])
             old_memory = read(memory, key)
-            value, sub_memory = task._step_reward(state, action, old_memory, remaining_steps)
+            value, sub_memory = task._step_reward(state, action, old_memory, remaining_steps, terminated)
             total = total + torch.where(active, value, zero)
             flags = (task._has_succeeded(state, sub_memory), task._has_failed(state, sub_memory))
             newly_done = self._finish(i, active, *flags, succeeded, failed)
             if held is not None:
-                value, after_hold = task._step_reward(state, action, sub_memory, torch.zeros_like(remaining_steps))
+                value, after_hold = task._step_reward(
+                    state, action, sub_memory, torch.zeros_like(remaining_steps), terminated
+                )
                 held[i] = torch.where(newly_done, value, held[i])
                 sub_memory = self._gate(newly_done, after_hold, sub_memory)
             final, sub_memory = task._final_reward(state, sub_memory, remaining_steps, newly_done)
             total = total + torch.where(newly_done, final, zero)
             new_index = torch.where(newly_done, (i + 1) % self.num_tasks, new_index)
+            finished.append(newly_done)
             entries[key] = self._gate(active, sub_memory, old_memory)
+        # a sub-task that becomes current starts here, as if the episode began in this state (goals kept)
+        for j, (key, task) in enumerate(zip(self._keys, self.tasks, strict=True)):
+            if j == 0 or not self._keeps_progress[j]:
+                continue
+            starts = finished[j - 1] & ~(succeeded[j] | failed[j])
+            entries[key] = self._gate(starts, self._restart(task, state, entries[key]), entries[key])
         entries["index"] = new_index
         entries["succeeded"] = torch.stack(succeeded, dim=-1)
         entries["failed"] = torch.stack(failed, dim=-1)

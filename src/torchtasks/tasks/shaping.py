@@ -10,7 +10,7 @@ from tensordict import TensorDictBase
 from torchtasks._checks import check_finite_scalar
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction
-from torchtasks.tasks.base import RewardOn, Task, TaskWrapper, TransitionTuple
+from torchtasks.tasks.base import Task, TaskWrapper
 from torchtasks.tasks.memory import make_memory
 
 __all__ = ["PotentialShapingTask"]
@@ -42,9 +42,12 @@ class PotentialShapingTask(TaskWrapper):
     − Φ(s_0)``. ``F`` is evaluated on the state the step reward sees (``next_state`` by default; with
     ``reward_on="state"``, Pyrado's order, every step reward and so ``F`` lags one step), and appears
     in the breakdown as the term ``"shaping"`` (the wrapped task's step reward is the term ``"task"``
-    unless it has named terms of its own), so ``RewardSum`` reports it. The fine-grained calls
-    (``step_reward`` sees one state) use the task's own success and failure as termination; only
-    :meth:`transition` also knows the env's ``terminated``.
+    unless it has named terms of its own), so ``RewardSum`` reports it. :meth:`transition` hands the
+    env's ``terminated`` down to the shaping task wherever it sits in a tree (inside wrappers, masks and
+    composites, where it is the termination of the transition the current sub-task is judged on); the
+    fine-grained calls (``step_reward`` sees one state) know only the task's own success and failure.
+    With ``reward_on="state"`` the step reward sees ``s_t``, whose step has not ended, so ``terminated``
+    (a fact of ``s_{t+1}``) is not applied there.
 
     Memory: ``"potential"`` (``Φ`` of the last state the step reward saw; ``Φ(s_0)`` at reset) and the
     wrapped task's memory.
@@ -113,58 +116,41 @@ class PotentialShapingTask(TaskWrapper):
         return named
 
     def _shaped_step(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        """The fine-grained step: the wrapped step reward, then ``F`` with the task's own flags on ``state``."""
+        """The wrapped step reward, then ``F`` on the state it saw: absorbing where the wrapped task ends
+        there (its success or failure) or where the env's own ``terminated`` holds for this transition."""
         task = self.wrapped_task
-        terms, reward, inner = task._step_terms(state, action, read(memory, "wrapped"), remaining_steps)
+        terms, reward, inner = task._step_terms(state, action, read(memory, "wrapped"), remaining_steps, terminated)
         ended = task._has_succeeded(state, inner) | task._has_failed(state, inner)
+        if terminated is not None:
+            ended = ended | terminated
         shaping, phi = self._shaping(state, ended, memory)
         memory = make_memory({"potential": phi, "wrapped": inner}, memory.batch_size)
         return self._with_terms(terms, reward, shaping), reward + shaping, memory
 
     def _step_reward(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        _, reward, memory = self._shaped_step(state, action, memory, remaining_steps)
-        return reward, memory
-
-    def _step_terms(
-        self, state: torch.Tensor, action: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor
-    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        return self._shaped_step(state, action, memory, remaining_steps)
-
-    def _transition(
         self,
         state: torch.Tensor,
         action: torch.Tensor,
-        next_state: torch.Tensor,
         memory: TensorDictBase,
         remaining_steps: torch.Tensor,
         terminated: torch.Tensor | None = None,
-        truncated: torch.Tensor | None = None,
-        reward_on: RewardOn = "next",
-        with_terms: bool = True,
-    ) -> TransitionTuple:
-        if reward_on != "next":  # Pyrado's order: F lags like every step reward (the fine-grained path)
-            return super()._transition(
-                state, action, next_state, memory, remaining_steps, terminated, truncated, reward_on, with_terms
-            )
-        # the wrapped task's transition, then F on (s, s') with the episode end it decided, the env's
-        # own termination included (absorbing), truncation excluded (bootstrapping)
-        _, step, final, success, failure, ended, done, inner, terms = self.wrapped_task._transition(
-            state,
-            action,
-            next_state,
-            read(memory, "wrapped"),
-            remaining_steps,
-            terminated,
-            truncated,
-            reward_on,
-            with_terms,
-        )
-        shaping, phi = self._shaping(next_state, ended, memory)
-        step = step + shaping
-        memory = make_memory({"potential": phi, "wrapped": inner}, memory.batch_size)
-        terms = self._with_terms(terms, step - shaping, shaping) if with_terms else {}
-        return step + final, step, final, success, failure, ended, done, memory, terms
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        _, reward, memory = self._shaped_step(state, action, memory, remaining_steps, terminated)
+        return reward, memory
+
+    def _step_terms(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        return self._shaped_step(state, action, memory, remaining_steps, terminated)

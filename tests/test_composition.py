@@ -1,0 +1,358 @@
+"""Composition: every argument of ``transition`` reaches every task of a tree, whatever wraps it.
+
+For every wrapper and composite ``W`` and every task ``T`` of the library (one per class and notable
+configuration, potential-based shaping included), ``W(T).transition(...)`` over random transitions with
+random ``terminated``, ``truncated``, goals and remaining steps (and partial resets where an episode
+ends) gives what ``T``'s own ``transition`` gives with the same arguments, composed by ``W``'s
+documented rule. The rules are written here from the docs, never read from the code under test.
+
+Also the regressions of issue 22, items 1-3: shaping inside any wrapper treats the env's own
+termination as absorbing; a sub-task of :class:`SequentialTasks` starts from the state where it becomes
+current; negative remaining steps are refused.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+
+import pytest
+import torch
+from torchrl.envs import Compose, StepCounter, TransformedEnv
+
+from task_trees import class_cases
+from torchtasks.envs import PendulumEnv
+from torchtasks.rewards import ConstantReward, ForwardVelocityReward
+from torchtasks.spaces import Box, EnvSpec, rows_outside
+from torchtasks.tasks import (
+    BestStateFinalRewardTask,
+    DesiredStateTask,
+    FinalRewardMode,
+    FinalRewardTask,
+    GoallessTask,
+    MaskedTask,
+    ParallelTasks,
+    PotentialShapingTask,
+    SequentialTasks,
+    Task,
+    all_tasks,
+    proximity_succeeded,
+)
+from torchtasks.tasks.base import Task as BaseTask
+from torchtasks.tasks.memory import where_memory
+from torchtasks.transforms import TaskTransform
+
+BATCH = 16
+STEPS = 12
+GAMMA = 0.75
+FACTOR = 3.0
+BEST_FACTOR = -0.5
+
+
+def _potential(state: torch.Tensor) -> torch.Tensor:
+    return -(state - 0.25).square().sum(-1)
+
+
+def _shaped_cases() -> dict[str, Callable[[], Task]]:
+    cases = class_cases()
+    return {
+        "shaping_goal": lambda: PotentialShapingTask(cases["desired_state"](), _potential, 0.5),
+        "shaping_final": lambda: PotentialShapingTask(cases["final_state_time"](), _potential, 0.9),
+        "shaping_walk": lambda: PotentialShapingTask(cases["goalless_forward_velocity"](), _potential, 1.0),
+    }
+
+
+TASKS = {**class_cases(), **_shaped_cases()}
+
+
+def _extended(spec: EnvSpec) -> EnvSpec:
+    """``spec`` with one more, unbounded state entry at the front (the mask drops it)."""
+    box = spec.state_space
+    inf = torch.tensor([math.inf], dtype=box.low.dtype)
+    return EnvSpec(Box(torch.cat([-inf, box.low]), torch.cat([inf, box.high])), spec.action_space)
+
+
+# each wrapper: (build W from T, how W's state relates to T's state)
+WRAPPERS: dict[str, Callable[[Task], Task]] = {
+    "final": lambda t: FinalRewardTask(t, factor=FACTOR),
+    "final_time": lambda t: FinalRewardTask(t, FinalRewardMode(time_dependent=True)),
+    "best_state": lambda t: BestStateFinalRewardTask(t, BEST_FACTOR),
+    "masked": lambda t: MaskedTask(_extended(t.spec), t, list(range(1, t.state_size + 1))),
+    "shaping": lambda t: PotentialShapingTask(t, _potential, GAMMA),
+    "parallel": lambda t: ParallelTasks([t]),
+    "sequential": lambda t: SequentialTasks([t]),
+}
+
+
+def _own_final_only(task: Task) -> bool:
+    """Whether at most one task of ``task``'s wrapper chain pays a final reward of its own.
+
+    A composite pays a sub-task that did not finish by itself its own final reward at the episode end
+    (Pyrado's ``compute_final_rew`` over the immediate sub-tasks); for such a chain that is all of it.
+    """
+    payers = [t for t in all_tasks(task) if type(t)._compute_final_reward is not BaseTask._compute_final_reward]
+    return len(payers) <= 1
+
+
+def _draws(task: Task, generator: torch.Generator, steps: int) -> dict[str, torch.Tensor]:
+    """Random states (partly outside the box), actions, episode-end flags, remaining steps and goals."""
+    n, m = task.state_size, task.action_size
+    shape = (steps + 1, BATCH)
+    states = (torch.rand((*shape, n), generator=generator, dtype=torch.float64) * 5.0 - 2.5).to(torch.float64)
+    # nudge some states onto 0.5-ish values so goal tasks succeed now and then
+    near = torch.rand((*shape, 1), generator=generator, dtype=torch.float64) < 0.3
+    states = torch.where(near, states * 0.05 + 0.25, states)
+    draws = {
+        "states": states,
+        "actions": torch.rand((steps, BATCH, m), generator=generator, dtype=torch.float64) * 2 - 1,
+        "terminated": torch.rand((steps, BATCH), generator=generator) < 0.15,
+        "truncated": torch.rand((steps, BATCH), generator=generator) < 0.15,
+        "remaining": torch.randint(0, 20, (steps, BATCH), generator=generator),
+        "resets": torch.rand((steps, BATCH, n), generator=generator, dtype=torch.float64) * 2 - 1,
+    }
+    slots = task.goal_slots
+    if len(slots) == 1:
+        draws["goals"] = torch.rand((steps, BATCH, slots[0].size), generator=generator, dtype=torch.float64) - 0.5
+    return draws
+
+
+def _wrapped_state(name: str, state: torch.Tensor) -> torch.Tensor:
+    if name != "masked":
+        return state
+    return torch.cat([torch.full_like(state[..., :1], 1e6), state], dim=-1)  # the dropped entry: far out
+
+
+def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
+    """Assert ``wrapped_out`` (of ``W(task)``) against ``out`` (of ``task``) by W's documented rule."""
+    zero = torch.zeros_like(out.reward)
+    own_end = out.success | out.failure
+
+    def same(actual: torch.Tensor, expected: torch.Tensor, what: str) -> None:
+        if actual.dtype == torch.bool:
+            assert torch.equal(actual, expected), f"{name}: {what}"
+        else:
+            torch.testing.assert_close(actual, expected, rtol=1e-12, atol=1e-12, msg=f"{name}: {what}")
+
+    if name in ("final", "final_time", "best_state", "masked", "shaping"):
+        for flag in ("success", "failure", "terminated", "done"):
+            same(getattr(wrapped_out, flag), getattr(out, flag), flag)
+    if name == "masked":
+        for field in ("reward", "step_reward", "final_reward"):
+            same(getattr(wrapped_out, field), getattr(out, field), field)
+    elif name in ("final", "final_time"):
+        same(wrapped_out.step_reward, out.step_reward, "step reward")
+        magnitude = (
+            context["remaining"].to(out.reward.dtype) if name == "final_time" else torch.full_like(out.reward, FACTOR)
+        )
+        own = torch.where(out.failure, -magnitude, torch.where(out.success, magnitude, zero))
+        same(wrapped_out.final_reward, out.final_reward + torch.where(out.done, own, zero), "final reward")
+    elif name == "best_state":
+        same(wrapped_out.step_reward, out.step_reward, "step reward")
+        best = torch.maximum(context["best"], out.step_reward)
+        context["best"] = best
+        own = torch.where(out.done & (best > -math.inf), BEST_FACTOR * best, zero)
+        same(wrapped_out.final_reward, out.final_reward + own, "final reward")
+    elif name == "shaping":
+        phi_next = _potential(context["next_state"])
+        absorbing = out.terminated  # the task's success or failure, or the env's own termination
+        shaping = GAMMA * torch.where(absorbing, zero, phi_next) - context["phi"]
+        context["phi"] = phi_next
+        same(wrapped_out.step_reward, out.step_reward + shaping, "step reward")
+        same(wrapped_out.final_reward, out.final_reward, "final reward")
+        assert torch.equal(wrapped_out.terms["shaping"], shaping)
+    elif name in ("parallel", "sequential"):
+        # the sub-task's final reward is paid in the step where it finishes by itself; at an episode end
+        # by the env's flags alone, the composite pays its own final reward then
+        same(wrapped_out.step_reward, out.step_reward + torch.where(own_end, out.final_reward, zero), "step reward")
+        same(wrapped_out.success, out.success, "success")
+        if name == "parallel":
+            same(wrapped_out.failure, out.failure & ~out.success, "failure")
+        else:  # a failed sub-task does not end a sequence; leaving the first sub-task's box does
+            box = task.spec.state_space
+            same(wrapped_out.failure, rows_outside(context["next_state"], box.low, box.high), "failure")
+        env_end = out.done & ~own_end
+        if _own_final_only(task):
+            same(wrapped_out.reward, out.reward, "reward")
+        else:
+            same(wrapped_out.reward[~env_end], out.reward[~env_end], "reward where the sub-task ended itself")
+
+
+def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
+    task = TASKS[task_name]().double()
+    if wrapper_name == "shaping" and "shaping" in task.term_names:
+        with pytest.raises(ValueError, match="already has a term named 'shaping'"):
+            WRAPPERS[wrapper_name](task)  # shaping twice would report two terms under one name
+        return
+    wrapped = WRAPPERS[wrapper_name](task).double()
+    generator = torch.Generator().manual_seed(seed)
+    draws = _draws(task, generator, STEPS)
+    state = draws["states"][0]
+    memory = task.reset(state)
+    wrapped_memory = wrapped.reset(_wrapped_state(wrapper_name, state))
+    context = {
+        "best": torch.full((BATCH,), -math.inf, dtype=torch.float64),
+        "phi": _potential(state),
+    }
+    for t in range(STEPS):
+        next_state = draws["states"][t + 1]
+        kwargs = {
+            "terminated": draws["terminated"][t],
+            "truncated": draws["truncated"][t],
+            "reward_on": reward_on,
+            "goal": draws["goals"][t] if "goals" in draws else None,
+        }
+        remaining = draws["remaining"][t]
+        out = task.transition(state, draws["actions"][t], next_state, memory, remaining, **kwargs)
+        wrapped_out = wrapped.transition(
+            _wrapped_state(wrapper_name, state),
+            draws["actions"][t],
+            _wrapped_state(wrapper_name, next_state),
+            wrapped_memory,
+            remaining,
+            **kwargs,
+        )
+        context.update(next_state=next_state, remaining=remaining)
+        _check_rule(wrapper_name, task, wrapped_out, out, context)
+        # partial reset of both where the task's episode ended
+        reset_state = torch.where(out.done.unsqueeze(-1), draws["resets"][t], next_state)
+        memory = where_memory(out.done, task.reset(reset_state), out.memory)
+        wrapped_memory = where_memory(
+            out.done, wrapped.reset(_wrapped_state(wrapper_name, reset_state)), wrapped_out.memory
+        )
+        context["best"] = torch.where(out.done, -math.inf, context["best"])
+        context["phi"] = torch.where(out.done, _potential(reset_state), context["phi"])
+        state = reset_state
+
+
+@pytest.mark.parametrize("wrapper_name", sorted(WRAPPERS))
+@pytest.mark.parametrize("task_name", sorted(TASKS))
+def test_wrapper_composes_the_task_transition(task_name: str, wrapper_name: str) -> None:
+    for seed in range(3):
+        _run(task_name, wrapper_name, seed, "next")
+    # in Pyrado's order the step reward sees s_t: shaping lags (tested in test_shaping.py) and composites
+    # judge their sub-tasks on s_t (the golden scenarios test that order); wrappers pass it through
+    if wrapper_name not in ("shaping", "parallel", "sequential"):
+        _run(task_name, wrapper_name, 3, "state")
+
+
+# ----------------------------------------------------------------------------------- regressions
+SPEC = EnvSpec(1, 1)
+NEAR = functools.partial(proximity_succeeded, threshold=0.1)
+
+
+def _shaped_goalless() -> PotentialShapingTask:
+    return PotentialShapingTask(GoallessTask(SPEC, ConstantReward(0.0)), lambda s: -s[..., 0].abs(), 0.9)
+
+
+@pytest.mark.parametrize(
+    ("wrap", "copies"),
+    [
+        (lambda t: t, 1),
+        (lambda t: FinalRewardTask(t), 1),
+        (lambda t: BestStateFinalRewardTask(t, 1.0), 1),
+        (lambda t: MaskedTask(SPEC, t, [0]), 1),
+        (lambda t: ParallelTasks([t]), 1),
+        (lambda t: SequentialTasks([t]), 1),
+        (lambda t: FinalRewardTask(MaskedTask(SPEC, ParallelTasks([t, _shaped_goalless()]), [0])), 2),
+    ],
+    ids=["bare", "final", "best", "masked", "parallel", "sequential", "nested"],
+)
+def test_shaping_is_absorbing_at_the_envs_termination_inside_any_wrapper(
+    wrap: Callable[[Task], Task], copies: int
+) -> None:
+    # Φ(s) = -2, Φ(s') = -1, γ = 0.9: truncation pays 0.9·(-1) + 2 = 1.1, termination pays 0 + 2 = 2.0
+    task = wrap(_shaped_goalless())
+    state, next_state = torch.tensor([[2.0], [2.0], [2.0]]), torch.tensor([[1.0], [1.0], [1.0]])
+    out = task.transition(
+        state,
+        torch.zeros(3, 1),
+        next_state,
+        task.reset(state),
+        terminated=torch.tensor([True, False, False]),
+        truncated=torch.tensor([False, True, False]),
+    )
+    torch.testing.assert_close(out.step_reward, torch.tensor([2.0, 1.1, 1.1]) * copies)
+
+
+def test_shaped_sub_task_starts_from_the_state_where_it_becomes_current() -> None:
+    first = DesiredStateTask(SPEC, [1.0], ConstantReward(0.0), NEAR)
+    shaped = PotentialShapingTask(
+        DesiredStateTask(SPEC, [-1.0], ConstantReward(0.0), NEAR), lambda s: -(s[..., 0] + 1).abs(), 1.0
+    )
+    task = SequentialTasks([first, shaped])
+    memory = task.reset(torch.tensor([[0.0]]))
+    out = task.transition(torch.tensor([[0.0]]), torch.zeros(1, 1), torch.tensor([[1.0]]), memory)
+    assert out.memory["index"].tolist() == [1]
+    # the first step of the shaped sub-task: from 1.0 to 0.5, towards -1: Φ = -2 → -1.5, pays +0.5
+    out = task.transition(torch.tensor([[1.0]]), torch.zeros(1, 1), torch.tensor([[0.5]]), out.memory)
+    torch.testing.assert_close(out.step_reward, torch.tensor([0.5]))
+
+
+def test_forward_velocity_sub_task_measures_from_where_it_takes_over() -> None:
+    spec = EnvSpec(2, 1)
+    first = DesiredStateTask(spec, [5.0, 0.0], ConstantReward(0.0), NEAR)
+    walk = GoallessTask(spec, ForwardVelocityReward(dt=1.0, index=0, forward_reward_weight=1.0, ctrl_cost_weight=0.0))
+    task = SequentialTasks([first, walk])
+    state = torch.tensor([[0.0, 0.0]])
+    memory = task.reset(state)
+    out = task.transition(state, torch.zeros(1, 1), torch.tensor([[5.0, 0.0]]), memory)  # the first is done at x=5
+    out = task.transition(torch.tensor([[5.0, 0.0]]), torch.zeros(1, 1), torch.tensor([[5.5, 0.0]]), out.memory)
+    torch.testing.assert_close(out.step_reward, torch.tensor([0.5]))  # 0.5 / dt, not (5.5 - 0) / dt
+
+
+def test_goal_of_a_sub_task_survives_its_start() -> None:
+    first = DesiredStateTask(SPEC, [1.0], ConstantReward(0.0), NEAR)
+    second = PotentialShapingTask(
+        DesiredStateTask(SPEC, [-1.0], ConstantReward(0.0), NEAR), lambda s: -(s[..., 0] + 1).abs(), 1.0
+    )
+    task = SequentialTasks([first, second])
+    goal = {"task1.wrapped.state_des": torch.tensor([[3.0]])}
+    memory = task.reset(torch.tensor([[0.0]]), state_des=torch.tensor([[1.0]]))
+    memory = task.with_goal(memory, goal, torch.zeros(1, 1))
+    out = task.transition(torch.tensor([[0.0]]), torch.zeros(1, 1), torch.tensor([[1.0]]), memory)
+    assert out.memory["task1", "wrapped", "state_des"].tolist() == [[3.0]]
+
+
+def _time_task(n: int, m: int) -> FinalRewardTask:
+    return FinalRewardTask(GoallessTask(EnvSpec(n, m), ConstantReward(0.0)), FinalRewardMode(time_dependent=True))
+
+
+@pytest.mark.parametrize("remaining", [-1, torch.tensor([3, -2]), torch.tensor(-1)])
+def test_negative_remaining_steps_are_refused_at_the_call(remaining: int | torch.Tensor) -> None:
+    task = _time_task(1, 1)
+    state = torch.zeros(2, 1)
+    with pytest.raises(ValueError, match="remaining_steps must be >= 0"):
+        task.transition(state, torch.zeros(2, 1), state, task.reset(state), remaining)
+    with pytest.raises(ValueError, match="remaining_steps must be >= 0"):
+        task.final_reward(state, task.reset(state), remaining, torch.ones(2, dtype=torch.bool))
+
+
+def _pendulum_task(env: PendulumEnv) -> FinalRewardTask:
+    return _time_task(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1])
+
+
+def test_a_max_steps_that_disagrees_with_the_step_counter_is_refused_at_set_up() -> None:
+    base = PendulumEnv(batch_size=[2])
+    env = TransformedEnv(base, Compose(StepCounter(10), TaskTransform(_pendulum_task(base), max_steps=3)))
+    with pytest.raises(ValueError, match=r"max_steps=3\) disagrees with the preceding StepCounter\(max_steps=10\)"):
+        env.reset()  # when the env's specs are built
+
+
+def test_offline_data_beyond_the_limit_is_refused() -> None:
+    base = PendulumEnv(batch_size=[2])
+    env = TransformedEnv(base, Compose(StepCounter(10), TaskTransform(_pendulum_task(base))))
+    data = env.rollout(10, break_when_any_done=False)
+    with pytest.raises(ValueError, match=r"step counts up to 10 .* exceed max_steps=3"):
+        TaskTransform(_pendulum_task(base), max_steps=3).reward_fn(data)
+    # the limit the data was collected with re-judges it exactly
+    expected = data["next", "reward"]
+    assert torch.equal(TaskTransform(_pendulum_task(base), max_steps=10).reward_fn(data), expected)
+
+
+def test_a_limit_no_step_counter_enforces_is_checked_online() -> None:
+    base = PendulumEnv(batch_size=[2])
+    env = TransformedEnv(base, Compose(StepCounter(), TaskTransform(_pendulum_task(base), max_steps=3)))
+    env.rollout(3, break_when_any_done=False)  # within the limit: fine
+    with pytest.raises(ValueError, match="exceed max_steps=3"):
+        env.rollout(5, break_when_any_done=False)
