@@ -356,3 +356,28 @@ def test_a_limit_no_step_counter_enforces_is_checked_online() -> None:
     env.rollout(3, break_when_any_done=False)  # within the limit: fine
     with pytest.raises(ValueError, match="exceed max_steps=3"):
         env.rollout(5, break_when_any_done=False)
+
+
+class _StayAbove(Task):
+    """A task of one's own, written without the ``terminated`` argument (as the concepts page shows)."""
+
+    def _step_reward(self, state, action, memory, remaining_steps):
+        return (state[..., 0] > 0).to(state.dtype), memory
+
+    def _has_succeeded(self, state, memory):
+        return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)
+
+
+@pytest.mark.parametrize("wrap", list(WRAPPERS.values()), ids=list(WRAPPERS))
+def test_a_task_of_ones_own_without_terminated_composes(wrap: Callable[[Task], Task]) -> None:
+    inner = _StayAbove(EnvSpec(Box([-1.0], [math.inf]), 1))
+    task = wrap(inner)
+    n = task.state_size
+    state = torch.full((2, n), 0.5)
+    out = task.transition(state, torch.zeros(2, 1), state, task.reset(state), terminated=torch.tensor([True, False]))
+    bare = inner.transition(
+        state[..., -1:], torch.zeros(2, 1), state[..., -1:], inner.reset(state[..., -1:]), terminated=None
+    )
+    expected = bare.step_reward + out.terms.get("shaping", torch.zeros(2))
+    torch.testing.assert_close(out.step_reward, expected)
+    assert bare.step_reward.tolist() == [1.0, 1.0]

@@ -23,7 +23,9 @@ again. :meth:`Task._transition` is the one implementation of a transition: the
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+import functools
+import inspect
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any, Literal
 
 import torch
@@ -55,6 +57,23 @@ TransitionTuple = tuple[
 ]
 
 
+def _without_terminated(method: Callable[..., Any]) -> Callable[..., Any]:
+    """Adapt a ``_step_reward``/``_step_terms`` written without the ``terminated`` argument (it is dropped)."""
+
+    @functools.wraps(method)
+    def adapted(
+        self: Task,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+    ) -> Any:
+        return method(self, state, action, memory, remaining_steps)
+
+    return adapted
+
+
 def _check_flag_argument(flag: object, name: str, batch: torch.Size) -> None:
     if flag is None:
         return
@@ -72,6 +91,9 @@ class Task(nn.Module):
     ``_has_failed`` (default: the state left ``spec.state_space``; NaN is always outside) and
     ``_compute_final_reward`` (default 0). Every per-environment quantity that changes during an
     episode lives in the memory TensorDict, so environments of a batch are independent.
+    ``_step_reward(state, action, memory, remaining_steps, terminated=None)`` receives the env's own
+    termination of the transition when the step reward sees ``next_state``; a task that does not read
+    it may leave the argument out, and a task that wraps others passes it on to them.
 
     Args:
         spec: the task's :class:`~torchtasks.spaces.EnvSpec` (state and action boxes).
@@ -93,6 +115,15 @@ class Task(nn.Module):
     #: this task's own memory entries that stay as they are when it starts as the current sub-task of a
     #: :class:`SequentialTasks` (its goal, a final-reward latch); the rest is re-initialised
     kept_at_start: tuple[str, ...] = ()
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # a task of one's own may write its step reward without ``terminated`` (only a step reward that
+        # treats the env's own termination as absorbing reads it): it is called without it
+        super().__init_subclass__(**kwargs)
+        for name in ("_step_reward", "_step_terms"):
+            method = cls.__dict__.get(name)
+            if callable(method) and "terminated" not in inspect.signature(method).parameters:
+                setattr(cls, name, _without_terminated(method))
 
     def __init__(self, spec: EnvSpec) -> None:
         super().__init__()
