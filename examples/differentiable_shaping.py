@@ -36,9 +36,14 @@ learning is much slower (``--horizon 64``; see ``docs/training.md`` for the meas
 
 Evaluation is the PPO example's ``evaluate``: one deterministic episode on each of 256 pendulums
 from the same fixed initial states; the success rate is the fraction that end in success. The run
-stops at ``--target`` (0.8) and reports the env frames it took; when ``--ppo-json`` (default:
-``swingup_ppo_curve.json`` in ``--output``) holds a PPO run of ``train_swingup_ppo.py``, its
-frames to the same target are printed next to it and its curve is drawn in the PNG.
+stops at ``--target`` (0.8) and reports the env frames it took; when ``--ppo-json`` holds a PPO
+run of ``train_swingup_ppo.py``, its frames to the same target are printed next to it and its curve
+is drawn in the PNG. The default ``--ppo-json`` is ``swingup_ppo_curve.json`` in ``--output`` if it
+is there, else where ``train_swingup_ppo.py`` writes it by default
+(``runs/train_swingup_ppo/swingup_ppo_curve.json``).
+
+Outputs in ``--output`` (default ``runs/differentiable_shaping/``, relative to the current
+directory): ``differentiable_shaping_curve.json`` and ``differentiable_shaping_curve.png``.
 
 Run: ``python examples/differentiable_shaping.py [--quick] [--output DIR] [--seed N] [--ppo-json FILE]``
 (``--quick``: a tiny run of a few seconds that runs every code path, for the tests; ``--help``
@@ -60,9 +65,11 @@ from torch import nn
 from torchrl.envs.utils import step_mdp
 from tqdm import tqdm
 from train_swingup_ppo import CURVE_NAME as PPO_CURVE_NAME
+from train_swingup_ppo import DEFAULT_OUTPUT as PPO_OUTPUT
 from train_swingup_ppo import MAX_TORQUE, evaluate, machine_info, make_env, mlp, save
 
 CURVE_NAME = "differentiable_shaping_curve"
+DEFAULT_OUTPUT = Path("runs/differentiable_shaping")  # relative to the current directory
 
 
 @dataclass(frozen=True)
@@ -173,11 +180,18 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
     return record
 
 
+def default_ppo_json(output: Path) -> Path:
+    """``swingup_ppo_curve.json`` in ``output`` if it is there, else in ``train_swingup_ppo.py``'s default output."""
+    beside = output / f"{PPO_CURVE_NAME}.json"
+    return beside if beside.is_file() else PPO_OUTPUT / f"{PPO_CURVE_NAME}.json"
+
+
 def compare(record: dict[str, Any], ppo_json: Path) -> dict[str, Any] | None:
     """Print the frames this run and the PPO run in ``ppo_json`` needed; return the PPO run (None if absent)."""
     print(f"analytic gradients: {_frames_to_target(record)}")
     if not ppo_json.is_file():
-        print(f"no PPO run at {ppo_json}: run examples/train_swingup_ppo.py --output {ppo_json.parent} to compare")
+        where = "" if ppo_json.parent == PPO_OUTPUT else f" --output {ppo_json.parent}"
+        print(f"no PPO run at {ppo_json}: run examples/train_swingup_ppo.py{where} to compare")
         return None
     ppo = json.loads(ppo_json.read_text())
     print(f"PPO ({ppo_json}): {_frames_to_target(ppo)}")
@@ -196,10 +210,14 @@ def _frames_to_target(record: dict[str, Any]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=Path("."), help="directory for the JSON and PNG")
+    parser.add_argument(
+        "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--ppo-json", type=Path, help="PPO run to compare with (default: OUTPUT/swingup_ppo_curve.json)"
+        "--ppo-json",
+        type=Path,
+        help=f"PPO run to compare with (default: OUTPUT/{PPO_CURVE_NAME}.json if there, else in {PPO_OUTPUT})",
     )
     parser.add_argument("--max-minutes", type=float, help=f"wall-clock limit (default {ShapingConfig.max_minutes})")
     parser.add_argument(
@@ -218,7 +236,7 @@ def main() -> None:
     }
     config = replace(config, **overrides)
     record = train(config, args.seed, max_iterations=QUICK_ITERATIONS if args.quick else None)
-    ppo = compare(record, args.ppo_json or args.output / f"{PPO_CURVE_NAME}.json")
+    ppo = compare(record, args.ppo_json or default_ppo_json(args.output))
     if ppo is not None:
         record["ppo"] = {key: ppo[key] for key in ("seed", "config", "frames_to_target", "time_to_target_s")}
     title = f"Analytic policy gradients, {config.num_envs} envs, {config.horizon}-step windows, seed {args.seed}"

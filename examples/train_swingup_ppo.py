@@ -28,9 +28,10 @@ Set-up:
   second intra-op thread made them slower, not faster (see ``docs/training.md``).
 
 Training stops when the evaluation success rate reaches ``--target`` (0.8) or after
-``--max-minutes`` (10). Outputs in ``--output``: ``swingup_ppo_curve.json`` (the learning curve:
-success rate and mean episode reward against frames and wall time, the time and frames to the
-target, the machine load) and ``swingup_ppo_curve.png``.
+``--max-minutes`` (10). Outputs in ``--output`` (default ``runs/train_swingup_ppo/``, relative to the
+current directory): ``swingup_ppo_curve.json`` (the learning curve: success rate and mean episode
+reward against frames and wall time, the time and frames to the target, the machine load) and
+``swingup_ppo_curve.png``.
 
 Run: ``python examples/train_swingup_ppo.py [--quick] [--output DIR] [--seed N] [--max-minutes M]``
 (``--quick``: a tiny run of a few seconds that runs every code path, for the tests; ``--help``
@@ -93,6 +94,7 @@ __all__ = [
 
 SUCCESS_THRESHOLD = 0.1  # ‖[wrapped θ, θ̇]‖ below this ends the episode in success
 CURVE_NAME = "swingup_ppo_curve"
+DEFAULT_OUTPUT = Path("runs/train_swingup_ppo")  # relative to the current directory
 
 
 def make_env(num_envs: int, seed: int) -> TransformedEnv:
@@ -123,7 +125,9 @@ def train(config: PPOConfig, seed: int, max_iterations: int | None = None) -> di
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=Path("."), help="directory for the JSON and PNG")
+    parser.add_argument(
+        "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--max-minutes", type=float, help=f"wall-clock limit (default {PPOConfig.max_minutes})")
     parser.add_argument(

@@ -1,8 +1,9 @@
 """The example scripts run end to end with ``--quick`` and print what they promise.
 
-Each example runs as a subprocess (``sys.executable``, from the repository root), as a user would run
-it. The Ray example starts (and shuts down) its own local Ray cluster; the MuJoCo example needs the
-``mujoco`` extra.
+Each example runs as a subprocess (``sys.executable``), as a user would run it, from a fresh empty
+directory and with its default outputs: :func:`run_quick` also checks that it writes nothing there
+but ``runs/<example name>/`` (see ``test_examples_write_under_runs.py``). The Ray example starts (and
+shuts down) its own local Ray cluster; the MuJoCo example needs the ``mujoco`` extra.
 """
 
 from __future__ import annotations
@@ -10,11 +11,11 @@ from __future__ import annotations
 import importlib.util
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
+
+from test_examples_write_under_runs import run_quick
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLES = ROOT / "examples"
@@ -22,19 +23,9 @@ EXAMPLES = ROOT / "examples"
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
 
 
-def run_example(name: str, *args: str, timeout: float = 180.0) -> str:
-    """Run ``examples/<name> --quick *args``; return its stdout (fail with both streams on a non-zero exit)."""
-    result = subprocess.run(
-        [sys.executable, str(EXAMPLES / name), "--quick", *args],
-        cwd=ROOT,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
-    assert result.returncode == 0, (
-        f"{name} exited with {result.returncode}\n--- stdout ---\n{result.stdout}\n--- stderr ---\n{result.stderr}"
-    )
-    return result.stdout
+def run_example(name: str, cwd: Path, *args: str, timeout: float = 180.0) -> str:
+    """Run ``examples/<name> --quick *args`` from the empty folder ``cwd``; return its stdout (:func:`run_quick`)."""
+    return run_quick(name, cwd, *args, timeout=timeout).stdout
 
 
 def _number(pattern: str, text: str) -> float:
@@ -43,8 +34,8 @@ def _number(pattern: str, text: str) -> float:
     return float(match.group(1))
 
 
-def test_quickstart() -> None:
-    out = run_example("quickstart.py")
+def test_quickstart(tmp_path: Path) -> None:
+    out = run_example("quickstart.py", tmp_path)
     assert "8 envs x 50 steps" in out
     for key in ("step", "final", "track", "effort"):
         assert re.search(rf"mean per-step\s+{key}:", out), key
@@ -53,20 +44,20 @@ def test_quickstart() -> None:
 
 @pytest.mark.ray
 @pytest.mark.multiprocess
-def test_distributed_ray() -> None:
+def test_distributed_ray(tmp_path: Path) -> None:
     """The default: two Ray actors, each with 8 batched Hopper envs (BatchedMujocoEnv) and random actions."""
     pytest.importorskip("ray")
     if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("gymnasium") is None:
         pytest.skip("needs the mujoco extra (mujoco, gymnasium)")
     # Ray start-up (cluster, then two actors importing torch) takes most of the time on a loaded 2-core machine
-    out = run_example("distributed_ray.py", timeout=300.0)
+    out = run_example("distributed_ray.py", tmp_path, timeout=300.0)
     assert "Ray collector: 2 workers x 8 Hopper-v5 envs (BatchedMujocoEnv)" in out
     assert _number(r"^frames collected: (\d+)", out) == 2400
     episodes = _number(r"^episodes ended: (\d+)", out)
     # random actions: Hopper falls (a task failure) long before the 1000-step limit
     assert episodes > 0 and _number(r"failures: (\d+)", out) == episodes
     assert _number(r"successes: (\d+)", out) == 0 and _number(r"truncations: (\d+)", out) == 0
-    for term in ("forward", "ctrl", "survive", "step", "final"):
+    for term in ("forward", "ctrl", "survive"):  # no step/final pair: the preset pays no final reward
         assert re.search(rf"^\s+{term}\s+[+-]\d+\.\d+$", out, flags=re.MULTILINE), term
     assert _number(r"^\s+survive\s+([+-]\d+\.\d+)$", out) > 0  # healthy_reward 1 per healthy step
     assert _number(r"max abs difference (\S+)$", out) == 0.0
@@ -102,8 +93,8 @@ def test_distributed_ray_pendulum_pieces() -> None:
         module.make_offline_transform("CartPole-v1")
 
 
-def test_her_relabel() -> None:
-    out = run_example("her_relabel.py")
+def test_her_relabel(tmp_path: Path) -> None:
+    out = run_example("her_relabel.py", tmp_path)
     assert "relabelled rewards equal the task's reward for the new goal: 256 transitions checked" in out
     assert "per-env goal sampling" in out
     before = _number(r"successful transitions before relabelling:\s+([\d.]+)%", out)
@@ -112,24 +103,25 @@ def test_her_relabel() -> None:
 
 
 @pytest.mark.mujoco
-def test_mujoco_locomotion() -> None:
+def test_mujoco_locomotion(tmp_path: Path) -> None:
     if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("gymnasium") is None:
         pytest.skip("needs the mujoco extra (mujoco, gymnasium)")
-    out = run_example("mujoco_locomotion.py")
+    out = run_example("mujoco_locomotion.py", tmp_path)
     assert "HalfCheetah-v5: 300 frames" in out
-    for term in ("step", "final", "forward", "ctrl", "reward"):
+    for term in ("forward", "ctrl", "reward"):
         assert re.search(rf"^\| {term} \|", out, flags=re.MULTILINE), term
     assert _number(r"largest difference to Gymnasium's info terms over 300 steps: (\S+)$", out) < 1e-5
     assert "RewardSum episode sums match the per-step terms summed by hand" in out
 
 
 def test_potential_shaping(tmp_path: Path) -> None:
-    out = run_example("potential_shaping.py", "--output", str(tmp_path))
+    out = run_example("potential_shaping.py", tmp_path)
+    output = tmp_path / "runs" / "potential_shaping"  # the default --output
     assert "frame budget 1,024 per run" in out
     for label in ("sparse", "sparse + shaping"):
         for seed in (0, 1):
             assert re.search(rf"^\s*{re.escape(label)}, seed {seed}: 80% (after|not reached)", out, re.MULTILINE)
-    experiment = json.loads((tmp_path / "potential_shaping.json").read_text())
+    experiment = json.loads((output / "potential_shaping.json").read_text())
     assert set(experiment["variants"]) == {"sparse", "shaped"}
     assert f"γ = {experiment['config']['gamma']:g} (the PPO discount)" in experiment["shaping"]
     for variant in experiment["variants"].values():
@@ -142,16 +134,17 @@ def test_potential_shaping(tmp_path: Path) -> None:
         for i, rate in enumerate(mean["eval_success_rate"]):
             per_seed = [run["curve"][i]["eval_success_rate"] for run in variant["runs"]]
             assert rate == pytest.approx(sum(per_seed) / len(per_seed))
-    assert (tmp_path / "potential_shaping.png").stat().st_size > 0
+    assert (output / "potential_shaping.png").stat().st_size > 0
 
 
 def test_goal_reaching(tmp_path: Path) -> None:
     import json
 
-    out = run_example("goal_reaching.py", "--output", str(tmp_path))
+    out = run_example("goal_reaching.py", tmp_path)
+    output = tmp_path / "runs" / "goal_reaching"  # the default --output
     for variant in ("her", "plain"):
         assert re.search(rf"^{variant}, seed 0: 90% (after \d+ frames|not reached in \d+ frames)", out, re.MULTILINE)
-    experiment = json.loads((tmp_path / "goal_reaching.json").read_text())
+    experiment = json.loads((output / "goal_reaching.json").read_text())
     assert set(experiment["variants"]) == {"her", "plain"}
     for variant in experiment["variants"].values():
         (run,) = variant["runs"]
@@ -159,4 +152,4 @@ def test_goal_reaching(tmp_path: Path) -> None:
         assert run["curve"][0]["frames"] == 0
         assert all(0.0 <= point["eval_success_rate"] <= 1.0 for point in run["curve"])
         assert variant["frames_to_target"] == [run["frames_to_target"]]
-    assert (tmp_path / "goal_reaching.png").stat().st_size > 0
+    assert (output / "goal_reaching.png").stat().st_size > 0

@@ -2,23 +2,25 @@
 
 ``examples/train_swingup_ppo.py`` (PPO), ``examples/differentiable_shaping.py`` (analytic
 policy gradients) and ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
-``mujoco`` extra) are run as scripts, as a user would, in a temporary output directory. The
-quick runs take a few seconds each; they check the code paths (training, evaluation, JSON, PNG,
-the PPO comparison), not the learning.
+``mujoco`` extra) are run as scripts, as a user would, from a fresh empty directory with their
+default outputs (``runs/<example name>/``; :func:`run_quick` also checks that nothing else appears
+there). The quick runs take a few seconds each; they check the code paths (training, evaluation,
+JSON, PNG, the PPO comparison), not the learning.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import json
+import shutil
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+from test_examples_write_under_runs import run_quick
+
 TIMEOUT_S = 120  # a quick run takes < 60 s on the 2-core CI machine, even when it is busy
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
@@ -41,12 +43,9 @@ RUN_FIELDS = {
 POINT_FIELDS = {"iteration", "frames", "seconds", "eval_success_rate", "eval_episode_reward", "eval_episode_length"}
 
 
-def run_example(script: str, output: Path, *args: str) -> subprocess.CompletedProcess[str]:
-    """Run ``examples/<script> --quick --output <output> <args>`` and fail with its output if it fails."""
-    command = [sys.executable, str(EXAMPLES / script), "--quick", "--output", str(output), *args]
-    result = subprocess.run(command, cwd=output, capture_output=True, text=True, timeout=TIMEOUT_S, check=False)
-    assert result.returncode == 0, f"{' '.join(command)} failed:\n{result.stdout}\n{result.stderr}"
-    return result
+def run_example(script: str, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    """Run ``examples/<script> --quick <args>`` from the empty folder ``cwd`` (see :func:`run_quick`)."""
+    return run_quick(script, cwd, *args, timeout=TIMEOUT_S)
 
 
 def load_run(path: Path) -> dict[str, Any]:
@@ -65,10 +64,10 @@ def load_run(path: Path) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def ppo_output(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The output directory of one quick PPO run."""
-    output = tmp_path_factory.mktemp("ppo")
-    run_example("train_swingup_ppo.py", output, "--seed", "1")
-    return output
+    """The output directory of one quick PPO run: its default, ``runs/train_swingup_ppo/``."""
+    cwd = tmp_path_factory.mktemp("ppo")
+    run_example("train_swingup_ppo.py", cwd, "--seed", "1")
+    return cwd / "runs" / "train_swingup_ppo"
 
 
 def test_ppo_quick_writes_curve_json_and_png(ppo_output: Path) -> None:
@@ -81,28 +80,35 @@ def test_ppo_quick_writes_curve_json_and_png(ppo_output: Path) -> None:
 
 
 def test_differentiable_shaping_quick_writes_curve_and_comparison(ppo_output: Path, tmp_path: Path) -> None:
-    ppo_json = ppo_output / "swingup_ppo_curve.json"
-    result = run_example("differentiable_shaping.py", tmp_path, "--ppo-json", str(ppo_json))
-    record = load_run(tmp_path / "differentiable_shaping_curve.json")
+    """By default it compares with the PPO run where ``train_swingup_ppo.py`` writes it by default."""
+    ppo_json = tmp_path / "runs" / "train_swingup_ppo" / "swingup_ppo_curve.json"
+    ppo_json.parent.mkdir(parents=True)
+    shutil.copy(ppo_output / "swingup_ppo_curve.json", ppo_json)
+    result = run_example("differentiable_shaping.py", tmp_path)
+    output = tmp_path / "runs" / "differentiable_shaping"
+    record = load_run(output / "differentiable_shaping_curve.json")
     assert record["method"] == "analytic gradients"
     assert "loss" in record["curve"][-1]
     assert record["ppo"]["frames_to_target"] == json.loads(ppo_json.read_text())["frames_to_target"]
-    assert (tmp_path / "differentiable_shaping_curve.png").stat().st_size > 0
-    assert "PPO (" in result.stdout
+    assert (output / "differentiable_shaping_curve.png").stat().st_size > 0
+    assert "PPO (runs/train_swingup_ppo/swingup_ppo_curve.json)" in result.stdout
 
 
 def test_differentiable_shaping_quick_without_ppo_run(tmp_path: Path) -> None:
-    result = run_example("differentiable_shaping.py", tmp_path)
-    record = load_run(tmp_path / "differentiable_shaping_curve.json")
+    """``--output`` moves the outputs; with no PPO run there or in the PPO example's folder, none is compared."""
+    output = Path("runs", "differentiable_shaping", "seed0")  # relative to the current directory
+    result = run_example("differentiable_shaping.py", tmp_path, "--output", str(output))
+    record = load_run(tmp_path / output / "differentiable_shaping_curve.json")
     assert "ppo" not in record
-    assert "no PPO run" in result.stdout
+    assert "no PPO run at runs/train_swingup_ppo/swingup_ppo_curve.json" in result.stdout
 
 
 def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     pytest.importorskip("gymnasium")
     result = run_example("train_locomotion_ppo.py", tmp_path, "--seeds", "3")
-    record = json.loads((tmp_path / "locomotion_ppo_seed3.json").read_text())
+    output = tmp_path / "runs" / "train_locomotion_ppo"  # the default --output
+    record = json.loads((output / "locomotion_ppo_seed3.json").read_text())
     assert record["seed"] == 3 and record["env_id"] == "HalfCheetah-v5" and record["method"] == "PPO"
     frames = [point["frames"] for point in record["curve"]]
     assert frames == [2000, 4000] == [2000, record["total_frames"]]
@@ -122,5 +128,5 @@ def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     assert record["frames_per_second"] > 0 and record["machine_end"]["load_1min"] >= 0
     assert "seed 3: 4000 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
-        assert (tmp_path / "locomotion_ppo_curve.png").stat().st_size > 0
+        assert (output / "locomotion_ppo_curve.png").stat().st_size > 0
         assert "locomotion_ppo_curve.png (1 seed(s))" in result.stdout
