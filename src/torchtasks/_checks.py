@@ -1,11 +1,25 @@
-"""Argument checks shared by reward functions and tasks.
+"""Argument checks shared by reward functions, tasks, transforms and envs.
 
 Every check runs on shapes, dtypes and construction-time constants only, never on the values of
 step inputs, so calling them inside a step costs a few Python comparisons and adds no host sync.
+
+One helper per kind of argument, all with the same rules and messages (``<name> must be <kind>,
+got <value> of type <type>``):
+
+- integers (:func:`check_int`, :func:`check_positive_int`, :func:`check_non_negative_int`): a Python
+  int or a NumPy integer, returned as a Python int; bools (also ``np.bool_``), floats (also integral
+  ones such as ``2.0``), strings and tensors are a ``TypeError``, a value out of range a ``ValueError``;
+- real numbers (:func:`check_finite_scalar`, :func:`check_weight`): any real number (Python or NumPy
+  int or float, a one-element real tensor) except bools, returned as a Python float; other types are a
+  ``TypeError``, NaN, infinities and (for weights) negative values a ``ValueError``;
+- pairs (:func:`check_pair`): two real numbers ``(low, high)`` with ``low <= high`` (infinities
+  allowed, NaN refused), returned as a tuple of Python floats.
 """
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 
 import numpy as np
@@ -38,17 +52,72 @@ def as_constant(value: object, name: str, *, ndim: Sequence[int] | None = None) 
     return tensor
 
 
+def _type_error(value: object, name: str, expected: str) -> TypeError:
+    return TypeError(f"{name} must be {expected}, got {value!r} of type {type(value).__name__}")
+
+
+def _is_int(value: object) -> bool:
+    """Whether ``value`` is a Python int or a NumPy integer (not a bool)."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, (bool, np.bool_))
+
+
+def _as_real(value: object, name: str) -> float:
+    """``value`` as a float if it is a real number (not a bool), else ``TypeError``; NaN and inf pass."""
+    if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+        return float(value)
+    if isinstance(value, torch.Tensor) and value.numel() == 1 and value.dtype != torch.bool and not value.is_complex():
+        return float(value)
+    raise _type_error(value, name, "a real number")
+
+
 def check_finite_scalar(value: object, name: str) -> float:
-    """Return ``value`` as a float; raise if it is not a finite real number."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        if isinstance(value, torch.Tensor) and value.numel() == 1:
-            value = float(value)
-        else:
-            raise TypeError(f"{name} must be a real number, got {value!r} of type {type(value).__name__}")
-    value = float(value)
-    if value != value or value in (float("inf"), float("-inf")):
-        raise ValueError(f"{name} must be finite, got {value}")
-    return value
+    """Return ``value`` as a Python float; raise unless it is a finite real number.
+
+    Accepted: Python and NumPy ints and floats (``np.float32(0.5)``), one-element real tensors.
+    Bools, strings and other types are a ``TypeError``; NaN and infinities a ``ValueError``.
+    """
+    result = _as_real(value, name)
+    if result != result or result in (math.inf, -math.inf):  # not math.isfinite: torch.compile traces this
+        raise ValueError(f"{name} must be finite, got {result}")
+    return result
+
+
+def check_weight(value: object, name: str) -> float:
+    """Return a finite, non-negative real number (a weight, a cost factor, a scale) as a Python float.
+
+    Accepts what :func:`check_finite_scalar` accepts; a negative value is a ``ValueError``.
+    """
+    result = check_finite_scalar(value, name)
+    if result < 0:
+        raise ValueError(f"{name} must be non-negative, got {result}")
+    return result
+
+
+def check_pair(value: object, name: str) -> tuple[float, float]:
+    """Return a ``(low, high)`` pair of Python floats with ``low <= high``.
+
+    Each entry is a real number as for :func:`check_finite_scalar` (Python or NumPy, not a bool or a
+    string); the pair is any iterable of exactly two (a tuple, a list, a 1-D array or tensor).
+    Infinities are allowed (an open side); NaN is a ``ValueError``, as is ``low > high``.
+    """
+    expected = "a pair (low, high) of real numbers"
+    if isinstance(value, (str, bytes)):
+        raise _type_error(value, name, expected)
+    try:
+        entries = list(value)  # type: ignore[call-overload]
+    except TypeError:
+        raise _type_error(value, name, expected) from None
+    if len(entries) != 2:
+        raise _type_error(value, name, expected)
+    try:
+        low, high = (_as_real(entry, name) for entry in entries)
+    except TypeError:
+        raise _type_error(value, name, expected) from None
+    if low != low or high != high:
+        raise ValueError(f"{name} must not contain NaN, got {value!r}")
+    if low > high:
+        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
+    return low, high
 
 
 def check_input(x: object, name: str, size: int | None = None) -> torch.Tensor:
@@ -73,24 +142,40 @@ def check_same_batch(a: torch.Tensor, b: torch.Tensor, name_a: str, name_b: str)
         )
 
 
-def check_index(index: object, name: str) -> int:
-    """Return ``index`` as an int, rejecting bools and non-integers."""
-    if isinstance(index, bool) or not isinstance(index, int):
-        raise TypeError(f"{name} must be an int, got {index!r}")
-    return index
+def check_int(value: object, name: str) -> int:
+    """Return ``value`` as a Python int (any sign, e.g. an index counted from the end); raise unless it is an integer.
+
+    Python ints and NumPy integers are accepted; bools, floats (also integral ones such as ``2.0``),
+    strings and tensors are a ``TypeError``.
+    """
+    if not _is_int(value):
+        raise _type_error(value, name, "an int")
+    return int(value)  # type: ignore[call-overload]
 
 
 def check_positive_int(value: object, name: str) -> int:
     """Return ``value`` as a Python int; raise unless it is an integer >= 1.
 
     Python ints and NumPy integers (``np.int64(2)``, e.g. from an array of sizes) are accepted; bools,
-    floats (also integral ones such as ``2.0``) and strings are not.
+    floats (also integral ones such as ``2.0``) and strings are a ``TypeError``, values < 1 a ``ValueError``.
     """
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be a positive int, got {value!r} of type {type(value).__name__}")
-    if value < 1:
-        raise ValueError(f"{name} must be a positive int, got {value!r}")
-    return int(value)
+    if not _is_int(value):
+        raise _type_error(value, name, "a positive int")
+    if value < 1:  # type: ignore[operator]
+        raise ValueError(f"{name} must be a positive int, got {int(value)}")  # type: ignore[call-overload]
+    return int(value)  # type: ignore[call-overload]
+
+
+def check_non_negative_int(value: object, name: str) -> int:
+    """Return ``value`` as a Python int; raise unless it is an integer >= 0 (a size that may be 0).
+
+    Accepts and refuses the types :func:`check_positive_int` does; values < 0 are a ``ValueError``.
+    """
+    if not _is_int(value):
+        raise _type_error(value, name, "a non-negative int")
+    if value < 0:  # type: ignore[operator]
+        raise ValueError(f"{name} must be a non-negative int, got {int(value)}")  # type: ignore[call-overload]
+    return int(value)  # type: ignore[call-overload]
 
 
 def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:

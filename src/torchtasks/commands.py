@@ -12,21 +12,18 @@ from collections.abc import Callable, Sequence
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey, unravel_key
+from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, Unbounded
-from torchrl.envs.transforms import Compose, Transform
+from torchrl.envs.transforms import Transform
 
+from torchtasks._checks import check_int, check_positive_int
+from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
 from torchtasks.spaces import Box
+from torchtasks.transforms import TaskTransform
 
 __all__ = ["GoalCommand"]
 
 Sampler = Callable[[torch.Size, torch.Generator | None], torch.Tensor]
-
-
-def _flat(transform: Transform) -> list[Transform]:
-    if isinstance(transform, Compose):
-        return [leaf for child in transform.transforms for leaf in _flat(child)]
-    return [transform]
 
 
 class GoalCommand(Transform):
@@ -95,19 +92,19 @@ class GoalCommand(Transform):
                 raise ValueError("GoalCommand: the goal space must have finite bounds to sample uniformly from it")
             size = space.size
         elif callable(space):
-            if goal_size is None or isinstance(goal_size, bool) or not isinstance(goal_size, int) or goal_size < 1:
-                raise ValueError(f"GoalCommand: a sampler needs goal_size=<number of goal entries>, got {goal_size!r}")
-            size = goal_size
+            if goal_size is None:
+                raise ValueError("GoalCommand: a sampler needs goal_size=<number of goal entries>, got None")
+            size = check_positive_int(goal_size, "GoalCommand: goal_size")
         else:
             raise TypeError(f"space must be a torchtasks.spaces.Box or a sampler callable, got {type(space).__name__}")
         self.timer_range = _timer_range(resample_steps)
         if not isinstance(resample_on_success, bool):
             raise TypeError(f"resample_on_success must be a bool, got {resample_on_success!r}")
-        self.goal_key = unravel_key(goal_key)
-        self.timer_key = unravel_key(
-            f"{goal_key}_steps_left" if isinstance(goal_key, str) else (*goal_key[:-1], f"{goal_key[-1]}_steps_left")
-        )
-        self.success_key = unravel_key(success_key)
+        self.goal_key = nested_key(goal_key, "GoalCommand: goal_key")
+        *parent, leaf = key_parts(self.goal_key)
+        self.timer_key = (*parent, f"{leaf}_steps_left") if parent else f"{leaf}_steps_left"
+        self.success_key = nested_key(success_key, "GoalCommand: success_key")
+        seed = None if seed is None else check_int(seed, "GoalCommand: seed")
         in_keys = [self.goal_key, self.timer_key] + ([self.success_key] if resample_on_success else [])
         super().__init__(in_keys=in_keys, out_keys=[self.goal_key, self.timer_key])
         self.space = space
@@ -117,7 +114,7 @@ class GoalCommand(Transform):
 
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator (created if it had none)."""
-        self.generator = torch.Generator().manual_seed(seed)
+        self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
 
     # --------------------------------------------------------------------------- sampling
     def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
@@ -185,17 +182,12 @@ class GoalCommand(Transform):
 
     def _check_placement(self) -> None:
         """Refuse orders in which the command cannot see success or the task cannot see the goal."""
-        try:
-            container = self.container
-        except (AttributeError, ValueError):
-            return
-        transform = getattr(container, "transform", None)
+        transform = getattr(container_env(self), "transform", None)
         if transform is None:
             return
-        flat = _flat(transform)
+        flat = flat_transforms(transform)
         position = next((i for i, t in enumerate(flat) if t is self), None)
-        # TaskTransforms, recognised by what they are (commands sit beside transforms, not above them)
-        tasks = [(i, t) for i, t in enumerate(flat) if hasattr(t, "task") and hasattr(t, "goal_key")]
+        tasks = [(i, t) for i, t in enumerate(flat) if isinstance(t, TaskTransform)]
         if self.resample_on_success and not any(i < position and t.success_key == self.success_key for i, t in tasks):
             raise ValueError(
                 "GoalCommand(resample_on_success=True) must come after the TaskTransform that writes "
@@ -258,15 +250,13 @@ class GoalCommand(Transform):
 def _timer_range(resample_steps: object) -> tuple[int, int] | None:
     if resample_steps is None:
         return None
-    if isinstance(resample_steps, int) and not isinstance(resample_steps, bool):
-        low = high = resample_steps
-    elif isinstance(resample_steps, Sequence) and len(resample_steps) == 2:
-        low, high = resample_steps
+    if isinstance(resample_steps, Sequence) and not isinstance(resample_steps, str):
+        if len(resample_steps) != 2:
+            raise TypeError(f"resample_steps must be None, an int or a (low, high) pair, got {resample_steps!r}")
+        low = check_positive_int(resample_steps[0], "GoalCommand: resample_steps[0]")
+        high = check_positive_int(resample_steps[1], "GoalCommand: resample_steps[1]")
     else:
-        raise TypeError(f"resample_steps must be None, an int or a (low, high) pair, got {resample_steps!r}")
-    for value in (low, high):
-        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-            raise ValueError(f"resample_steps must be positive ints, got {resample_steps!r}")
+        low = high = check_positive_int(resample_steps, "GoalCommand: resample_steps")
     if low > high:
         raise ValueError(f"resample_steps (low, high) needs low <= high, got {resample_steps!r}")
-    return int(low), int(high)
+    return low, high

@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import functools
 import math
+import numbers
 from collections.abc import Sequence
 
 import torch
 
-from torchtasks._checks import check_finite_scalar
+from torchtasks._checks import check_finite_scalar, check_weight
 from torchtasks.rewards import (
     AbsoluteErrorReward,
     ConstantReward,
@@ -60,7 +61,7 @@ def _masked_desired_state(
 
 
 def _labels(labels: Sequence[str | int] | str, name: str) -> list[str | int]:
-    if isinstance(labels, (str, int)):
+    if isinstance(labels, (str, numbers.Integral)):  # one label or position (NumPy integers too)
         return [labels]
     labels = list(labels)
     if not labels:
@@ -119,9 +120,7 @@ def collision_task(spec: EnvSpec, factor: float) -> Task:
         >>> task.step_reward(torch.tensor([[5.0, 0.25]]), torch.zeros(1, 1), task.reset(torch.zeros(1, 2)))[0]
         tensor([-0.5000])
     """
-    factor = check_finite_scalar(factor, "factor")
-    if factor < 0:
-        raise ValueError(f"factor must be non-negative, got {factor}")
+    factor = check_weight(factor, "factor")
     reward = AbsoluteErrorReward(q=[factor], r=torch.zeros(spec.action_size))
     return _masked_desired_state(spec, ["CollCost"], torch.zeros(1), reward, never_succeeded)
 

@@ -9,11 +9,12 @@ box with an action box; tasks read their bounds from it.
 from __future__ import annotations
 
 import math
-import numbers
 import operator
 from collections.abc import Iterable, Sequence
 
 import torch
+
+from torchtasks._checks import check_non_negative_int
 
 __all__ = [
     "Box",
@@ -133,11 +134,7 @@ class Box:
             >>> Box.unbounded(2).bound_abs_high
             tensor([inf, inf], dtype=torch.float64)
         """
-        if isinstance(size, bool) or not isinstance(size, numbers.Integral):
-            raise TypeError(f"size must be a non-negative int, got {size!r} of type {type(size).__name__}")
-        size = int(size)
-        if size < 0:
-            raise ValueError(f"size must be a non-negative int, got {size!r}")
+        size = check_non_negative_int(size, "size")
         return cls(torch.full((size,), -math.inf), torch.full((size,), math.inf), labels=labels)
 
     @classmethod
@@ -263,9 +260,11 @@ class Box:
 def _as_box(value: Box | int, name: str) -> Box:
     if isinstance(value, Box):
         return value
-    if isinstance(value, int) and not isinstance(value, bool):
-        return Box.unbounded(value)
-    raise TypeError(f"{name} must be a Box or an int size, got {type(value).__name__}")
+    try:
+        size = check_non_negative_int(value, name)
+    except TypeError:
+        raise TypeError(f"{name} must be a Box or an int size, got {value!r} of type {type(value).__name__}") from None
+    return Box.unbounded(size)
 
 
 class EnvSpec:

@@ -10,7 +10,10 @@ from __future__ import annotations
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey, unravel_key
+from tensordict.utils import NestedKey
+
+from torchtasks._checks import check_int
+from torchtasks._torchrl import key_parts, keys_text, nested_key
 
 __all__ = ["episode_statistics"]
 
@@ -22,21 +25,6 @@ STEP_COUNT_KEY = "step_count"
 IS_INIT_KEY = "is_init"
 #: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
 EPISODE_SUM_PREFIX = "episode_"
-
-
-def _key(value: object, name: str) -> tuple[str, ...]:
-    """``value`` as a tuple key, else ``TypeError`` naming the argument."""
-    is_key = isinstance(value, str) or (
-        isinstance(value, tuple) and len(value) > 0 and all(isinstance(part, str) for part in value)
-    )
-    if not is_key:
-        raise TypeError(f"episode_statistics: {name} must be a key (a string or a tuple of strings), got {value!r}")
-    key = unravel_key(value)
-    return (key,) if isinstance(key, str) else tuple(key)
-
-
-def _keys_text(batch: TensorDictBase) -> str:
-    return "[" + ", ".join(repr(key) for key in sorted(batch.keys(True, True), key=str)) + "]"
 
 
 class _Frames:
@@ -89,8 +77,8 @@ def _required(frames: _Frames, key: tuple[str, ...], name: str, *, flag: bool = 
     if value is None:
         raise KeyError(
             f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked under "
-            f"'next'); available keys are {_keys_text(frames.batch)}. Pass the key the data uses, or None to "
-            "skip the statistics that need it."
+            f"'next'); available keys are {keys_text(frames.batch.keys(True, True))}. Pass the key the data uses, "
+            "or None to skip the statistics that need it."
         )
     return value
 
@@ -101,8 +89,8 @@ def _term_names(batch: TensorDictBase, terms_key: tuple[str, ...]) -> list[tuple
     if terms is None:
         raise KeyError(
             f"episode_statistics: terms_key={terms_key if len(terms_key) > 1 else terms_key[0]!r} is not in the "
-            f"data (looked under 'next'); available keys are {_keys_text(batch)}. Pass the key of the task's "
-            "reward breakdown (TaskTransform's terms_key), or None when the data has none (log_terms=False)."
+            f"data (looked under 'next'); available keys are {keys_text(batch.keys(True, True))}. Pass the key of "
+            "the task's reward breakdown (TaskTransform's terms_key), or None when the data has none (log_terms=False)."
         )
     if not isinstance(terms, TensorDictBase):
         raise TypeError(f"episode_statistics: ('next', *{terms_key!r}) must hold the reward breakdown (a TensorDict)")
@@ -127,7 +115,8 @@ def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
         if ndim == 1 and batch.get(TRAJ_IDS_KEY, None) is not None:
             return None
         return ndim - 1
-    if isinstance(time_dim, bool) or not isinstance(time_dim, int) or not -ndim <= time_dim < ndim:
+    time_dim = check_int(time_dim, "episode_statistics: time_dim")
+    if not -ndim <= time_dim < ndim:
         raise ValueError(
             f"episode_statistics: time_dim must be an int in [{-ndim}, {ndim - 1}] for the batch shape "
             f"{list(batch.batch_size)}, got {time_dim!r}"
@@ -230,7 +219,7 @@ def episode_statistics(
     if (goal_key is None) != (achieved_goal_key is None):
         raise ValueError("episode_statistics: give both goal_key and achieved_goal_key, or neither")
     keys = {
-        name: None if value is None else _key(value, name)
+        name: None if value is None else key_parts(nested_key(value, f"episode_statistics: {name}"))
         for name, value in (
             ("reward_key", reward_key),
             ("success_key", success_key),
@@ -368,6 +357,6 @@ def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where:
         place = "at the root" if where == "root" else "under 'next'"
         raise KeyError(
             f"episode_statistics: {name}={key if len(key) > 1 else key[0]!r} is not in the data (looked {place}); "
-            f"available keys are {_keys_text(frames.batch)}"
+            f"available keys are {keys_text(frames.batch.keys(True, True))}"
         )
     return value.reshape(frames.count, -1)

@@ -9,11 +9,12 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.data import Categorical, Composite, Unbounded
-from torchrl.envs.transforms import Compose, StepCounter, Transform, TransformedEnv
+from torchrl.envs.transforms import StepCounter, Transform, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
 
-from torchtasks._checks import SUPPORTED_FLOATS
+from torchtasks._checks import SUPPORTED_FLOATS, check_positive_int
 from torchtasks._memory import td_get, td_set
+from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
@@ -23,32 +24,12 @@ __all__ = ["TaskTransform"]
 ResetOverrides = Callable[[torch.Tensor], dict[str, Any]]
 
 
-def _flat_transforms(transform: Transform) -> list[Transform]:
-    if isinstance(transform, Compose):
-        return [leaf for child in transform.transforms for leaf in _flat_transforms(child)]
-    return [transform]
-
-
-def _is_key(value: object) -> bool:
-    return isinstance(value, str) or (isinstance(value, tuple) and len(value) > 0 and all(map(_is_key, value)))
-
-
-def _nested_key(value: object, name: str) -> NestedKey:
-    """``value`` unravelled as a TensorDict key (a string or a tuple of strings), else ``TypeError`` naming ``name``."""
-    if not _is_key(value):  # checked here: unravel_key(("a", 3)) silently returns "a"
-        raise TypeError(
-            f"TaskTransform: {name} must be a key (a string or a tuple of strings), got {value!r} of type "
-            f"{type(value).__name__}"
-        )
-    return unravel_key(value)
-
-
 def _state_keys(state_key: object) -> list[NestedKey]:
     """The state keys: one key, or a non-empty list of keys concatenated on the last dim."""
     if isinstance(state_key, str) or (
         isinstance(state_key, tuple) and state_key and not isinstance(state_key[0], (tuple, list))
     ):
-        return [_nested_key(state_key, "state_key")]
+        return [nested_key(state_key, "TaskTransform: state_key")]
     if not isinstance(state_key, Sequence):
         raise TypeError(
             "TaskTransform: state_key must be a key (a string or a tuple of strings) or a non-empty list of keys, "
@@ -56,17 +37,12 @@ def _state_keys(state_key: object) -> list[NestedKey]:
         )
     if len(state_key) == 0:
         raise ValueError("TaskTransform: state_key must name at least one entry, got an empty list")
-    return [_nested_key(key, f"state_key[{i}]") for i, key in enumerate(state_key)]
-
-
-def _keys_text(keys: Any) -> str:
-    """``keys`` as a sorted list of reprs (single quotes only, so a KeyError's message reads as written)."""
-    return "[" + ", ".join(repr(key) for key in sorted(keys, key=str)) + "]"
+    return [nested_key(key, f"TaskTransform: state_key[{i}]") for i, key in enumerate(state_key)]
 
 
 def _overlap(a: NestedKey, b: NestedKey) -> bool:
     """Whether writing one key would overwrite the other (equal, or one nested under the other)."""
-    a, b = (a,) if isinstance(a, str) else a, (b,) if isinstance(b, str) else b
+    a, b = key_parts(a), key_parts(b)
     n = min(len(a), len(b))
     return a[:n] == b[:n]
 
@@ -225,8 +201,7 @@ class TaskTransform(Transform):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
-        if max_steps is not None and (isinstance(max_steps, bool) or not isinstance(max_steps, int) or max_steps < 1):
-            raise ValueError(f"max_steps must be a positive int or None, got {max_steps!r}")
+        max_steps = None if max_steps is None else check_positive_int(max_steps, "TaskTransform: max_steps")
         if reset_overrides is not None and not callable(reset_overrides):
             raise TypeError(f"reset_overrides must be callable, got {type(reset_overrides).__name__}")
         state_keys = _state_keys(state_key)
@@ -234,17 +209,17 @@ class TaskTransform(Transform):
         if log_terms and reserved:
             raise ValueError(f"reward terms may not be named {sorted(reserved)}: those names are the breakdown's")
         self.state_keys = state_keys
-        self.action_key = _nested_key(action_key, "action_key")
-        self.reward_key = _nested_key(reward_key, "reward_key")
-        self.memory_key = _nested_key(memory_key, "memory_key")
-        self.success_key = _nested_key(success_key, "success_key")
-        self.failure_key = _nested_key(failure_key, "failure_key")
-        self.terms_key = _nested_key(terms_key, "terms_key")
+        self.action_key = nested_key(action_key, "TaskTransform: action_key")
+        self.reward_key = nested_key(reward_key, "TaskTransform: reward_key")
+        self.memory_key = nested_key(memory_key, "TaskTransform: memory_key")
+        self.success_key = nested_key(success_key, "TaskTransform: success_key")
+        self.failure_key = nested_key(failure_key, "TaskTransform: failure_key")
+        self.terms_key = nested_key(terms_key, "TaskTransform: terms_key")
         self.reward_on = reward_on
         self.log_terms = log_terms
-        self.goal_key = None if goal_key is None else _nested_key(goal_key, "goal_key")
+        self.goal_key = None if goal_key is None else nested_key(goal_key, "TaskTransform: goal_key")
         self.achieved_goal_key = (
-            None if achieved_goal_key is None else _nested_key(achieved_goal_key, "achieved_goal_key")
+            None if achieved_goal_key is None else nested_key(achieved_goal_key, "TaskTransform: achieved_goal_key")
         )
         self._goal_slot = (
             _goal_slot(task, goal_name) if (goal_key is not None or achieved_goal_key is not None) else None
@@ -285,8 +260,7 @@ class TaskTransform(Transform):
 
     # ------------------------------------------------------------------ configuration
     def _key(self, *parts: str) -> NestedKey:
-        base = (self.terms_key,) if isinstance(self.terms_key, str) else self.terms_key
-        return unravel_key((*base, *parts))
+        return unravel_key((*key_parts(self.terms_key), *parts))
 
     @property
     def term_keys(self) -> list[NestedKey]:
@@ -294,10 +268,7 @@ class TaskTransform(Transform):
         return list(self._term_keys)
 
     def _container_env(self) -> Any:
-        try:
-            return self.container
-        except (AttributeError, ValueError):  # not in an env (e.g. a replay buffer's transform)
-            return None
+        return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
 
     def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
         """Return ``(max_steps, step_count_key, enforced)`` for the env the transform is in now.
@@ -313,7 +284,7 @@ class TaskTransform(Transform):
         max_steps, step_count_key, counters = self._explicit_max_steps, "step_count", []
         container = self._container_env()
         if container is not None and getattr(container, "transform", None) is not None:
-            transforms = _flat_transforms(container.transform)
+            transforms = flat_transforms(container.transform)
             position = next((i for i, t in enumerate(transforms) if t is self), None)
             for i, transform in enumerate(transforms):
                 if not isinstance(transform, StepCounter):
@@ -326,7 +297,7 @@ class TaskTransform(Transform):
                 counters.append(transform)
             inner = container.base_env  # envs wrapped with auto_unwrap=False: their transforms come first
             while isinstance(inner, TransformedEnv):
-                counters[:0] = [t for t in _flat_transforms(inner.transform) if isinstance(t, StepCounter)]
+                counters[:0] = [t for t in flat_transforms(inner.transform) if isinstance(t, StepCounter)]
                 inner = inner.base_env
             _check_vector_gym(container.base_env)
         counter = next((c for c in counters if c.max_steps is not None), None)
@@ -400,7 +371,7 @@ class TaskTransform(Transform):
             if key not in observation_spec.keys(True, True):
                 raise KeyError(
                     f"TaskTransform: the state key {key!r} is not in the observation spec; available keys are "
-                    f"{_keys_text(observation_spec.keys(True, True))}. Pass state_key=... naming the entry "
+                    f"{keys_text(observation_spec.keys(True, True))}. Pass state_key=... naming the entry "
                     "that holds the task's state."
                 )
             spec = observation_spec[key]
@@ -434,7 +405,7 @@ class TaskTransform(Transform):
         if self.action_key not in keys:
             raise KeyError(
                 f"TaskTransform: the action key {self.action_key!r} is not in the env's action spec; available "
-                f"keys are {_keys_text(keys)}. Pass action_key=... naming the action entry."
+                f"keys are {keys_text(keys)}. Pass action_key=... naming the action entry."
             )
         shape = action_spec[self.action_key].shape
         if len(shape) != len(batch) + 1 or shape[: len(batch)] != batch:
@@ -515,14 +486,14 @@ class TaskTransform(Transform):
             self._state_spec_size(parent.full_observation_spec)
         raise KeyError(
             f"TaskTransform: the state key(s) {self.state_keys} are missing from the data; available keys are "
-            f"{_keys_text(tensordict.keys(True, True))}. Pass state_key=... naming the entry that holds "
+            f"{keys_text(tensordict.keys(True, True))}. Pass state_key=... naming the entry that holds "
             "the task's state."
         )
 
     def _missing_entry(self, tensordict: TensorDictBase, what: str, hint: str) -> None:
         raise KeyError(
             f"TaskTransform: {what} is missing from the data; available keys are "
-            f"{_keys_text(tensordict.keys(True, True))}. {hint}"
+            f"{keys_text(tensordict.keys(True, True))}. {hint}"
         )
 
     def _missing_memory(self, tensordict: TensorDictBase, offline: bool) -> None:

@@ -15,6 +15,8 @@ from typing import Any
 
 import torch
 
+from torchtasks._checks import check_positive_int
+
 __all__ = ["format_markdown", "run_benchmarks"]
 
 SECTIONS = ("tasks", "collector", "memory")
@@ -46,8 +48,7 @@ def run_benchmarks(
     OpenMP thread competes with the env, the collector and anything else running, and made
     element-wise ops up to 50x slower in our measurements; ``None`` keeps torch's default).
     """
-    if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int) or threads < 1):
-        raise ValueError(f"threads must be a positive int or None, got {threads!r}")
+    threads = None if threads is None else check_positive_int(threads, "threads")
     previous = torch.get_num_threads()
     if threads is not None:
         torch.set_num_threads(threads)

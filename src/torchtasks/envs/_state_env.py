@@ -9,6 +9,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
+from torchtasks._checks import check_int, check_non_negative_int
+
 
 class StateEnv(EnvBase):
     """A batch of simulated systems whose observation is their raw state, stepped as one tensor.
@@ -33,6 +35,13 @@ class StateEnv(EnvBase):
         device: torch.device | str | None,
         seed: int | None,
     ) -> None:
+        owner = type(self).__name__
+        if isinstance(batch_size, (str, bytes)) or not isinstance(batch_size, Sequence):
+            raise TypeError(
+                f"{owner}: batch_size must be a sequence of non-negative ints (e.g. [4]), got {batch_size!r} "
+                f"of type {type(batch_size).__name__}"
+            )
+        batch_size = [check_non_negative_int(n, f"{owner}: batch_size[{i}]") for i, n in enumerate(batch_size)]
         super().__init__(batch_size=torch.Size(batch_size), device=device)
         self.dtype_ = dtype
         self.rng = torch.Generator(device=self.device or "cpu")
@@ -92,4 +101,5 @@ class StateEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         if seed is None:
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
+        seed = check_int(seed, f"{type(self).__name__}: seed")
         self.rng.manual_seed(seed)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-from torchtasks._checks import check_index, check_input
+from torchtasks._checks import check_input, check_int
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, index_problem
 
 __all__ = ["CosineReward", "ShiftedCosineReward"]
@@ -31,7 +31,7 @@ class CosineReward(RewardFunction):
 
     def __init__(self, index: int) -> None:
         super().__init__()
-        self.index = check_index(index, "index")
+        self.index = check_int(index, "index")
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         return index_problem(who, "index", self.index, state_size)

@@ -10,25 +10,19 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict
 
-from torchtasks._checks import cast_like, check_finite_scalar, check_index, check_input, check_same_batch
+from torchtasks._checks import (
+    cast_like,
+    check_finite_scalar,
+    check_input,
+    check_int,
+    check_pair,
+    check_same_batch,
+    check_weight,
+)
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction, entries, index_problem, squared_sum, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
-
-
-def _check_range(value: object, name: str, *, allow_infinite: bool = False) -> tuple[float, float]:
-    try:
-        low, high = (float(v) for v in value)  # type: ignore[union-attr]
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}") from error
-    if low != low or high != high:
-        raise ValueError(f"{name} must not contain NaN, got {value!r}")
-    if not allow_infinite and not (abs(low) < float("inf") and abs(high) < float("inf")):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    if low > high:
-        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
-    return low, high
 
 
 class _ForwardProgressReward(RewardFunction):
@@ -45,14 +39,11 @@ class _ForwardProgressReward(RewardFunction):
         if dt <= 0:
             raise ValueError(f"dt must be positive, got {dt}")
         self.dt = dt
-        self.x_index = check_index(x_index, self._x_index_name)
+        self.x_index = check_int(x_index, self._x_index_name)
         self._register_scalar(
             "forward_reward_weight", check_finite_scalar(forward_reward_weight, "forward_reward_weight")
         )
-        ctrl_cost_weight = check_finite_scalar(ctrl_cost_weight, "ctrl_cost_weight")
-        if ctrl_cost_weight < 0:
-            raise ValueError(f"ctrl_cost_weight must be non-negative, got {ctrl_cost_weight}")
-        self._register_scalar("ctrl_cost_weight", ctrl_cost_weight)
+        self._register_scalar("ctrl_cost_weight", check_weight(ctrl_cost_weight, "ctrl_cost_weight"))
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         return index_problem(who, self._x_index_name, self.x_index, state_size)
@@ -180,20 +171,17 @@ class _HealthyForwardReward(_ForwardProgressReward):
         contact_forces_start: int,
     ) -> None:
         super().__init__(dt, x_index, forward_reward_weight, ctrl_cost_weight)
-        contact_cost_weight = check_finite_scalar(contact_cost_weight, "contact_cost_weight")
-        if contact_cost_weight < 0:
-            raise ValueError(f"contact_cost_weight must be non-negative, got {contact_cost_weight}")
-        self._register_scalar("contact_cost_weight", contact_cost_weight)
+        self._register_scalar("contact_cost_weight", check_weight(contact_cost_weight, "contact_cost_weight"))
         self._register_scalar("healthy_reward", check_finite_scalar(healthy_reward, "healthy_reward"))
         if not isinstance(terminate_when_unhealthy, bool):
             raise TypeError(f"terminate_when_unhealthy must be a bool, got {terminate_when_unhealthy!r}")
         self.terminate_when_unhealthy = terminate_when_unhealthy
         self.can_fail = terminate_when_unhealthy
-        low, high = _check_range(healthy_z_range, "healthy_z_range", allow_infinite=True)
+        low, high = check_pair(healthy_z_range, "healthy_z_range")
         self._register_scalar("healthy_z_low", low)
         self._register_scalar("healthy_z_high", high)
-        self.z_index = check_index(z_index, "z_index")
-        self.contact_forces_start = check_index(contact_forces_start, "contact_forces_start")
+        self.z_index = check_int(z_index, "z_index")
+        self.contact_forces_start = check_int(contact_forces_start, "contact_forces_start")
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         problem = super()._size_problem(state_size, action_size, who) or index_problem(
@@ -307,7 +295,7 @@ class AntForwardReward(_HealthyForwardReward):
             z_index=z_index,
             contact_forces_start=contact_forces_start,
         )
-        low, high = _check_range(contact_force_range, "contact_force_range", allow_infinite=True)
+        low, high = check_pair(contact_force_range, "contact_force_range")
         self._register_scalar("contact_force_low", low)
         self._register_scalar("contact_force_high", high)
 
@@ -378,7 +366,7 @@ class HumanoidForwardReward(_HealthyForwardReward):
             z_index=z_index,
             contact_forces_start=contact_forces_start,
         )
-        low, high = _check_range(contact_cost_range, "contact_cost_range", allow_infinite=True)
+        low, high = check_pair(contact_cost_range, "contact_cost_range")
         self._register_scalar("contact_cost_low", low)
         self._register_scalar("contact_cost_high", high)
 

@@ -6,7 +6,7 @@ import math
 
 import torch
 
-from torchtasks._checks import check_finite_scalar, check_index, check_input
+from torchtasks._checks import check_finite_scalar, check_input, check_int, check_weight
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
 
 __all__ = ["CartPoleSwingUpReward", "SwingUpReward"]
@@ -59,16 +59,13 @@ class SwingUpReward(RewardFunction):
             ("c_act", c_act),
             ("c_theta_sq", c_theta_sq),
         ):
-            value = check_finite_scalar(value, name)
-            if value < 0:
-                raise ValueError(f"{name} must be non-negative, got {value}")
-            self._register_scalar(name, value)
+            self._register_scalar(name, check_weight(value, name))
         c_theta_log = check_finite_scalar(c_theta_log, "c_theta_log")
         if c_theta_log <= 0:
             raise ValueError(f"c_theta_log must be positive (it keeps the logarithm finite), got {c_theta_log}")
         self._register_scalar("c_theta_log", c_theta_log)
-        self.index_x = check_index(index_x, "index_x")
-        self.index_theta = check_index(index_theta, "index_theta")
+        self.index_x = check_int(index_x, "index_x")
+        self.index_theta = check_int(index_theta, "index_theta")
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         return index_problem(who, "index_x", self.index_x, state_size) or index_problem(

@@ -14,33 +14,23 @@ from collections.abc import Sequence
 
 import torch
 
-from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_index, check_input
+from torchtasks._checks import (
+    as_constant,
+    cast_like,
+    check_finite_scalar,
+    check_input,
+    check_int,
+    check_non_negative_int,
+    check_pair,
+    check_weight,
+)
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
 
 __all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
-
-def _check_weight(value: object, name: str) -> float:
-    """Return a finite, non-negative weight as a float."""
-    weight = check_finite_scalar(value, name)
-    if weight < 0:
-        raise ValueError(f"{name} must be non-negative, got {weight}")
-    return weight
-
-
-def _check_pair(value: object, name: str) -> tuple[float, float]:
-    """Return a ``(low, high)`` pair of floats (infinite allowed, NaN and ``low > high`` rejected)."""
-    if isinstance(value, (str, bytes)):
-        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}")
-    try:
-        low, high = (float(v) for v in value)  # type: ignore[union-attr]
-    except (TypeError, ValueError) as error:
-        raise TypeError(f"{name} must be a pair (low, high) of numbers, got {value!r}") from error
-    if math.isnan(low) or math.isnan(high):
-        raise ValueError(f"{name} must not contain NaN, got {value!r}")
-    if low > high:
-        raise ValueError(f"{name} must satisfy low <= high, got {value!r}")
-    return low, high
+# the names envs/locomotion.py imports from here (the checks themselves live in torchtasks._checks)
+_check_pair = check_pair
+_check_weight = check_weight
 
 
 def _check_state_entry(state: torch.Tensor, index: int, owner: str, name: str) -> None:
@@ -73,7 +63,7 @@ class VelocityReward(RewardFunction):
     def __init__(self, weight: float = 1.0, index: int = 0) -> None:
         super().__init__()
         self._register_scalar("weight", check_finite_scalar(weight, "weight"))
-        self.index = check_index(index, "index")
+        self.index = check_int(index, "index")
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         return index_problem(who, "index", self.index, state_size)
@@ -109,7 +99,7 @@ class ControlCostReward(RewardFunction):
 
     def __init__(self, weight: float = 0.1) -> None:
         super().__init__()
-        self._register_scalar("weight", _check_weight(weight, "weight"))
+        self._register_scalar("weight", check_weight(weight, "weight"))
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         self._check_inputs(error_state, error_action)
@@ -166,16 +156,14 @@ class HealthyReward(RewardFunction):
     ) -> None:
         super().__init__()
         self._register_scalar("healthy_reward", check_finite_scalar(healthy_reward, "healthy_reward"))
-        indices = [index] if isinstance(index, int) and not isinstance(index, bool) else index
-        if isinstance(indices, (str, bytes)) or not isinstance(indices, Sequence):
-            raise TypeError(f"index must be an int or a sequence of ints, got {index!r}")
-        indices = [check_index(i, "index") for i in indices]
+        if isinstance(index, (str, bytes)) or not isinstance(index, Sequence):
+            indices = [check_non_negative_int(index, "index")]
+        else:
+            indices = [check_non_negative_int(i, f"index[{n}]") for n, i in enumerate(index)]
         if not indices:
             raise ValueError("index must select at least one state entry, got an empty sequence")
         if len(set(indices)) != len(indices):
             raise ValueError(f"index must not contain duplicates, got {indices}")
-        if min(indices) < 0:
-            raise ValueError(f"index entries must be non-negative, got {indices}")
         bounds = []
         for name, value in (("low", low), ("high", high)):
             bound = as_constant(value, name, ndim=(0, 1))
@@ -292,13 +280,13 @@ class ContactCostReward(RewardFunction):
         cost_range: tuple[float, float] = (-math.inf, math.inf),
     ) -> None:
         super().__init__()
-        self._register_scalar("weight", _check_weight(weight, "weight"))
-        self.start = check_index(start, "start")
-        self.stop = None if stop is None else check_index(stop, "stop")
+        self._register_scalar("weight", check_weight(weight, "weight"))
+        self.start = check_int(start, "start")
+        self.stop = None if stop is None else check_int(stop, "stop")
         if self.start < 0 or (self.stop is not None and self.stop <= self.start):
             raise ValueError(f"start and stop must satisfy 0 <= start < stop, got start={start}, stop={stop}")
-        force_low, force_high = _check_pair(force_range, "force_range")
-        cost_low, cost_high = _check_pair(cost_range, "cost_range")
+        force_low, force_high = check_pair(force_range, "force_range")
+        cost_low, cost_high = check_pair(cost_range, "cost_range")
         self._register_scalar("force_low", force_low)
         self._register_scalar("force_high", force_high)
         self._register_scalar("cost_low", cost_low)

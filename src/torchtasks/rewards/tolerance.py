@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 
 import torch
 
-from torchtasks._checks import as_constant, cast_like, check_input
+from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_input, check_int
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, index_problem
 from torchtasks.spaces import Box
 
@@ -36,9 +36,7 @@ Bound = float | torch.Tensor
 def _check_value_at_margin(value_at_margin: float, sigmoid: str) -> float:
     if sigmoid not in SIGMOIDS:
         raise ValueError(f"Unknown sigmoid type {sigmoid!r}; valid sigmoids are {list(SIGMOIDS)}")
-    if isinstance(value_at_margin, bool) or not isinstance(value_at_margin, (int, float)):
-        raise TypeError(f"value_at_margin must be a real number, got {value_at_margin!r}")
-    value = float(value_at_margin)
+    value = check_finite_scalar(value_at_margin, "value_at_margin")
     if sigmoid in _COMPACT:
         if not 0 <= value < 1:
             raise ValueError(f"`value_at_1` must be nonnegative and smaller than 1, got {value}.")
@@ -271,9 +269,9 @@ class ToleranceReward(RewardFunction):
         super().__init__()
         if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
             raise ValueError(f"bounds must be a (lower, upper) pair, got {bounds!r}")
-        self.scale = _scale(sigmoid, _check_value_at_margin(value_at_margin, sigmoid))
+        self.value_at_margin = _check_value_at_margin(value_at_margin, sigmoid)
+        self.scale = _scale(sigmoid, self.value_at_margin)
         self.sigmoid = sigmoid
-        self.value_at_margin = float(value_at_margin)
         if combine not in ("product", "mean"):
             raise ValueError(f"combine must be 'product' or 'mean', got {combine!r}")
         self.combine = combine
@@ -284,7 +282,10 @@ class ToleranceReward(RewardFunction):
         elif space is not None:
             self.indices = space.indices(indices)
         else:
-            self.indices = [_check_int(index) for index in indices]
+            indices = list(indices)
+            if any(isinstance(index, str) for index in indices):
+                raise TypeError(f"indices name labels, {indices}: pass the space they label (space=...)")
+            self.indices = [check_int(index, f"indices[{i}]") for i, index in enumerate(indices)]
             if not self.indices:
                 raise ValueError("indices must name at least one entry (or be None for all)")
         lower = as_constant(bounds[0], "bounds[0]", ndim=(0, 1)).reshape(-1)
@@ -331,9 +332,3 @@ class ToleranceReward(RewardFunction):
 
     def extra_repr(self) -> str:
         return f"sigmoid={self.sigmoid!r}, value_at_margin={self.value_at_margin}, combine={self.combine!r}"
-
-
-def _check_int(index: object) -> int:
-    if isinstance(index, bool) or not isinstance(index, int):
-        raise TypeError(f"indices must be ints (or labels with space=...), got {index!r}")
-    return index

@@ -5,9 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import torch
 from tensordict import TensorDictBase
 
+from torchtasks._checks import check_int
 from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
@@ -79,8 +81,7 @@ class SequentialTasks(CompositeTask):
         self.start_index = self._check_start(start_index)
 
     def _check_start(self, start_index: int) -> int:
-        if isinstance(start_index, bool) or not isinstance(start_index, int):
-            raise TypeError(f"start_index must be an int, got {start_index!r}")
+        start_index = check_int(start_index, "start_index")
         if not 0 <= start_index < self.num_tasks:
             raise ValueError(f"start_index must lie in [0, {self.num_tasks - 1}], got {start_index}")
         return start_index
@@ -89,7 +90,7 @@ class SequentialTasks(CompositeTask):
         entries = super()._bookkeeping(init_state, overrides)
         batch = init_state.shape[:-1]
         start = overrides.get("start_index")
-        if start is None or isinstance(start, int):
+        if start is None or isinstance(start, (int, np.integer)):
             start = self.start_index if start is None else self._check_start(start)
             index = torch.full(batch, start, dtype=torch.long, device=init_state.device)
         else:

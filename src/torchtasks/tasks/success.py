@@ -4,7 +4,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
+
+from torchtasks._checks import check_int
 
 __all__ = ["never_succeeded", "proximity_succeeded"]
 
@@ -39,9 +42,10 @@ def proximity_succeeded(error: torch.Tensor, threshold: float, dims: int | Seque
         >>> proximity_succeeded(torch.tensor([[0.0, 5.0]]), threshold=0.1, dims=0)
         tensor([True])
     """
-    if dims is not None and not (isinstance(dims, int) and dims == -1):
-        if isinstance(dims, int) and not isinstance(dims, bool):
-            error = error[..., dims : dims + 1]
-        else:
-            error = error[..., list(dims)]
+    if isinstance(dims, (int, np.integer)):  # one index (bools refused), -1 meaning all entries
+        index = check_int(dims, "dims")
+        if index != -1:
+            error = error[..., index : index + 1]
+    elif dims is not None:
+        error = error[..., list(dims)]
     return torch.linalg.vector_norm(error, dim=-1) < threshold
