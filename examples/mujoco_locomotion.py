@@ -69,7 +69,7 @@ def summarise(data: TensorDictBase, terms: list[str]) -> list[dict[str, float | 
     done = nxt["done"][..., 0]
     ends = done.nonzero()[:, 0]
     rows: list[dict[str, float | str]] = []
-    for name in ("step", "final", *terms):
+    for name in terms:  # the preset pays no final reward: its breakdown is the named terms alone
         episode_sum = nxt["task_reward", f"episode_{name}"][..., 0].double()
         # RewardSum's running sums at episode ends and at the last frame equal the per-step terms summed by hand
         by_hand = episode_sums_by_hand(data, ("task_reward", name))
@@ -81,9 +81,8 @@ def summarise(data: TensorDictBase, terms: list[str]) -> list[dict[str, float | 
             "finished": episode_sum[ends].mean().item() if len(ends) else float("nan"),
             "current": episode_sum[-1].item(),
         }
-        if name in terms:  # Gymnasium logs the named terms; step and final are the task's breakdown
-            gym = nxt[f"reward_{name}"][..., 0]
-            row["gym_diff"] = (nxt["task_reward", name][..., 0].double() - gym).abs().max().item()
+        gym = nxt[f"reward_{name}"][..., 0]  # Gymnasium logs each named term as info["reward_<name>"]
+        row["gym_diff"] = (nxt["task_reward", name][..., 0].double() - gym).abs().max().item()
         rows.append(row)
     gym_total = sum(nxt[f"reward_{name}"][..., 0] for name in terms)
     rows.append(

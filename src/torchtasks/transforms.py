@@ -136,9 +136,11 @@ class TaskTransform(Transform):
     Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
     ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it; none for
     a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`), and,
-    with ``log_terms``, the reward breakdown ``(terms_key, "step")``, ``(terms_key, "final")`` and
-    one entry per named term of a compound or locomotion reward (reward spec, so a following
-    ``RewardSum()`` reports per-term episode sums).
+    with ``log_terms``, the reward breakdown (reward spec, so a following ``RewardSum()`` reports
+    per-episode sums): ``(terms_key, "step")`` and ``(terms_key, "final")`` when some task of the tree
+    pays a final reward (:attr:`~torchtasks.tasks.Task.pays_final_reward`; otherwise the step reward is
+    the reward and the final reward is always 0, so neither is written), then one entry per named term
+    of a compound, product or locomotion reward.
 
     Args:
         task: the task to apply.
@@ -241,7 +243,11 @@ class TaskTransform(Transform):
         self.task = task
         # static per task tree: computed once, read every step
         self._term_names = tuple(task.term_names) if log_terms else ()
-        self._term_keys = [self._key(name) for name in ("step", "final", *self._term_names)] if log_terms else []
+        # the breakdown: the step and final reward only for a tree that pays a final reward (else the step
+        # reward is the reward and the final reward is 0), then the named terms
+        parts = ("step", "final") if task.pays_final_reward else ()
+        self._term_keys = [self._key(name) for name in (*parts, *self._term_names)] if log_terms else []
+        self._writes_step_final = bool(parts)
 
     def _check_key_collisions(self) -> None:
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
@@ -264,7 +270,7 @@ class TaskTransform(Transform):
 
     @property
     def term_keys(self) -> list[NestedKey]:
-        """Keys of the reward breakdown: step reward, final reward, then the named terms."""
+        """Keys of the reward breakdown: step and final reward (if the tree pays a final reward), then the terms."""
         return list(self._term_keys)
 
     def _container_env(self) -> Any:
@@ -660,7 +666,8 @@ class TaskTransform(Transform):
         if not offline and self.achieved_goal_key is not None:
             td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
         if self.log_terms:
-            values = [step_reward, final, *(terms[name] for name in self._term_names)]
+            values = [step_reward, final] if self._writes_step_final else []
+            values += [terms[name] for name in self._term_names]
             for key, value in zip(self._term_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
         return next_tensordict

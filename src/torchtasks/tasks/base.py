@@ -257,6 +257,16 @@ class Task(nn.Module):
         """Whether any task of this tree reads ``remaining_steps`` (time-dependent final rewards)."""
         return any(child.uses_remaining_steps for child in self.children_tasks())
 
+    @property
+    def pays_final_reward(self) -> bool:
+        """Whether any task of this tree can pay a final reward (else ``final_reward`` is always 0).
+
+        A task pays one when it defines its own ``_compute_final_reward``; a task that only forwards
+        its children's (a mask, a composite) says so by overriding this property.
+        """
+        own = type(self)._compute_final_reward is not Task._compute_final_reward
+        return own or any(child.pays_final_reward for child in self.children_tasks())
+
     def all_reset_keys(self) -> set[str]:
         """Names of the reset overrides understood anywhere in this task tree."""
         keys = set(self.reset_keys)
@@ -319,11 +329,11 @@ class Task(nn.Module):
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
-    def _static_facts(self) -> tuple[bool, bool]:
-        """``(has named terms, reads remaining steps)`` of this task tree: fixed at construction, cached."""
+    def _static_facts(self) -> tuple[bool, bool, bool]:
+        """``(has named terms, reads remaining steps, pays a final reward)`` of this task tree: cached."""
         facts = self.__dict__.get("_facts")
         if facts is None:
-            facts = (bool(self.term_names), self.uses_remaining_steps)
+            facts = (bool(self.term_names), self.uses_remaining_steps, self.pays_final_reward)
             self.__dict__["_facts"] = facts
         return facts
 
@@ -586,6 +596,8 @@ class Task(nn.Module):
         if terminated is not None:
             ended = ended | terminated
         done = ended if truncated is None else ended | truncated
+        if not self._static_facts()[2]:  # no task of the tree pays a final reward: it is 0
+            return step_reward, step_reward, torch.zeros_like(step_reward), success, failure, ended, done, memory, terms
         final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
         return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms
 

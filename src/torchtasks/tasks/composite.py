@@ -51,6 +51,10 @@ class CompositeTask(Task):
         return self._keys
 
     @property
+    def pays_final_reward(self) -> bool:
+        return any(task.pays_final_reward for task in self.tasks)
+
+    @property
     def num_tasks(self) -> int:
         """Number of sub-tasks ``K``."""
         return len(self.tasks)

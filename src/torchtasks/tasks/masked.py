@@ -93,6 +93,10 @@ class MaskedTask(Task):
     def term_names(self) -> tuple[str, ...]:
         return self.wrapped_task.term_names
 
+    @property
+    def pays_final_reward(self) -> bool:
+        return self.wrapped_task.pays_final_reward
+
     def _state(self, state: torch.Tensor) -> torch.Tensor:
         return state.index_select(-1, _on_device(self.state_index, state))
 
