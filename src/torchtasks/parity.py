@@ -39,7 +39,8 @@ except ImportError as _error:
 from torchrl.envs import Compose, TransformedEnv
 
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
-from torchtasks.envs.locomotion import _config, gymnasium_env
+from torchtasks.envs.gymnasium_v5 import gymnasium_config
+from torchtasks.envs.locomotion import gymnasium_env
 from torchtasks.transforms import TaskTransform
 
 __all__ = [
@@ -105,7 +106,7 @@ def check_parity(env_id: str, seeds: Sequence[int] = (0, 1, 2), steps: int = 100
         >>> row["steps"], row["max_abs_reward_diff"] < 1e-5, row["termination_mismatches"]
         (50, True, 0)
     """
-    _config(env_id, gym_kwargs)
+    gymnasium_config(env_id, gym_kwargs)
     seeds = _check_seeds(seeds)
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps must be a positive int, got {steps!r}")
@@ -529,7 +530,7 @@ def check_batched_parity(
         >>> row["passed"], row["forced_resets"] >= 1, row["max_abs_diff"]["reward"] <= 1e-9
         (True, True, True)
     """
-    _config(env_id, gym_kwargs)
+    gymnasium_config(env_id, gym_kwargs)
     seeds = _check_seeds(seeds)
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps must be a positive int, got {steps!r}")

@@ -39,12 +39,11 @@ from torchtasks._checks import check_positive_int
 from torchtasks._optional import missing_extra
 
 try:
-    import gymnasium
     import mujoco
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
 
-from torchtasks.envs.locomotion import _config, _layout, _ModelFacts
+from torchtasks.envs.gymnasium_v5 import ModelFacts, gymnasium_config, locomotion_record
 
 __all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
 
@@ -67,21 +66,6 @@ _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 #: MjData (restored from their integration state on the one MjModel) and the gather buffers with the
 #: observation plan (numpy views of each other, which a copy would turn into independent arrays)
 _REBUILT = ("_pool", "datas", "_state", "_readers", "_observation_plan", "_entry_sources", "_position", "_mass_weights")
-#: envs whose state layout reads the external contact forces (Gymnasium calls mj_rnePostConstraint for them)
-_CONTACT_ENVS = ("Ant-v5", "Humanoid-v5")
-#: leading qpos entries Gymnasium drops from the observation with exclude_current_positions_from_observation
-_SKIPPED_POSITIONS = {
-    "HalfCheetah-v5": 1,
-    "Hopper-v5": 1,
-    "Walker2d-v5": 1,
-    "Swimmer-v5": 2,
-    "Ant-v5": 2,
-    "Humanoid-v5": 2,
-}
-#: reset noise of qvel: Gymnasium's HalfCheetah and Ant draw it from a normal distribution, the others uniform
-_NORMAL_VELOCITY_NOISE = ("HalfCheetah-v5", "Ant-v5")
-#: Hopper and Walker2d clip the observed velocities to this bound
-_VELOCITY_CLIP = 10.0
 
 
 def _default_threads() -> int:
@@ -178,9 +162,13 @@ class BatchedMujocoEnv(EnvBase):
         seed: int | None = None,
         device: torch.device | str | None = None,
         num_threads: int | None = None,
+        _checked: tuple[dict[str, Any], ModelFacts] | None = None,
         **gym_kwargs: Any,
     ) -> None:
-        config = _config(env_id, gym_kwargs)
+        # _checked: the keywords already validated by gymnasium_config and the facts of a Gymnasium env made with
+        # them (gymnasium_env passes the ones it read, so that one Gymnasium env is made and the keywords checked once)
+        record = locomotion_record(env_id)
+        config = gymnasium_config(env_id, gym_kwargs) if _checked is None else _checked[0]
         num_envs = check_positive_int(num_envs, "num_envs")
         num_threads = min(
             _default_threads() if num_threads is None else check_positive_int(num_threads, "num_threads"), num_envs
@@ -194,28 +182,23 @@ class BatchedMujocoEnv(EnvBase):
         self.num_envs = num_envs
         self.num_threads = num_threads
         self.gym_kwargs = dict(gym_kwargs)
+        self._record = record
+        self._config = config
 
-        gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
-        try:
-            unwrapped = gym_env.unwrapped
-            self.model: mujoco.MjModel = unwrapped.model
-            self.frame_skip = int(unwrapped.frame_skip)
-            self.dt = unwrapped.dt
-            self.init_qpos = unwrapped.init_qpos.copy()
-            self.init_qvel = unwrapped.init_qvel.copy()
-            facts = _ModelFacts.of(gym_env)
-            observation_size = int(gym_env.observation_space.shape[0])
-        finally:
-            gym_env.close()
-        model = self.model
-        self.datas = [mujoco.MjData(model) for _ in range(num_envs)]
-        self.state_layout = _layout(env_id, facts)
+        facts = ModelFacts.make(env_id, gym_kwargs) if _checked is None else _checked[1]
+        self.model: mujoco.MjModel = facts.model
+        self.frame_skip = facts.frame_skip
+        self.dt = facts.dt
+        self.init_qpos = facts.init_qpos.copy()
+        self.init_qvel = facts.init_qvel.copy()
+        self.datas = [mujoco.MjData(self.model) for _ in range(num_envs)]
+        self.state_layout = record.state_layout(facts)
         self.reset_noise_scale = float(config["reset_noise_scale"])
-        self._setup_buffers(config)
-        if self._observation_size != observation_size:  # a Gymnasium version that observes differently
+        self._setup_buffers()
+        if self._observation_size != facts.observation_size:  # a Gymnasium version that observes differently
             raise RuntimeError(
                 f"{env_id}: the batched observation has {self._observation_size} entries but Gymnasium's has "
-                f"{observation_size}; this Gymnasium version is not supported by BatchedMujocoEnv"
+                f"{facts.observation_size}; this Gymnasium version is not supported by BatchedMujocoEnv"
             )
         self._chunks = [(int(c[0]), int(c[-1]) + 1) for c in np.array_split(np.arange(num_envs), num_threads)]
         self._closed = False
@@ -226,14 +209,13 @@ class BatchedMujocoEnv(EnvBase):
         self._set_seed(seed)
 
     # ------------------------------------------------------------------ set-up
-    def _setup_buffers(self, config: dict[str, Any]) -> None:
-        """Allocate the per-env gather buffers and plan the observation as copies from them."""
-        env_id, model, n = self.env_id, self.model, self.num_envs
+    def _setup_buffers(self) -> None:
+        """Allocate the per-env gather buffers and plan the observation as copies from them (as the record says)."""
+        record, config, model, n = self._record, self._config, self.model, self.num_envs
         nq = model.nq
         self._state = np.zeros((n, mujoco.mj_stateSize(model, _STATE_SPEC)))  # [time, qpos, qvel]
         self._time = np.zeros(n)
         self._half_timestep = 0.5 * float(model.opt.timestep)
-        qpos, qvel = self._state[:, 1 : 1 + nq], self._state[:, 1 + nq :]
         #: (MjData attribute, index or None, buffer): buffer[i] = data.<attribute>[index] after every step
         self._readers: list[tuple[str, Any, np.ndarray]] = []
 
@@ -243,59 +225,47 @@ class BatchedMujocoEnv(EnvBase):
             self._readers.append((attribute, index, buffer))
             return buffer
 
-        self._rne = env_id in _CONTACT_ENVS
-        cfrc_ext = reader("cfrc_ext") if self._rne else None
-        # the forward position that Gymnasium finite-differences into x_velocity: qpos[0], Ant's main body's
-        # xpos[:2], Humanoid's centre of mass (from xipos, weighted by the body masses)
-        self._position: np.ndarray = qpos[:, :1]
-        self._mass_weights: np.ndarray | None = None
-        if env_id == "Ant-v5":
-            self._position = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
-        elif env_id == "Humanoid-v5":
-            self._position = reader("xipos")
-            self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
-        self._previous_position = np.zeros((n, 1 if env_id not in ("Ant-v5", "Humanoid-v5") else 2))
+        # one buffer per MjData array that the task state or the observation reads
+        arrays = {"qpos": self._state[:, 1 : 1 + nq], "qvel": self._state[:, 1 + nq :]}
 
-        skip = _SKIPPED_POSITIONS[env_id] if config["exclude_current_positions_from_observation"] else 0
-        # (source view, clip bounds or None): the observation is their concatenation
-        plan: list[tuple[np.ndarray, tuple[float, float] | None]] = [(qpos[:, skip:], None)]
-        if env_id in ("Hopper-v5", "Walker2d-v5"):
-            plan.append((qvel, (-_VELOCITY_CLIP, _VELOCITY_CLIP)))
-        else:
-            plan.append((qvel, None))
-        if env_id == "Ant-v5" and config["include_cfrc_ext_in_observation"]:
-            plan.append((cfrc_ext[:, 1:].reshape(n, -1), tuple(config["contact_force_range"])))
-        if env_id == "Humanoid-v5":
-            for flag, attribute in (
-                ("include_cinert_in_observation", "cinert"),
-                ("include_cvel_in_observation", "cvel"),
-                ("include_qfrc_actuator_in_observation", "qfrc_actuator"),
-            ):
-                if config[flag] is True:  # Gymnasium tests `is True`
-                    buffer = reader(attribute)
-                    plan.append((buffer[:, 6:] if attribute == "qfrc_actuator" else buffer[:, 1:].reshape(n, -1), None))
-            if config["include_cfrc_ext_in_observation"] is True:
-                plan.append((cfrc_ext[:, 1:].reshape(n, -1), None))
-        self._observation_plan: list[tuple[slice, np.ndarray, tuple[float, float] | None]] = []
-        start = 0
-        for source, bounds in plan:
-            self._observation_plan.append((slice(start, start + source.shape[1]), source, bounds))
-            start += source.shape[1]
-        self._observation_size = start
+        def array(attribute: str) -> np.ndarray:
+            if attribute not in arrays:
+                arrays[attribute] = reader(attribute)
+            return arrays[attribute]
+
         # the task-state entries, as views of the gather buffers (x_velocity is computed)
         self._entry_sources: dict[str, np.ndarray | None] = {
-            "qpos": qpos,
-            "qvel": qvel,
-            "cfrc_ext": None if cfrc_ext is None else cfrc_ext.reshape(n, -1),
-            "x_velocity": None,
+            key: None if key == "x_velocity" else array(key).reshape(n, -1) for key in record.state_keys
         }
+        # the forward position that Gymnasium finite-differences into x_velocity: qpos[0], the main body's
+        # xpos[:2] or the centre of mass (from xipos, weighted by the body masses)
+        self._mass_weights: np.ndarray | None = None
+        if record.forward_position == "main_body":
+            self._position: np.ndarray = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
+        elif record.forward_position == "mass_centre":
+            self._position = reader("xipos")
+            self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
+        else:
+            self._position = arrays["qpos"][:, :1]
+        self._previous_position = np.zeros_like(self._forward_position())
+
+        #: (columns, source view, clip bounds or None): the observation is their concatenation
+        self._observation_plan: list[tuple[slice, np.ndarray, tuple[float, float] | None]] = []
+        start = 0
+        for part in record.observation_parts(config):
+            source = array(part.source)[:, part.start :].reshape(n, -1)
+            self._observation_plan.append((slice(start, start + source.shape[1]), source, part.clip))
+            start += source.shape[1]
+        self._observation_size = start
+        # Gymnasium calls mj_rnePostConstraint after every step; only the contact forces need it here
+        self._rne = "cfrc_ext" in arrays
 
     def _start_threads(self) -> None:
         """Start the pool of ``num_threads - 1`` threads (the calling thread steps the first share itself)."""
         if self.num_threads > 1:
             self._pool = ThreadPoolExecutor(self.num_threads - 1, "batched-mujoco")
 
-    def _make_specs(self, facts: _ModelFacts) -> None:
+    def _make_specs(self, facts: ModelFacts) -> None:
         n, device = self.num_envs, self.device
         batch = torch.Size([n])
         entries = {"observation": Unbounded(shape=(n, self._observation_size), dtype=torch.float64, device=device)}
@@ -359,7 +329,7 @@ class BatchedMujocoEnv(EnvBase):
         model, data, rng, scale = self.model, self.datas[i], self.np_random[i], self.reset_noise_scale
         mujoco.mj_resetData(model, data)
         qpos = self.init_qpos + rng.uniform(low=-scale, high=scale, size=model.nq)
-        if self.env_id in _NORMAL_VELOCITY_NOISE:
+        if self._record.velocity_noise == "normal":
             qvel = self.init_qvel + scale * rng.standard_normal(model.nv)
         else:
             qvel = self.init_qvel + rng.uniform(low=-scale, high=scale, size=model.nv)
@@ -526,7 +496,7 @@ class BatchedMujocoEnv(EnvBase):
         model = self.model
         self.datas = [mujoco.MjData(model) for _ in range(self.num_envs)]
         kept = {key: state[key] for key in ("_time", "_previous_position")}
-        self._setup_buffers(_config(self.env_id, self.gym_kwargs))
+        self._setup_buffers()
         self.__dict__.update(kept)
         for data, saved in zip(self.datas, saved_datas, strict=True):
             mujoco.mj_setState(model, data, saved, _INTEGRATION_STATE)

@@ -34,15 +34,16 @@ change of ``qpos[0]`` over the step divided by ``dt`` (HalfCheetah, Swimmer, Hop
 main body's ``xpos`` (Ant) or of the centre of mass from ``xipos`` (Humanoid; both lag ``qpos`` by one
 MuJoCo substep, so they cannot be recomputed from ``qpos``). The tasks therefore keep no memory: a
 step's reward and failure depend on the state after the step alone.
+
+What differs from env to env (the state layout above, the reward terms, the health and contact
+rules) is read from the env's record in :mod:`torchtasks.envs.gymnasium_v5`; nothing here branches
+on the id.
 """
 
 from __future__ import annotations
 
 import functools
-import inspect
-import math
-from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import numpy as np
@@ -52,18 +53,11 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
-from torchtasks._checks import check_finite_scalar, check_positive_int
+from torchtasks._checks import check_positive_int
 from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
-from torchtasks.rewards.terms import (
-    ContactCostReward,
-    ControlCostReward,
-    HealthyReward,
-    VelocityReward,
-    _check_pair,
-    _check_weight,
-)
+from torchtasks.rewards.terms import ControlCostReward, VelocityReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks.goalless import GoallessTask
 from torchtasks.transforms import TaskTransform
@@ -72,10 +66,16 @@ from torchtasks.transforms import TaskTransform
 try:
     import gymnasium
     import mujoco  # noqa: F401  (before gymnasium.envs.mujoco, which raises a non-ImportError without it)
-    from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
-    from gymnasium.envs.registration import load_env_creator
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.locomotion (the Gymnasium MuJoCo presets)", _error) from _error
+
+from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
+from torchtasks.envs.gymnasium_v5 import (
+    LocomotionEnvRecord,
+    ModelFacts,
+    gymnasium_config,
+    locomotion_record,
+)
 
 __all__ = [
     "SUPPORTED_ENV_IDS",
@@ -88,6 +88,8 @@ __all__ = [
     "make_gymnasium_env",
 ]
 
+# written out rather than tuple(LOCOMOTION_ENVS), so that `torchtasks list` reads it from this file without
+# the mujoco extra; tests/test_locomotion_records.py checks that it lists the keys of LOCOMOTION_ENVS, in order
 #: the Gymnasium ids :func:`locomotion_task` and :func:`gymnasium_env` support
 SUPPORTED_ENV_IDS: tuple[str, ...] = (
     "HalfCheetah-v5",
@@ -104,111 +106,8 @@ MAX_EPISODE_STEPS = 1000
 #: info keys that only :class:`MujocoStateInfo` provides (Gymnasium's info lacks them)
 _ADDED_INFO_KEYS = ("qpos", "qvel", "cfrc_ext")
 
-#: MujocoEnv keyword arguments that every MuJoCo env forwards through ``**kwargs``
-_MUJOCO_ENV_KWARGS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
-
 
 # ----------------------------------------------------------------------------------- helpers
-def _check_env_id(env_id: object) -> str:
-    if not isinstance(env_id, str):
-        raise TypeError(f"env_id must be a string, got {type(env_id).__name__}")
-    if env_id not in SUPPORTED_ENV_IDS:
-        raise ValueError(f"env_id must be one of {list(SUPPORTED_ENV_IDS)}, got {env_id!r}")
-    return env_id
-
-
-@functools.cache
-def _gymnasium_defaults(env_id: str) -> dict[str, Any]:
-    """Return ``{keyword: default}`` of the env's constructor (and of MujocoEnv's forwarded ones)."""
-    creator = load_env_creator(gymnasium.spec(env_id).entry_point)
-    defaults: dict[str, Any] = {}
-    keyword_kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
-    for name, parameter in inspect.signature(creator).parameters.items():
-        if parameter.kind in keyword_kinds:
-            defaults[name] = parameter.default
-    base = inspect.signature(MujocoEnv.__init__).parameters
-    for name in _MUJOCO_ENV_KWARGS:
-        defaults.setdefault(name, base[name].default)
-    return defaults
-
-
-def _config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    """Validate the keyword arguments and return them merged over Gymnasium's defaults."""
-    env_id = _check_env_id(env_id)
-    defaults = _gymnasium_defaults(env_id)
-    unknown = sorted(set(gym_kwargs) - set(defaults))
-    if unknown:
-        raise TypeError(
-            f"{env_id} got unexpected keyword argument(s) {unknown}; its keyword arguments are {sorted(defaults)}"
-        )
-    config = {**defaults, **gym_kwargs}
-    checks: dict[str, Callable[[object, str], object]] = {
-        "forward_reward_weight": check_finite_scalar,
-        "healthy_reward": check_finite_scalar,
-        "ctrl_cost_weight": _check_weight,
-        "contact_cost_weight": _check_weight,
-        "healthy_z_range": _check_pair,
-        "healthy_angle_range": _check_pair,
-        "healthy_state_range": _check_pair,
-        "contact_force_range": _check_pair,
-        "contact_cost_range": _check_pair,
-        # Gymnasium's resets draw uniform(-scale, scale): checked here, not at the first reset by numpy
-        "reset_noise_scale": _check_weight,
-    }
-    for name, check in checks.items():
-        if name in config:
-            config[name] = check(config[name], name)
-    if "terminate_when_unhealthy" in config and not isinstance(config["terminate_when_unhealthy"], (bool, np.bool_)):
-        raise TypeError(f"terminate_when_unhealthy must be a bool, got {config['terminate_when_unhealthy']!r}")
-    check_positive_int(config["frame_skip"], "frame_skip")
-    return config
-
-
-@dataclass(frozen=True)
-class _ModelFacts:
-    """What the task needs to know about the MuJoCo model (read from a made env)."""
-
-    dt: float
-    nq: int
-    nv: int
-    n_contact_forces: int
-    action_low: np.ndarray
-    action_high: np.ndarray
-
-    @classmethod
-    def of(cls, gym_env: Any) -> _ModelFacts:
-        unwrapped = gym_env.unwrapped
-        return cls(
-            dt=float(unwrapped.dt),
-            nq=int(unwrapped.model.nq),
-            nv=int(unwrapped.model.nv),
-            n_contact_forces=int(unwrapped.data.cfrc_ext.size),
-            action_low=np.asarray(gym_env.action_space.low, dtype=np.float64),
-            action_high=np.asarray(gym_env.action_space.high, dtype=np.float64),
-        )
-
-
-def _model_facts(env_id: str, gym_kwargs: Mapping[str, Any]) -> _ModelFacts:
-    gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
-    try:
-        return _ModelFacts.of(gym_env)
-    finally:
-        gym_env.close()
-
-
-def _layout(env_id: str, facts: _ModelFacts) -> dict[str, int]:
-    """The task's state: ``{info key: size}`` in concatenation order."""
-    if env_id in ("HalfCheetah-v5", "Swimmer-v5"):
-        return {"x_velocity": 1}
-    if env_id == "Hopper-v5":
-        return {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv}
-    if env_id == "Walker2d-v5":
-        return {"x_velocity": 1, "qpos": facts.nq}
-    if env_id == "Ant-v5":
-        return {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
-    return {"x_velocity": 1, "qpos": facts.nq, "cfrc_ext": facts.n_contact_forces}  # Humanoid-v5
-
-
 def _labels(layout: Mapping[str, int]) -> list[str]:
     labels: list[str] = []
     for key, size in layout.items():
@@ -216,73 +115,49 @@ def _labels(layout: Mapping[str, int]) -> list[str]:
     return labels
 
 
-def _terms(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> dict[str, RewardFunction]:
-    """The named reward terms of ``env_id`` on the state of :func:`_layout` (order: forward, ctrl, contact, survive)."""
-    forward_weight = config["forward_reward_weight"]
-    # Gymnasium's forward_reward_weight * x_velocity, with x_velocity (index 0) as Gymnasium computes it
-    terms: dict[str, RewardFunction] = {"forward": VelocityReward(forward_weight, index=0)}
-    terms["ctrl"] = ControlCostReward(config["ctrl_cost_weight"])
-    nq, nv = facts.nq, facts.nv
-    terminate = bool(config.get("terminate_when_unhealthy", False))
-    if env_id == "Ant-v5":
-        terms["contact"] = ContactCostReward(
-            config["contact_cost_weight"], start=1 + nq + nv, force_range=config["contact_force_range"]
-        )
-        # np.isfinite(qpos ⊕ qvel).all() and z_low <= qpos[2] <= z_high (inclusive)
-        low = [-math.inf] * (nq + nv)
-        high = [math.inf] * (nq + nv)
-        low[2], high[2] = config["healthy_z_range"]
-        terms["survive"] = HealthyReward(
-            config["healthy_reward"],
-            index=list(range(1, 1 + nq + nv)),
-            low=low,
-            high=high,
-            inclusive=True,
-            check_finite=True,
-            terminate_when_unhealthy=terminate,
-        )
-    elif env_id == "Humanoid-v5":
-        terms["contact"] = ContactCostReward(
-            config["contact_cost_weight"], start=1 + nq, cost_range=config["contact_cost_range"]
-        )
-        z_low, z_high = config["healthy_z_range"]  # z_low < qpos[2] < z_high
-        terms["survive"] = HealthyReward(
-            config["healthy_reward"], index=[1 + 2], low=z_low, high=z_high, terminate_when_unhealthy=terminate
-        )
-    elif env_id == "Hopper-v5":
-        # z_low < qpos[1] < z_high, angle_low < qpos[2] < angle_high and
-        # state_low < (qpos ⊕ qvel)[2:] < state_high, strict, on the unclipped velocities
-        state_low, state_high = config["healthy_state_range"]
-        low = [config["healthy_z_range"][0]] + [state_low] * (nq + nv - 2)
-        high = [config["healthy_z_range"][1]] + [state_high] * (nq + nv - 2)
-        angle_low, angle_high = config["healthy_angle_range"]
-        low[1], high[1] = max(state_low, angle_low), min(state_high, angle_high)
-        if low[1] > high[1]:  # empty intersection: never healthy (strict bounds with low == high)
-            high[1] = low[1]
-        terms["survive"] = HealthyReward(
-            config["healthy_reward"],
-            index=list(range(2, 1 + nq + nv)),  # (qpos ⊕ qvel)[1:] after x_velocity
-            low=low,
-            high=high,
-            terminate_when_unhealthy=terminate,
-        )
-    elif env_id == "Walker2d-v5":
-        (z_low, z_high), (angle_low, angle_high) = config["healthy_z_range"], config["healthy_angle_range"]
-        terms["survive"] = HealthyReward(
-            config["healthy_reward"],
-            index=[2, 3],  # qpos[1], qpos[2] after x_velocity
-            low=[z_low, angle_low],
-            high=[z_high, angle_high],
-            terminate_when_unhealthy=terminate,
-        )
+def _terms(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts) -> dict[str, RewardFunction]:
+    """The named reward terms of the env on its task state (order: forward, ctrl, contact, survive)."""
+    starts: dict[str, int] = {}  # where each entry of the task state starts
+    position = 0
+    for key, size in record.state_layout(facts).items():
+        starts[key] = position
+        position += size
+    # Gymnasium's forward_reward_weight * x_velocity, with x_velocity as Gymnasium computes it
+    terms: dict[str, RewardFunction] = {
+        "forward": VelocityReward(config["forward_reward_weight"], index=starts["x_velocity"]),
+        "ctrl": ControlCostReward(config["ctrl_cost_weight"]),
+    }
+    if record.contact_cost is not None:
+        terms["contact"] = record.contact_cost(config, starts["cfrc_ext"])
+    if record.health is not None:
+        terms["survive"] = record.health(config, facts, starts["qpos"])
     return terms
 
 
-def _build_task(env_id: str, config: Mapping[str, Any], facts: _ModelFacts) -> GoallessTask:
-    layout = _layout(env_id, facts)
+def _build_task(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts) -> GoallessTask:
+    layout = record.state_layout(facts)
     state_space = Box.unbounded(sum(layout.values()), labels=_labels(layout))
     spec = EnvSpec(state_space, Box(facts.action_low, facts.action_high))
-    return GoallessTask(spec, CompoundReward(_terms(env_id, config, facts)))
+    return GoallessTask(spec, CompoundReward(_terms(record, config, facts)))
+
+
+def _with_state_info(record: LocomotionEnvRecord, gym_env: gymnasium.Env) -> gymnasium.Env:
+    """``gym_env`` in the :class:`MujocoStateInfo` that adds the state entries Gymnasium's info lacks (if any)."""
+    fields = tuple(key for key in record.state_keys if key in _ADDED_INFO_KEYS)
+    return MujocoStateInfo(gym_env, fields) if fields else gym_env
+
+
+def _gymnasium_base_env(
+    record: LocomotionEnvRecord, gym_kwargs: Mapping[str, Any], device: torch.device | str | None
+) -> tuple[EnvBase, ModelFacts]:
+    """:func:`make_base_env` without the keyword checks, and the facts of its one Gymnasium env."""
+    from torchrl.envs.libs.gym import GymWrapper
+
+    gym_env = _with_state_info(record, gymnasium.make(record.env_id, disable_env_checker=True, **gym_kwargs))
+    facts = ModelFacts.of(gym_env)
+    env = GymWrapper(gym_env, device=device)
+    env.set_info_dict_reader(Float64InfoReader(record.state_layout(facts)))
+    return env, facts
 
 
 # ------------------------------------------------------------------------------- public API
@@ -324,8 +199,8 @@ def locomotion_task(env_id: str, **gym_kwargs: Any) -> GoallessTask:
         >>> reward, task.has_failed(moved, memory)
         (tensor([3.], dtype=torch.float64), tensor([False]))
     """
-    config = _config(env_id, gym_kwargs)
-    return _build_task(env_id, config, _model_facts(env_id, gym_kwargs))
+    config = gymnasium_config(env_id, gym_kwargs)
+    return _build_task(locomotion_record(env_id), config, ModelFacts.make(env_id, gym_kwargs))
 
 
 def locomotion_state_layout(env_id: str, **gym_kwargs: Any) -> dict[str, int]:
@@ -338,8 +213,8 @@ def locomotion_state_layout(env_id: str, **gym_kwargs: Any) -> dict[str, int]:
         >>> locomotion_state_layout("Ant-v5")
         {'x_velocity': 1, 'qpos': 15, 'qvel': 14, 'cfrc_ext': 84}
     """
-    _config(env_id, gym_kwargs)
-    return _layout(env_id, _model_facts(env_id, gym_kwargs))
+    gymnasium_config(env_id, gym_kwargs)
+    return locomotion_record(env_id).state_layout(ModelFacts.make(env_id, gym_kwargs))
 
 
 class MujocoStateInfo(gymnasium.Wrapper):
@@ -452,10 +327,8 @@ def make_gymnasium_env(env_id: str, **gym_kwargs: Any) -> gymnasium.Env:
         >>> sorted(env.reset(seed=0)[1])
         ['qpos', 'x_position', 'z_distance_from_origin']
     """
-    _config(env_id, gym_kwargs)
-    gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
-    fields = tuple(key for key in _layout(env_id, _ModelFacts.of(gym_env)) if key in _ADDED_INFO_KEYS)
-    return MujocoStateInfo(gym_env, fields) if fields else gym_env
+    gymnasium_config(env_id, gym_kwargs)
+    return _with_state_info(locomotion_record(env_id), gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs))
 
 
 def make_base_env(
@@ -473,13 +346,9 @@ def make_base_env(
         >>> env.reset()["x_velocity"].dtype, env.observation_spec["observation"].shape
         (torch.float64, torch.Size([8]))
     """
-    from torchrl.envs.libs.gym import GymWrapper
-
     gym_kwargs = {} if gym_kwargs is None else dict(gym_kwargs)
-    gym_env = make_gymnasium_env(env_id, **gym_kwargs)
-    env = GymWrapper(gym_env, device=device)
-    env.set_info_dict_reader(Float64InfoReader(_layout(env_id, _ModelFacts.of(gym_env))))
-    return env
+    gymnasium_config(env_id, gym_kwargs)
+    return _gymnasium_base_env(locomotion_record(env_id), gym_kwargs, device)[0]
 
 
 def gymnasium_env(
@@ -500,7 +369,10 @@ def gymnasium_env(
     this process with native threads, or, with ``backend="gymnasium"`` (the default for
     ``num_envs == 1``), :func:`make_base_env` (one ``gymnasium.make`` env) or a ``ParallelEnv`` of
     ``num_envs`` of them (built in spawned workers from a ``functools.partial`` of
-    :func:`make_base_env`; far slower, kept for parity checks). The policy's ``"observation"`` is
+    :func:`make_base_env`; far slower, kept for parity checks). The keywords are checked once
+    and one Gymnasium env is made here: its model facts shape the task and the batched env, or it is
+    the single env of the Gymnasium backend (a ``ParallelEnv``'s constructor is also run once here, by
+    TorchRL, to read the specs). The policy's ``"observation"`` is
     Gymnasium's, unchanged; the task's state entries (:func:`locomotion_state_layout`) are float64
     root entries. ``"reward"`` is the task reward (float64 with the batched backend, float32 with
     Gymnasium's), ``"success"``/``"failure"`` the task flags (failure = unhealthy with
@@ -534,7 +406,8 @@ def gymnasium_env(
         >>> batched.rollout(3)["next", "reward"].shape
         torch.Size([2, 3, 1])
     """
-    config = _config(env_id, gym_kwargs)
+    record = locomotion_record(env_id)
+    config = gymnasium_config(env_id, gym_kwargs)
     num_envs = check_positive_int(num_envs, "num_envs")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
         raise TypeError(f"seed must be an int or None, got {seed!r}")
@@ -544,24 +417,35 @@ def gymnasium_env(
         raise ValueError(f"backend must be 'batched' or 'gymnasium', got {backend!r}")
     if num_threads is not None and backend != "batched":
         raise ValueError("num_threads applies to backend='batched' only")
-    facts = _model_facts(env_id, gym_kwargs)
-    task = _build_task(env_id, config, facts)
+    # one Gymnasium env is made here: its facts shape the task and, on the batched backend, the batched env
+    base: EnvBase
+    if backend == "gymnasium" and num_envs == 1:
+        base, facts = _gymnasium_base_env(record, gym_kwargs, device)
+    else:
+        facts = ModelFacts.make(env_id, gym_kwargs)
+        if backend == "batched":
+            base = BatchedMujocoEnv(
+                env_id,
+                num_envs,
+                seed=seed,
+                device=device,
+                num_threads=num_threads,
+                _checked=(config, facts),
+                **gym_kwargs,
+            )
+        else:  # the workers make their own envs when the ParallelEnv starts
+            create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
+            base = ParallelEnv(num_envs, create_env, device=device)
+    task = _build_task(record, config, facts)
     if device is not None:
         task = task.to(device)
     transforms: list[Transform] = [
         StepCounter(MAX_EPISODE_STEPS),
-        TaskTransform(task, state_key=list(_layout(env_id, facts))),
+        TaskTransform(task, state_key=list(record.state_keys)),
     ]
     if backend == "batched":
-        from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
-
-        base = BatchedMujocoEnv(env_id, num_envs, seed=seed, device=device, num_threads=num_threads, **gym_kwargs)
         transforms.append(ZeroBrokenStepReward())  # a broken step (marked "broken") pays 0, not a NaN control cost
-    else:
-        create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
-        base = create_env() if num_envs == 1 else ParallelEnv(num_envs, create_env, device=device)
-    transform = Compose(*transforms, RewardSum())
-    env = TransformedEnv(base, transform)
+    env = TransformedEnv(base, Compose(*transforms, RewardSum()))
     if seed is not None and backend == "gymnasium":
         env.set_seed(int(seed))
     return env

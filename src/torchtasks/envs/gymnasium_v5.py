@@ -1,0 +1,430 @@
+"""What each Gymnasium MuJoCo v5 locomotion env is: one record of facts per env, in one table.
+
+:data:`LOCOMOTION_ENVS` maps each supported id (``HalfCheetah-v5``, ``Hopper-v5``, ``Walker2d-v5``,
+``Swimmer-v5``, ``Ant-v5``, ``Humanoid-v5``) to a :class:`LocomotionEnvRecord`: the task state it
+is scored on, how its observation is put together, how its resets draw velocities, how its forward
+velocity is measured and which reward terms it has, with the rules (contact cost, health) that
+differ from env to env. Everything that reads these facts reads them here:
+:class:`~torchtasks.envs.batched_mujoco.BatchedMujocoEnv` (observation, reset noise, forward
+position), the task factory and the env builders of :mod:`torchtasks.envs.locomotion` (state layout,
+reward terms) and :mod:`torchtasks.parity` (keyword checks). A new env is one more record; a reader
+never branches on the id.
+
+Two more things are read for an env and its Gymnasium keyword arguments:
+:func:`gymnasium_config` validates the keywords and merges them over Gymnasium's own defaults (read
+from the env class's signature), and :class:`ModelFacts` holds what one made Gymnasium env tells
+(the MuJoCo model, ``dt``, sizes, initial state, observation size, action bounds), so that a caller
+makes the env once and hands the facts on.
+
+This module is the bottom of :mod:`torchtasks.envs`: it imports reward terms and Gymnasium, never
+the batched env, the presets or TorchRL transforms.
+"""
+
+from __future__ import annotations
+
+import functools
+import inspect
+import math
+import types
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, Literal, NamedTuple
+
+import numpy as np
+
+from torchtasks._checks import check_finite_scalar, check_positive_int
+from torchtasks._optional import missing_extra
+from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.terms import ContactCostReward, HealthyReward, _check_pair, _check_weight
+
+# the 'mujoco' extra: without it, importing this module raises an error naming the extra to install
+try:
+    import gymnasium
+    import mujoco
+    from gymnasium.envs.mujoco.mujoco_env import MujocoEnv
+    from gymnasium.envs.registration import load_env_creator
+except ImportError as _error:
+    raise missing_extra("mujoco", "torchtasks.envs.gymnasium_v5 (the Gymnasium MuJoCo v5 records)", _error) from _error
+
+__all__ = [
+    "LOCOMOTION_ENVS",
+    "LocomotionEnvRecord",
+    "ModelFacts",
+    "ObservationPart",
+    "gymnasium_config",
+    "locomotion_record",
+]
+
+#: MujocoEnv keyword arguments that every MuJoCo env forwards through ``**kwargs``
+_MUJOCO_ENV_KWARGS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
+
+
+class ObservationPart(NamedTuple):
+    """One piece of an observation: ``data.<source>[start:]``, flattened, clipped to ``clip`` unless it is None.
+
+    ``source`` names a ``mujoco.MjData`` array (``"qpos"``, ``"qvel"``, ``"cfrc_ext"``, ``"cinert"``,
+    ...); ``start`` is the number of leading entries (rows of 2-D arrays) left out: the skipped
+    positions of ``qpos``, the world body of the per-body arrays, the free joint of ``qfrc_actuator``.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import ObservationPart
+        >>> ObservationPart("qvel", 0, (-10.0, 10.0)).clip
+        (-10.0, 10.0)
+    """
+
+    source: str
+    start: int
+    clip: tuple[float, float] | None
+
+
+def _no_extras(config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
+    return ()
+
+
+@dataclass(frozen=True)
+class LocomotionEnvRecord:
+    """The facts of one Gymnasium MuJoCo v5 locomotion env that differ from env to env.
+
+    Attributes:
+        env_id: the Gymnasium id.
+        state_keys: the task's state, in concatenation order: ``"x_velocity"`` (Gymnasium's
+            ``info["x_velocity"]``), then the ``mujoco.MjData`` arrays the reward and health rules
+            read that Gymnasium's info lacks (``"qpos"``, ``"qvel"``, ``"cfrc_ext"``, flattened).
+        skipped_positions: leading ``qpos`` entries the observation leaves out with
+            ``exclude_current_positions_from_observation`` (x, or x and y).
+        velocity_clip: the bound ``b`` of ``clip(qvel, -b, b)`` in the observation; None: unclipped.
+        velocity_noise: the distribution of the reset noise of ``qvel``: ``"uniform"`` (half-width
+            ``reset_noise_scale``) or ``"normal"`` (standard deviation ``reset_noise_scale``); the
+            noise of ``qpos`` is uniform for every env.
+        forward_position: what Gymnasium finite-differences into ``x_velocity``: ``"qpos"``
+            (``qpos[0]``), ``"main_body"`` (the ``main_body`` keyword's body's ``xpos``) or
+            ``"mass_centre"`` (the centre of mass of the bodies' ``xipos``).
+        observation_extras: ``config -> parts`` of the observation after ``qpos`` and ``qvel``
+            (e.g. the contact forces), as the keywords in ``config`` select them.
+        contact_cost: ``(config, start) -> term``, the ``"contact"`` term on the contact forces
+            that start at ``start`` in the task state; None: the env has none.
+        health: ``(config, facts, start) -> term``, the ``"survive"`` term (a failure when unhealthy
+            and ``terminate_when_unhealthy``) on the ``qpos`` (and ``qvel``) that start at
+            ``start`` in the task state; None: the env is always healthy and pays no survival reward.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import locomotion_record
+        >>> record = locomotion_record("Hopper-v5")
+        >>> record.state_keys, record.velocity_clip, record.term_names
+        (('x_velocity', 'qpos', 'qvel'), 10.0, ('forward', 'ctrl', 'survive'))
+    """
+
+    env_id: str
+    state_keys: tuple[str, ...]
+    skipped_positions: int
+    velocity_clip: float | None = None
+    velocity_noise: Literal["uniform", "normal"] = "uniform"
+    forward_position: Literal["qpos", "main_body", "mass_centre"] = "qpos"
+    observation_extras: Callable[[Mapping[str, Any]], tuple[ObservationPart, ...]] = _no_extras
+    contact_cost: Callable[[Mapping[str, Any], int], RewardFunction] | None = None
+    health: Callable[[Mapping[str, Any], ModelFacts, int], RewardFunction] | None = None
+
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        """The reward terms, named like Gymnasium's ``info["reward_<name>"]``, in the task's order."""
+        return (
+            "forward",
+            "ctrl",
+            *(("contact",) if self.contact_cost is not None else ()),
+            *(("survive",) if self.health is not None else ()),
+        )
+
+    def state_layout(self, facts: ModelFacts) -> dict[str, int]:
+        """The task's state for this model: ``{key: size}`` in concatenation order."""
+        sizes = {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
+        return {key: sizes[key] for key in self.state_keys}
+
+    def observation_parts(self, config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
+        """Gymnasium's observation for the keywords ``config`` (of :func:`gymnasium_config`): its parts in order."""
+        skip = self.skipped_positions if config["exclude_current_positions_from_observation"] else 0
+        clip = None if self.velocity_clip is None else (-self.velocity_clip, self.velocity_clip)
+        return (ObservationPart("qpos", skip, None), ObservationPart("qvel", 0, clip), *self.observation_extras(config))
+
+
+@dataclass(frozen=True, eq=False)
+class ModelFacts:
+    """What a made Gymnasium env says about its MuJoCo model (for the keywords it was made with).
+
+    Read once with :meth:`of` (or :meth:`make`) and handed on, so that building a task and a batched
+    env for the same keywords makes one Gymnasium env.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import ModelFacts
+        >>> facts = ModelFacts.make("Hopper-v5", {"frame_skip": 2})
+        >>> facts.nq, facts.nv, facts.frame_skip, facts.dt, facts.observation_size
+        (6, 6, 2, 0.004, 11)
+    """
+
+    model: mujoco.MjModel
+    dt: float
+    frame_skip: int
+    init_qpos: np.ndarray
+    init_qvel: np.ndarray
+    observation_size: int
+    action_low: np.ndarray
+    action_high: np.ndarray
+
+    @property
+    def nq(self) -> int:
+        """Size of ``qpos``."""
+        return int(self.model.nq)
+
+    @property
+    def nv(self) -> int:
+        """Size of ``qvel``."""
+        return int(self.model.nv)
+
+    @property
+    def n_contact_forces(self) -> int:
+        """Size of the flattened ``cfrc_ext`` (6 per body)."""
+        return 6 * int(self.model.nbody)
+
+    @classmethod
+    def of(cls, gym_env: Any) -> ModelFacts:
+        """Read the facts of a made (possibly wrapped) Gymnasium MuJoCo env."""
+        unwrapped = gym_env.unwrapped
+        return cls(
+            model=unwrapped.model,
+            dt=float(unwrapped.dt),
+            frame_skip=int(unwrapped.frame_skip),
+            init_qpos=unwrapped.init_qpos.copy(),
+            init_qvel=unwrapped.init_qvel.copy(),
+            observation_size=int(gym_env.observation_space.shape[0]),
+            action_low=np.asarray(gym_env.action_space.low, dtype=np.float64),
+            action_high=np.asarray(gym_env.action_space.high, dtype=np.float64),
+        )
+
+    @classmethod
+    def make(cls, env_id: str, gym_kwargs: Mapping[str, Any]) -> ModelFacts:
+        """Make ``gymnasium.make(env_id, **gym_kwargs)`` once, read its facts and close it."""
+        gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
+        try:
+            return cls.of(gym_env)
+        finally:
+            gym_env.close()
+
+
+# ---------------------------------------------------------------------------- the rules per env
+def _ant_observation_extras(config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
+    # the contact forces of all bodies but the world, clipped to contact_force_range (Gymnasium tests truthiness)
+    if config["include_cfrc_ext_in_observation"]:
+        return (ObservationPart("cfrc_ext", 1, tuple(config["contact_force_range"])),)
+    return ()
+
+
+def _humanoid_observation_extras(config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
+    parts = []
+    for flag, source, start in (
+        ("include_cinert_in_observation", "cinert", 1),
+        ("include_cvel_in_observation", "cvel", 1),
+        ("include_qfrc_actuator_in_observation", "qfrc_actuator", 6),  # without the free joint's 6 dofs
+        ("include_cfrc_ext_in_observation", "cfrc_ext", 1),
+    ):
+        if config[flag] is True:  # Gymnasium tests `is True`
+            parts.append(ObservationPart(source, start, None))
+    return tuple(parts)
+
+
+def _ant_contact_cost(config: Mapping[str, Any], start: int) -> RewardFunction:
+    # the forces are clipped to contact_force_range before they are squared
+    return ContactCostReward(config["contact_cost_weight"], start=start, force_range=config["contact_force_range"])
+
+
+def _humanoid_contact_cost(config: Mapping[str, Any], start: int) -> RewardFunction:
+    # the cost itself is clipped to contact_cost_range
+    return ContactCostReward(config["contact_cost_weight"], start=start, cost_range=config["contact_cost_range"])
+
+
+def _hopper_health(config: Mapping[str, Any], facts: ModelFacts, start: int) -> RewardFunction:
+    # z_low < qpos[1] < z_high, angle_low < qpos[2] < angle_high and
+    # state_low < (qpos ⊕ qvel)[2:] < state_high, strict, on the unclipped velocities
+    nq, nv = facts.nq, facts.nv
+    state_low, state_high = config["healthy_state_range"]
+    low = [config["healthy_z_range"][0]] + [state_low] * (nq + nv - 2)
+    high = [config["healthy_z_range"][1]] + [state_high] * (nq + nv - 2)
+    angle_low, angle_high = config["healthy_angle_range"]
+    low[1], high[1] = max(state_low, angle_low), min(state_high, angle_high)
+    if low[1] > high[1]:  # empty intersection: never healthy (strict bounds with low == high)
+        high[1] = low[1]
+    return HealthyReward(
+        config["healthy_reward"],
+        index=list(range(start + 1, start + nq + nv)),  # (qpos ⊕ qvel)[1:]
+        low=low,
+        high=high,
+        terminate_when_unhealthy=bool(config["terminate_when_unhealthy"]),
+    )
+
+
+def _walker2d_health(config: Mapping[str, Any], facts: ModelFacts, start: int) -> RewardFunction:
+    # z_low < qpos[1] < z_high and angle_low < qpos[2] < angle_high
+    (z_low, z_high), (angle_low, angle_high) = config["healthy_z_range"], config["healthy_angle_range"]
+    return HealthyReward(
+        config["healthy_reward"],
+        index=[start + 1, start + 2],
+        low=[z_low, angle_low],
+        high=[z_high, angle_high],
+        terminate_when_unhealthy=bool(config["terminate_when_unhealthy"]),
+    )
+
+
+def _ant_health(config: Mapping[str, Any], facts: ModelFacts, start: int) -> RewardFunction:
+    # np.isfinite(qpos ⊕ qvel).all() and z_low <= qpos[2] <= z_high (inclusive)
+    size = facts.nq + facts.nv
+    low = [-math.inf] * size
+    high = [math.inf] * size
+    low[2], high[2] = config["healthy_z_range"]
+    return HealthyReward(
+        config["healthy_reward"],
+        index=list(range(start, start + size)),
+        low=low,
+        high=high,
+        inclusive=True,
+        check_finite=True,
+        terminate_when_unhealthy=bool(config["terminate_when_unhealthy"]),
+    )
+
+
+def _humanoid_health(config: Mapping[str, Any], facts: ModelFacts, start: int) -> RewardFunction:
+    z_low, z_high = config["healthy_z_range"]  # z_low < qpos[2] < z_high
+    return HealthyReward(
+        config["healthy_reward"],
+        index=[start + 2],
+        low=z_low,
+        high=z_high,
+        terminate_when_unhealthy=bool(config["terminate_when_unhealthy"]),
+    )
+
+
+#: the supported envs: ``{env_id: record}``, one table (read-only)
+LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
+    {
+        record.env_id: record
+        for record in (
+            LocomotionEnvRecord(
+                "HalfCheetah-v5",
+                state_keys=("x_velocity",),
+                skipped_positions=1,
+                velocity_noise="normal",
+            ),
+            LocomotionEnvRecord(
+                "Hopper-v5",
+                state_keys=("x_velocity", "qpos", "qvel"),  # the health rule reads the unclipped qvel
+                skipped_positions=1,
+                velocity_clip=10.0,
+                health=_hopper_health,
+            ),
+            LocomotionEnvRecord(
+                "Walker2d-v5",
+                state_keys=("x_velocity", "qpos"),
+                skipped_positions=1,
+                velocity_clip=10.0,
+                health=_walker2d_health,
+            ),
+            LocomotionEnvRecord(
+                "Swimmer-v5",
+                state_keys=("x_velocity",),
+                skipped_positions=2,
+            ),
+            LocomotionEnvRecord(
+                "Ant-v5",
+                state_keys=("x_velocity", "qpos", "qvel", "cfrc_ext"),
+                skipped_positions=2,
+                velocity_noise="normal",
+                forward_position="main_body",
+                observation_extras=_ant_observation_extras,
+                contact_cost=_ant_contact_cost,
+                health=_ant_health,
+            ),
+            LocomotionEnvRecord(
+                "Humanoid-v5",
+                state_keys=("x_velocity", "qpos", "cfrc_ext"),
+                skipped_positions=2,
+                forward_position="mass_centre",
+                observation_extras=_humanoid_observation_extras,
+                contact_cost=_humanoid_contact_cost,
+                health=_humanoid_health,
+            ),
+        )
+    }
+)
+
+
+# ------------------------------------------------------------------------------- look-ups
+def locomotion_record(env_id: object) -> LocomotionEnvRecord:
+    """Return the record of ``env_id``; raise ``TypeError``/``ValueError`` naming the supported ids otherwise.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import locomotion_record
+        >>> locomotion_record("Ant-v5").forward_position
+        'main_body'
+    """
+    if not isinstance(env_id, str):
+        raise TypeError(f"env_id must be a string, got {type(env_id).__name__}")
+    record = LOCOMOTION_ENVS.get(env_id)
+    if record is None:
+        raise ValueError(f"env_id must be one of {list(LOCOMOTION_ENVS)}, got {env_id!r}")
+    return record
+
+
+@functools.cache
+def _gymnasium_defaults(env_id: str) -> dict[str, Any]:
+    """Return ``{keyword: default}`` of the env's constructor (and of MujocoEnv's forwarded ones)."""
+    creator = load_env_creator(gymnasium.spec(env_id).entry_point)
+    defaults: dict[str, Any] = {}
+    keyword_kinds = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    for name, parameter in inspect.signature(creator).parameters.items():
+        if parameter.kind in keyword_kinds:
+            defaults[name] = parameter.default
+    base = inspect.signature(MujocoEnv.__init__).parameters
+    for name in _MUJOCO_ENV_KWARGS:
+        defaults.setdefault(name, base[name].default)
+    return defaults
+
+
+def gymnasium_config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """Validate an env's Gymnasium keyword arguments and return them merged over Gymnasium's defaults.
+
+    The defaults are read from the env class's signature (and MujocoEnv's forwarded keywords).
+    Unknown keywords raise ``TypeError``; weights must be finite real numbers (cost weights and
+    ``reset_noise_scale`` non-negative), ranges ``(low, high)`` pairs with ``low <= high``,
+    ``terminate_when_unhealthy`` a bool and ``frame_skip`` a positive int.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import gymnasium_config
+        >>> config = gymnasium_config("Hopper-v5", {"healthy_reward": 2})
+        >>> config["healthy_reward"], config["frame_skip"], config["healthy_z_range"]
+        (2.0, 4, (0.7, inf))
+    """
+    locomotion_record(env_id)
+    defaults = _gymnasium_defaults(env_id)
+    unknown = sorted(set(gym_kwargs) - set(defaults))
+    if unknown:
+        raise TypeError(
+            f"{env_id} got unexpected keyword argument(s) {unknown}; its keyword arguments are {sorted(defaults)}"
+        )
+    config = {**defaults, **gym_kwargs}
+    checks: dict[str, Callable[[object, str], object]] = {
+        "forward_reward_weight": check_finite_scalar,
+        "healthy_reward": check_finite_scalar,
+        "ctrl_cost_weight": _check_weight,
+        "contact_cost_weight": _check_weight,
+        "healthy_z_range": _check_pair,
+        "healthy_angle_range": _check_pair,
+        "healthy_state_range": _check_pair,
+        "contact_force_range": _check_pair,
+        "contact_cost_range": _check_pair,
+        # Gymnasium's resets draw uniform(-scale, scale): checked here, not at the first reset by numpy
+        "reset_noise_scale": _check_weight,
+    }
+    for name, check in checks.items():
+        if name in config:
+            config[name] = check(config[name], name)
+    if "terminate_when_unhealthy" in config and not isinstance(config["terminate_when_unhealthy"], (bool, np.bool_)):
+        raise TypeError(f"terminate_when_unhealthy must be a bool, got {config['terminate_when_unhealthy']!r}")
+    check_positive_int(config["frame_skip"], "frame_skip")
+    return config
