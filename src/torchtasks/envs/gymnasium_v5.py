@@ -32,10 +32,10 @@ from typing import Any, Literal, NamedTuple
 
 import numpy as np
 
-from torchtasks._checks import check_finite_scalar, check_positive_int
+from torchtasks._checks import check_finite_scalar, check_pair, check_positive_int, check_weight
 from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
-from torchtasks.rewards.terms import ContactCostReward, HealthyReward, _check_pair, _check_weight
+from torchtasks.rewards.terms import ContactCostReward, HealthyReward
 
 # the 'mujoco' extra: without it, importing this module raises an error naming the extra to install
 try:
@@ -411,15 +411,15 @@ def gymnasium_config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, An
     checks: dict[str, Callable[[object, str], object]] = {
         "forward_reward_weight": check_finite_scalar,
         "healthy_reward": check_finite_scalar,
-        "ctrl_cost_weight": _check_weight,
-        "contact_cost_weight": _check_weight,
-        "healthy_z_range": _check_pair,
-        "healthy_angle_range": _check_pair,
-        "healthy_state_range": _check_pair,
-        "contact_force_range": _check_pair,
-        "contact_cost_range": _check_pair,
+        "ctrl_cost_weight": check_weight,
+        "contact_cost_weight": check_weight,
+        "healthy_z_range": check_pair,
+        "healthy_angle_range": check_pair,
+        "healthy_state_range": check_pair,
+        "contact_force_range": check_pair,
+        "contact_cost_range": check_pair,
         # Gymnasium's resets draw uniform(-scale, scale): checked here, not at the first reset by numpy
-        "reset_noise_scale": _check_weight,
+        "reset_noise_scale": check_weight,
     }
     for name, check in checks.items():
         if name in config:
