@@ -39,7 +39,7 @@ except ImportError as _error:
 from torchrl.envs import Compose, TransformedEnv
 
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
-from torchtasks.envs.gymnasium_v5 import gymnasium_config
+from torchtasks.envs.gymnasium_v5 import gymnasium_config, make_v5_env
 from torchtasks.envs.locomotion import gymnasium_env
 from torchtasks.transforms import TaskTransform
 
@@ -116,7 +116,7 @@ def check_parity(env_id: str, seeds: Sequence[int] = (0, 1, 2), steps: int = 100
     compared = episodes = termination_mismatches = observation_mismatches = 0
     for seed in seeds:
         env = gymnasium_env(env_id, seed=seed, **gym_kwargs)
-        reference = gymnasium.make(env_id, **gym_kwargs)
+        reference = make_v5_env(env_id, env_checker=True, **gym_kwargs)
         try:
             names = env.transform[1].task.term_names
             for name in names:
@@ -395,7 +395,7 @@ def compare_batched_with_gymnasium(
         expected = sync_gymnasium_env(references[i], base, i)
         record(maxima, "observation", _difference(observation.numpy(), expected), where)
 
-    references = [gymnasium.make(env_id, **kwargs) for _ in range(n)]
+    references = [make_v5_env(env_id, env_checker=True, **kwargs) for _ in range(n)]
     try:
         for i, reference in enumerate(references):
             reference.reset(seed=seed * n + i)

@@ -37,6 +37,7 @@ from torchrl.envs import EnvBase, Transform
 
 from torchtasks._checks import check_positive_int
 from torchtasks._optional import missing_extra
+from torchtasks._torchrl import container_env
 
 try:
     import mujoco
@@ -182,6 +183,8 @@ class BatchedMujocoEnv(EnvBase):
         self.num_envs = num_envs
         self.num_threads = num_threads
         self.gym_kwargs = dict(gym_kwargs)
+        #: whether some env of the last step was broken (a host fact; ZeroBrokenStepReward skips its work without)
+        self.last_step_broken = False
         self._record = record
         self._config = config
 
@@ -435,7 +438,8 @@ class BatchedMujocoEnv(EnvBase):
         position = self._forward_position()
         x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
         self._previous_position = position
-        if not broken.any():
+        self.last_step_broken = bool(broken.any())
+        if not self.last_step_broken:
             return self._outputs(x_velocity, None, reward=True)
         invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
         diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
@@ -574,6 +578,10 @@ class ZeroBrokenStepReward(Transform):
         return reward_spec
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        container = container_env(self)
+        if getattr(getattr(container, "base_env", None), "last_step_broken", True) is False:
+            # a host fact of a BatchedMujocoEnv below: no broken env in this step, no tensor to read
+            return next_tensordict
         broken = next_tensordict.get(self.broken_key, None)
         if broken is None:
             return next_tensordict

@@ -46,6 +46,8 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.gymnasium_v5 (the Gymnasium MuJoCo v5 records)", _error) from _error
 
+from torchtasks.envs._mujoco_log import quiet_model_loading, route_mujoco_warnings
+
 __all__ = [
     "LOCOMOTION_ENVS",
     "LocomotionEnvRecord",
@@ -53,10 +55,33 @@ __all__ = [
     "ObservationPart",
     "gymnasium_config",
     "locomotion_record",
+    "make_v5_env",
 ]
+
+# MuJoCo's warnings become Python warnings (no MUJOCO_LOG.TXT in the user's directory)
+route_mujoco_warnings()
 
 #: MujocoEnv keyword arguments that every MuJoCo env forwards through ``**kwargs``
 _MUJOCO_ENV_KWARGS = ("render_mode", "width", "height", "camera_id", "camera_name", "max_geom", "visual_options")
+
+
+def make_v5_env(env_id: str, *, env_checker: bool = False, **gym_kwargs: Any) -> gymnasium.Env:
+    """Return ``gymnasium.make(env_id, **gym_kwargs)`` without MuJoCo's notices about Gymnasium's own model files.
+
+    MuJoCo 4 reports that ``half_cheetah.xml`` uses the deprecated ``settotalmass``; the model is
+    Gymnasium's and compiles bit-identically, so torchtasks hides that notice where it builds one
+    (other MuJoCo warnings reach Python's ``warnings`` as ``MujocoWarning``). ``env_checker`` turns
+    Gymnasium's env checker on.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import make_v5_env
+        >>> env = make_v5_env("HalfCheetah-v5")
+        >>> env.observation_space.shape
+        (17,)
+        >>> env.close()
+    """
+    with quiet_model_loading():
+        return gymnasium.make(env_id, disable_env_checker=not env_checker, **gym_kwargs)
 
 
 class ObservationPart(NamedTuple):
@@ -202,7 +227,7 @@ class ModelFacts:
     @classmethod
     def make(cls, env_id: str, gym_kwargs: Mapping[str, Any]) -> ModelFacts:
         """Make ``gymnasium.make(env_id, **gym_kwargs)`` once, read its facts and close it."""
-        gym_env = gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs)
+        gym_env = make_v5_env(env_id, **gym_kwargs)
         try:
             return cls.of(gym_env)
         finally:

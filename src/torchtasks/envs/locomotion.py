@@ -75,6 +75,7 @@ from torchtasks.envs.gymnasium_v5 import (
     ModelFacts,
     gymnasium_config,
     locomotion_record,
+    make_v5_env,
 )
 
 __all__ = [
@@ -153,7 +154,7 @@ def _gymnasium_base_env(
     """:func:`make_base_env` without the keyword checks, and the facts of its one Gymnasium env."""
     from torchrl.envs.libs.gym import GymWrapper
 
-    gym_env = _with_state_info(record, gymnasium.make(record.env_id, disable_env_checker=True, **gym_kwargs))
+    gym_env = _with_state_info(record, make_v5_env(record.env_id, **gym_kwargs))
     facts = ModelFacts.of(gym_env)
     env = GymWrapper(gym_env, device=device)
     env.set_info_dict_reader(Float64InfoReader(record.state_layout(facts)))
@@ -328,7 +329,7 @@ def make_gymnasium_env(env_id: str, **gym_kwargs: Any) -> gymnasium.Env:
         ['qpos', 'x_position', 'z_distance_from_origin']
     """
     gymnasium_config(env_id, gym_kwargs)
-    return _with_state_info(locomotion_record(env_id), gymnasium.make(env_id, disable_env_checker=True, **gym_kwargs))
+    return _with_state_info(locomotion_record(env_id), make_v5_env(env_id, **gym_kwargs))
 
 
 def make_base_env(
