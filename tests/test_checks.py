@@ -36,7 +36,6 @@ from torchtasks.rewards import (
     SwingUpReward,
     ToleranceReward,
     VelocityReward,
-    terms,
 )
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
@@ -148,10 +147,6 @@ def test_pairs_refuse_nan_and_reversed_ends_with_a_value_error():
         check_pair(np.array([0.0, np.nan]), "my_range")
     with pytest.raises(ValueError, match=r"^my_range must satisfy low <= high"):
         check_pair((1.0, 0.0), "my_range")
-
-
-def test_the_reward_terms_module_still_exports_its_old_names():
-    assert terms._check_pair is check_pair and terms._check_weight is check_weight
 
 
 # --------------------------------------------------------------- every constructor that takes an int

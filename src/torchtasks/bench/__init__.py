@@ -169,15 +169,16 @@ def format_markdown(results: dict[str, Any]) -> str:
             "## Collector overhead (frames/s, random policy, StepCounter(1000) + transform)",
             "",
             "| setup | identity | TaskTransform(T1) | minimal T1 | task / identity | minimal / identity "
-            "| task / minimal |",
-            "|---|---:|---:|---:|---:|---:|---:|",
+            "| task / minimal | TaskTransform(T1, log_terms=False) | fewest-entries T1 | no terms / fewest |",
+            "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for row in results["collector"]:
             fps = row["fps"]
             lines.append(
                 f"| {row['setup']} | {fps['identity']:,.0f} | {fps['task']:,.0f} | {fps['minimal']:,.0f} | "
                 f"{row['task_over_identity']:.2f} | {row['minimal_over_identity']:.2f} | "
-                f"{row['task_over_minimal']:.2f} |"
+                f"{row['task_over_minimal']:.2f} | {fps['task_no_terms']:,.0f} | {fps['fewest']:,.0f} | "
+                f"{row['no_terms_over_fewest']:.2f} |"
             )
     if "memory" in results:
         lines += ["", "## Task memory", "", "| case | bytes per env |", "|---|---:|"]

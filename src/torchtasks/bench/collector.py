@@ -20,7 +20,7 @@ from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
 from torchtasks.transforms import TaskTransform
 
-__all__ = ["IdentityTransform", "MinimalT1Transform", "run_collector_benchmark", "t1_for"]
+__all__ = ["FewestT1Transform", "IdentityTransform", "MinimalT1Transform", "run_collector_benchmark", "t1_for"]
 
 # The collector benchmark measures what the transform costs, not what shorter episodes cost: with
 # these bounds and this threshold the task's episodes end only by truncation (StepCounter), as with
@@ -148,6 +148,76 @@ class MinimalT1Transform(Transform):
         return reward_spec
 
 
+class FewestT1Transform(Transform):
+    """The floor with the fewest entries: T1's reward, flags and final-reward latch, nothing else.
+
+    Writes ``reward``, ``success``, ``failure``, ``terminated``, ``done`` and the latch ``("task",
+    "paid")`` (the one per-env state T1 needs when its goal is a constant); no goal in memory, no
+    reward breakdown. ``TaskTransform(t1, log_terms=False)`` is compared with it.
+    """
+
+    def __init__(self, state_size: int, bound: float = BOUND, threshold: float = THRESHOLD) -> None:
+        super().__init__(in_keys=["observation"], out_keys=["reward"])
+        self.state_size = state_size
+        self.bound = bound
+        self.threshold = threshold
+        self.factor = BenchConfig().factor
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        state = next_tensordict.get("observation")
+        action = tensordict.get("action").to(state.dtype)
+        paid = tensordict.get(("task", "paid"))
+        step = -((state * state).sum(-1) + 0.1 * (action * action).sum(-1))  # the goal is the origin
+        success = torch.linalg.vector_norm(state, dim=-1) < self.threshold
+        failure = (state.abs() > self.bound).any(-1) | torch.isnan(state).any(-1)
+        done = next_tensordict.get("done")
+        finished = done.squeeze(-1) | success | failure
+        constants = self.__dict__.get("_constants")
+        if constants is None or constants[0].dtype != state.dtype:  # 0-d constants, built once
+            constants = self.__dict__["_constants"] = tuple(
+                torch.tensor(v, dtype=state.dtype) for v in (self.factor, -self.factor, 0.0)
+            )
+        on_success, on_failure, zero = constants
+        final = torch.where(
+            finished & ~paid, torch.where(failure, on_failure, torch.where(success, on_success, zero)), zero
+        )
+        next_tensordict.set("reward", (step + final).unsqueeze(-1).to(torch.float32))
+        next_tensordict.set("success", success.unsqueeze(-1))
+        next_tensordict.set("failure", failure.unsqueeze(-1))
+        ended = (success | failure).unsqueeze(-1)
+        next_tensordict.set("terminated", next_tensordict.get("terminated") | ended)
+        next_tensordict.set("done", done | ended)
+        next_tensordict.set(("task", "paid"), paid | finished)
+        return next_tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        batch = tensordict_reset.batch_size
+        paid = torch.zeros(batch, dtype=torch.bool)
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        old = None if tensordict is None else tensordict.get(("task", "paid"), None)
+        if reset is not None and old is not None:
+            paid = torch.where(reset.reshape(batch), paid, old)
+        tensordict_reset.set(("task", "paid"), paid)
+        flags = torch.zeros((*batch, 1), dtype=torch.bool)
+        tensordict_reset.set("success", flags)
+        tensordict_reset.set("failure", flags.clone())
+        return tensordict_reset
+
+    def _memory_spec(self, batch: torch.Size) -> Composite:
+        return Composite(paid=Categorical(2, shape=batch, dtype=torch.bool), shape=batch)
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        batch = observation_spec.shape
+        observation_spec["success"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec["failure"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec["task"] = self._memory_spec(batch)
+        return observation_spec
+
+    def transform_state_spec(self, state_spec: Composite) -> Composite:
+        state_spec["task"] = self._memory_spec(self.parent.full_observation_spec.shape)
+        return state_spec
+
+
 def _frames_per_second(env: EnvBase, frames_per_batch: int, batches: int) -> float:
     collector = Collector(env, None, frames_per_batch=frames_per_batch, total_frames=frames_per_batch * (batches + 1))
     iterator = iter(collector)
@@ -224,6 +294,10 @@ def run_collector_benchmark(*, tiny: bool = False, repeats: int = 5) -> list[dic
             "task": _with(base, lambda s=state_size, a=action_size: TaskTransform(t1_for(s, a), log_terms=True)),
         }
         variants["minimal"] = _with(base, lambda s=state_size: MinimalT1Transform(s))
+        variants["task_no_terms"] = _with(
+            base, lambda s=state_size, a=action_size: TaskTransform(t1_for(s, a), log_terms=False)
+        )
+        variants["fewest"] = _with(base, lambda s=state_size: FewestT1Transform(s))
         probe = base()
         env_batch = max(1, probe.batch_size.numel())
         probe.close()
@@ -237,6 +311,7 @@ def run_collector_benchmark(*, tiny: bool = False, repeats: int = 5) -> list[dic
                 "task_over_identity": fps["task"] / fps["identity"],
                 "minimal_over_identity": fps["minimal"] / fps["identity"],
                 "task_over_minimal": fps["task"] / fps["minimal"],
+                "no_terms_over_fewest": fps["task_no_terms"] / fps["fewest"],
             }
         )
     return rows

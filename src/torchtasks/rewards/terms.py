@@ -28,10 +28,6 @@ from torchtasks.rewards.base import RewardFunction, check_ignored_action, entrie
 
 __all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
-# the names envs/locomotion.py imports from here (the checks themselves live in torchtasks._checks)
-_check_pair = check_pair
-_check_weight = check_weight
-
 
 def _check_state_entry(state: torch.Tensor, index: int, owner: str, name: str) -> None:
     """Raise unless ``index`` addresses an entry of ``state``'s last dimension (a shape check)."""
