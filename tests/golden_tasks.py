@@ -1,6 +1,6 @@
 """Golden task scenarios: torchtasks task builders, the env replay protocol and a numpy oracle.
 
-Three parts, used by ``test_tasks_golden.py``:
+Three parts, used by ``tasks/test_tasks_golden.py``:
 
 1. **Builders** (:func:`build_task`): turn a Pyrado task spec of the golden file into a torchtasks
    task. Every task is built with its EFFECTIVE spec: Pyrado overwrote each task's ``env_spec`` at

@@ -49,6 +49,7 @@ from torchtasks.tasks import (
     MaskedTask,
     OptimizationTask,
     ParallelTasks,
+    PotentialShapingTask,
     RadiallySymmetricDesiredStateTask,
     SequentialTasks,
     Task,
@@ -62,6 +63,7 @@ __all__ = [
     "SUPPORTED_MODES",
     "DriveData",
     "DriveResult",
+    "all_task_cases",
     "assert_memory_equal",
     "assert_same",
     "class_cases",
@@ -72,9 +74,11 @@ __all__ = [
     "memory_leaves",
     "predefined_cases",
     "predefined_spec",
+    "random_transitions",
     "reset_overrides_for",
     "reshape_envs",
     "select_env",
+    "shaping_potential",
     "task_trees",
 ]
 
@@ -479,6 +483,48 @@ def predefined_cases() -> dict[str, Callable[[], Task]]:
             spec, 0, QuadraticErrorReward([1.0, 0.5], None), 0.75
         ),
     }
+
+
+# ------------------------------------------------------------- every task, and random transitions
+# (shared by tasks/test_composition.py and transforms/test_transform_entries.py)
+def shaping_potential(state: torch.Tensor) -> torch.Tensor:
+    return -(state - 0.25).square().sum(-1)
+
+
+def _shaped_cases() -> dict[str, Callable[[], Task]]:
+    cases = class_cases()
+    return {
+        "shaping_goal": lambda: PotentialShapingTask(cases["desired_state"](), shaping_potential, 0.5),
+        "shaping_final": lambda: PotentialShapingTask(cases["final_state_time"](), shaping_potential, 0.9),
+        "shaping_walk": lambda: PotentialShapingTask(cases["goalless_forward_velocity"](), shaping_potential, 1.0),
+    }
+
+
+def all_task_cases() -> dict[str, Callable[[], Task]]:
+    """:func:`class_cases` and three :class:`PotentialShapingTask` cases around them."""
+    return {**class_cases(), **_shaped_cases()}
+
+
+def random_transitions(task: Task, generator: torch.Generator, steps: int, batch: int) -> dict[str, torch.Tensor]:
+    """Random states (partly outside the box), actions, episode-end flags, remaining steps and goals."""
+    n, m = task.state_size, task.action_size
+    shape = (steps + 1, batch)
+    states = (torch.rand((*shape, n), generator=generator, dtype=torch.float64) * 5.0 - 2.5).to(torch.float64)
+    # nudge some states onto 0.5-ish values so goal tasks succeed now and then
+    near = torch.rand((*shape, 1), generator=generator, dtype=torch.float64) < 0.3
+    states = torch.where(near, states * 0.05 + 0.25, states)
+    draws = {
+        "states": states,
+        "actions": torch.rand((steps, batch, m), generator=generator, dtype=torch.float64) * 2 - 1,
+        "terminated": torch.rand((steps, batch), generator=generator) < 0.15,
+        "truncated": torch.rand((steps, batch), generator=generator) < 0.15,
+        "remaining": torch.randint(0, 20, (steps, batch), generator=generator),
+        "resets": torch.rand((steps, batch, n), generator=generator, dtype=torch.float64) * 2 - 1,
+    }
+    slots = task.goal_slots
+    if len(slots) == 1:
+        draws["goals"] = torch.rand((steps, batch, slots[0].size), generator=generator, dtype=torch.float64) - 0.5
+    return draws
 
 
 # ------------------------------------------------------------------------------ driving a batch

@@ -90,7 +90,7 @@ __all__ = [
 ]
 
 # written out rather than tuple(LOCOMOTION_ENVS), so that `torchtasks list` reads it from this file without
-# the mujoco extra; tests/test_locomotion_records.py checks that it lists the keys of LOCOMOTION_ENVS, in order
+# the mujoco extra; tests/envs/test_locomotion_records.py checks that it lists the keys of LOCOMOTION_ENVS, in order
 #: the Gymnasium ids :func:`locomotion_task` and :func:`gymnasium_env` support
 SUPPORTED_ENV_IDS: tuple[str, ...] = (
     "HalfCheetah-v5",

@@ -20,7 +20,6 @@ from __future__ import annotations
 import functools
 import multiprocessing as mp
 import os
-from pathlib import Path
 
 import pytest
 import torch
@@ -39,6 +38,7 @@ from replay_env import (
     replay_policy,
     task_transforms,
 )
+from repo_paths import TESTS
 
 NAME = "final_rew/default"  # episodes of 7 (success), 4 (failure) and 20 (time limit) steps
 NUM_ENVS = 2
@@ -240,7 +240,7 @@ def test_multi_collector(cls, keep_threads, fork_start_method) -> None:
         _check(data, envs=None)
 
 
-TESTS_DIR = str(Path(__file__).resolve().parent)
+TESTS_DIR = str(TESTS)  # replay_env.py, golden.py, ... for the Ray workers
 
 
 @pytest.mark.ray

@@ -15,10 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from test_examples_write_under_runs import run_quick
-
-ROOT = Path(__file__).resolve().parents[1]
-EXAMPLES = ROOT / "examples"
+from example_runs import EXAMPLES, run_quick
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
 

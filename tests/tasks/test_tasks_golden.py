@@ -23,7 +23,6 @@ from __future__ import annotations
 import itertools
 import math
 import re
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +54,7 @@ from golden_tasks import (
     replay,
     snapshot_mismatches,
 )
+from repo_paths import TESTS
 from torchtasks import predefined
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
@@ -450,7 +450,7 @@ def test_proximity_dims_mapping() -> None:
 
 def test_oracle_section_is_numpy_only() -> None:
     """The oracle must be independent of the code under test: no torch/torchtasks in its section."""
-    source = (Path(__file__).parent / "golden_tasks.py").read_text(encoding="utf-8")
+    source = (TESTS / "golden_tasks.py").read_text(encoding="utf-8")
     match = re.search(r"# ORACLE \(begin\)(.*)# ORACLE \(end\)", source, flags=re.DOTALL)
     assert match is not None
     body = match.group(1).split("\n", 1)[1]  # skip the marker line's own comment

@@ -2,8 +2,9 @@
 
 Running every example's ``--quick`` once more would cost minutes, so the check rides on the runs the
 example tests make anyway: ``run_example`` in ``test_examples.py`` and ``test_examples_training.py``
-runs the script through :func:`run_quick`, from a fresh empty directory, and :func:`run_quick` fails
-if anything but ``runs/`` appears there, or anything in ``runs/`` but ``runs/<example name>/``.
+runs the script through :func:`run_quick` (``tests/example_runs.py``), from a fresh empty directory,
+and :func:`run_quick` fails if anything but ``runs/`` appears there, or anything in ``runs/`` but
+``runs/<example name>/``.
 MuJoCo's ``MUJOCO_LOG.TXT`` counts: it is a file left in the user's directory like any other.
 
 This module checks that every runnable script in ``examples/`` (not the ``_``-prefixed helpers) is
@@ -13,51 +14,19 @@ run that way, without ``--output``, by at least one test.
 from __future__ import annotations
 
 import ast
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-TESTS = Path(__file__).resolve().parent
-EXAMPLES = TESTS.parent / "examples"
+from example_runs import EXAMPLES
+
+TESTS = Path(__file__).resolve().parent  # this folder, beside the example tests below
 EXAMPLE_TESTS = ("test_examples.py", "test_examples_training.py")
 
 
 def runnable_examples() -> list[str]:
     """The file names of the example scripts (``examples/*.py`` without the ``_``-prefixed helpers)."""
     return sorted(path.name for path in EXAMPLES.glob("*.py") if not path.name.startswith("_"))
-
-
-def _entries(folder: Path) -> set[str]:
-    return {path.name for path in folder.iterdir()} if folder.is_dir() else set()
-
-
-def run_quick(script: str, cwd: Path, *args: str, timeout: float) -> subprocess.CompletedProcess[str]:
-    """Run ``examples/<script> --quick *args`` from ``cwd`` and check it wrote only under ``runs/<name>/``.
-
-    ``cwd`` must hold nothing but (inputs in) ``runs/``. Fails with both output streams on a non-zero
-    exit, and with the new entries if the script left anything in ``cwd`` outside ``runs/`` or in
-    ``runs/`` outside ``runs/<script name without .py>/``.
-    """
-    before = _entries(cwd)
-    assert before <= {"runs"}, f"run {script} from an empty directory, not one holding {sorted(before)}"
-    runs_before = _entries(cwd / "runs")
-    command = [sys.executable, str(EXAMPLES / script), "--quick", *args]
-    result = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=timeout, check=False)
-    assert result.returncode == 0, (
-        f"{' '.join(command)} exited with {result.returncode}\n"
-        f"--- stdout ---\n{result.stdout}\n--- stderr ---\n{result.stderr}"
-    )
-    outside = sorted(_entries(cwd) - {"runs"})
-    detail = ""
-    if "MUJOCO_LOG.TXT" in outside:
-        lines = (cwd / "MUJOCO_LOG.TXT").read_text(errors="replace").strip().splitlines()
-        detail = f"\nMUJOCO_LOG.TXT starts with: {lines[0] if lines else '(empty)'}"
-    assert not outside, f"{script} wrote {outside} into its current directory (outside runs/){detail}"
-    stray = sorted(_entries(cwd / "runs") - runs_before - {Path(script).stem})
-    assert not stray, f"{script} wrote {stray} into runs/ instead of runs/{Path(script).stem}/"
-    return result
 
 
 def _scripts_run_without_output(test_module: Path) -> set[str]:

@@ -21,7 +21,8 @@ from pathlib import Path
 import pytest
 import torch
 
-ROOT = Path(__file__).resolve().parents[1]
+from repo_paths import ROOT
+
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
 PYTHON_LANGUAGES = {"python", "py", "python3"}

@@ -3,7 +3,7 @@
 The parity tests drive ``gymnasium_env(env_id, num_envs=N)`` (a :class:`BatchedMujocoEnv` under
 ``StepCounter``, the locomotion task's ``TaskTransform`` and ``RewardSum``) and ``N`` independent
 ``gymnasium.make(env_id, **kwargs)`` envs with :func:`torchtasks.parity.compare_batched_with_gymnasium`
-(the lockstep driver behind ``torchtasks check --backend batched``; ``tests/test_batched_parity_check.py``
+(the lockstep driver behind ``torchtasks check --backend batched``; ``tests/envs/test_batched_parity_check.py``
 checks that it reports injected differences). After every reset of a batched env (initial, at the end of
 an episode, or forced mid-episode for some envs while the others continue) its ``qpos``/``qvel`` are
 copied into the matching Gymnasium env with ``reset()`` + ``unwrapped.set_state`` (which leaves the
@@ -29,6 +29,8 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+
+from repo_paths import ROOT
 
 pytest.importorskip("mujoco")
 gymnasium = pytest.importorskip("gymnasium")
@@ -619,9 +621,8 @@ def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
     """
     import importlib.util
     import json
-    from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "batched_mujoco.py"
+    path = ROOT / "benchmarks" / "batched_mujoco.py"
     spec = importlib.util.spec_from_file_location("batched_mujoco_benchmark", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
@@ -654,9 +655,8 @@ def test_pipeline_costs_script_runs(tmp_path: Any) -> None:
     import importlib.util
     import json
     import sys
-    from pathlib import Path
 
-    folder = Path(__file__).resolve().parents[1] / "benchmarks"
+    folder = ROOT / "benchmarks"
     sys.path.insert(0, str(folder))  # the script imports its helpers from batched_mujoco.py beside it
     try:
         spec = importlib.util.spec_from_file_location("pipeline_costs_benchmark", folder / "pipeline_costs.py")

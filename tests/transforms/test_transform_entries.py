@@ -12,19 +12,20 @@ import pytest
 import torch
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
-from task_trees import class_cases
-from test_composition import TASKS, _draws
+from task_trees import all_task_cases, class_cases, random_transitions
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.rewards import CompoundReward, ConstantReward, QuadraticErrorReward
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks import FinalRewardTask, GoallessTask
 from torchtasks.transforms import TaskTransform
 
+TASKS = all_task_cases()
+
 
 @pytest.mark.parametrize("name", sorted(TASKS))
 def test_a_tree_that_pays_no_final_reward_never_pays_one(name: str) -> None:
     task = TASKS[name]().double()
-    draws = _draws(task, torch.Generator().manual_seed(0), 12)
+    draws = random_transitions(task, torch.Generator().manual_seed(0), 12, batch=16)
     state, memory = draws["states"][0], task.reset(draws["states"][0])
     paid = torch.zeros((), dtype=torch.bool)
     for t in range(12):

@@ -21,7 +21,7 @@ import pytest
 import torch
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
-from task_trees import class_cases
+from task_trees import all_task_cases, random_transitions, shaping_potential
 from torchtasks.envs import PendulumEnv
 from torchtasks.rewards import ConstantReward, ForwardVelocityReward
 from torchtasks.spaces import Box, EnvSpec, rows_outside
@@ -50,20 +50,7 @@ FACTOR = 3.0
 BEST_FACTOR = -0.5
 
 
-def _potential(state: torch.Tensor) -> torch.Tensor:
-    return -(state - 0.25).square().sum(-1)
-
-
-def _shaped_cases() -> dict[str, Callable[[], Task]]:
-    cases = class_cases()
-    return {
-        "shaping_goal": lambda: PotentialShapingTask(cases["desired_state"](), _potential, 0.5),
-        "shaping_final": lambda: PotentialShapingTask(cases["final_state_time"](), _potential, 0.9),
-        "shaping_walk": lambda: PotentialShapingTask(cases["goalless_forward_velocity"](), _potential, 1.0),
-    }
-
-
-TASKS = {**class_cases(), **_shaped_cases()}
+TASKS = all_task_cases()
 
 
 def _extended(spec: EnvSpec) -> EnvSpec:
@@ -79,7 +66,7 @@ WRAPPERS: dict[str, Callable[[Task], Task]] = {
     "final_time": lambda t: FinalRewardTask(t, FinalRewardMode(time_dependent=True)),
     "best_state": lambda t: BestStateFinalRewardTask(t, BEST_FACTOR),
     "masked": lambda t: MaskedTask(_extended(t.spec), t, list(range(1, t.state_size + 1))),
-    "shaping": lambda t: PotentialShapingTask(t, _potential, GAMMA),
+    "shaping": lambda t: PotentialShapingTask(t, shaping_potential, GAMMA),
     "parallel": lambda t: ParallelTasks([t]),
     "sequential": lambda t: SequentialTasks([t]),
 }
@@ -93,28 +80,6 @@ def _own_final_only(task: Task) -> bool:
     """
     payers = [t for t in all_tasks(task) if type(t)._compute_final_reward is not BaseTask._compute_final_reward]
     return len(payers) <= 1
-
-
-def _draws(task: Task, generator: torch.Generator, steps: int) -> dict[str, torch.Tensor]:
-    """Random states (partly outside the box), actions, episode-end flags, remaining steps and goals."""
-    n, m = task.state_size, task.action_size
-    shape = (steps + 1, BATCH)
-    states = (torch.rand((*shape, n), generator=generator, dtype=torch.float64) * 5.0 - 2.5).to(torch.float64)
-    # nudge some states onto 0.5-ish values so goal tasks succeed now and then
-    near = torch.rand((*shape, 1), generator=generator, dtype=torch.float64) < 0.3
-    states = torch.where(near, states * 0.05 + 0.25, states)
-    draws = {
-        "states": states,
-        "actions": torch.rand((steps, BATCH, m), generator=generator, dtype=torch.float64) * 2 - 1,
-        "terminated": torch.rand((steps, BATCH), generator=generator) < 0.15,
-        "truncated": torch.rand((steps, BATCH), generator=generator) < 0.15,
-        "remaining": torch.randint(0, 20, (steps, BATCH), generator=generator),
-        "resets": torch.rand((steps, BATCH, n), generator=generator, dtype=torch.float64) * 2 - 1,
-    }
-    slots = task.goal_slots
-    if len(slots) == 1:
-        draws["goals"] = torch.rand((steps, BATCH, slots[0].size), generator=generator, dtype=torch.float64) - 0.5
-    return draws
 
 
 def _wrapped_state(name: str, state: torch.Tensor) -> torch.Tensor:
@@ -154,7 +119,7 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         own = torch.where(out.done & (best > -math.inf), BEST_FACTOR * best, zero)
         same(wrapped_out.final_reward, out.final_reward + own, "final reward")
     elif name == "shaping":
-        phi_next = _potential(context["next_state"])
+        phi_next = shaping_potential(context["next_state"])
         absorbing = out.terminated  # the task's success or failure, or the env's own termination
         shaping = GAMMA * torch.where(absorbing, zero, phi_next) - context["phi"]
         context["phi"] = phi_next
@@ -186,13 +151,13 @@ def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
         return
     wrapped = WRAPPERS[wrapper_name](task).double()
     generator = torch.Generator().manual_seed(seed)
-    draws = _draws(task, generator, STEPS)
+    draws = random_transitions(task, generator, STEPS, batch=BATCH)
     state = draws["states"][0]
     memory = task.reset(state)
     wrapped_memory = wrapped.reset(_wrapped_state(wrapper_name, state))
     context = {
         "best": torch.full((BATCH,), -math.inf, dtype=torch.float64),
-        "phi": _potential(state),
+        "phi": shaping_potential(state),
     }
     for t in range(STEPS):
         next_state = draws["states"][t + 1]
@@ -221,7 +186,7 @@ def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
             out.done, wrapped.reset(_wrapped_state(wrapper_name, reset_state)), wrapped_out.memory
         )
         context["best"] = torch.where(out.done, -math.inf, context["best"])
-        context["phi"] = torch.where(out.done, _potential(reset_state), context["phi"])
+        context["phi"] = torch.where(out.done, shaping_potential(reset_state), context["phi"])
         state = reset_state
 
 

@@ -19,7 +19,7 @@ from typing import Any
 
 import pytest
 
-from test_examples_write_under_runs import run_quick
+from example_runs import run_quick
 
 TIMEOUT_S = 120  # a quick run takes < 60 s on the 2-core CI machine, even when it is busy
 

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+from repo_paths import ROOT
+
 DOCS = ROOT / "docs"
 
 #: pages every build must produce (training.md is written separately and may not exist yet)
