@@ -8,7 +8,8 @@ one the policy saw) to the task, so the reward and the success flag are judged a
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -47,6 +48,17 @@ class GoalCommand(Transform):
     generator when ``seed`` is given (:meth:`set_seed` re-seeds it). TorchRL's
     ``TransformedEnv.set_seed`` seeds the base env only, not its transforms.
 
+    Checkpoints: ``state_dict()`` holds the command's generator under ``"_extra_state"`` (whether
+    it has its own generator, its seed and its state), so ``load_state_dict`` makes the command
+    draw the goals and timers that the saved one would have drawn next, bit for bit. It is part of
+    ``TransformedEnv.state_dict()`` and so of TorchRL's ``Collector.state_dict()`` (which saves
+    the transforms of a ``TransformedEnv`` but not its base env: save ``env.base_env.state_dict()``
+    too, as in the example). A command without its own generator draws from ``torch``'s global
+    one, which is not its state: it has nothing to restore (save ``torch.get_rng_state()``
+    yourself), and loading such a state drops the generator of the command it is loaded into.
+    The goals and timers of the running episodes are not saved: TorchRL starts fresh
+    trajectories after loading a collector.
+
     Args:
         space: the goal space (a ``Box`` of ``k`` finite entries) or a sampler.
         goal_key: where the goal is written.
@@ -74,6 +86,22 @@ class GoalCommand(Transform):
         >>> rollout = env.rollout(12)
         >>> rollout["goal"].shape
         torch.Size([4, 12, 2])
+
+        A checkpoint of the transforms (what ``Collector.state_dict()`` saves) and of the base env:
+
+        >>> checkpoint = {"transforms": env.state_dict(), "base_env": env.base_env.state_dict()}
+        >>> checkpoint["transforms"]["transforms.2._extra_state"]["seed"]
+        0
+        >>> fresh = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
+        ...     StepCounter(50),
+        ...     TaskTransform(task, goal_key="goal"),
+        ...     GoalCommand(Box([-1.0, -0.5], [1.0, 0.5]), resample_steps=(5, 10))))
+        >>> fresh.load_state_dict(checkpoint["transforms"])
+        >>> fresh.base_env.load_state_dict(checkpoint["base_env"])
+        <All keys matched successfully>
+        >>> a, b = env.reset(), fresh.reset()
+        >>> torch.equal(a["goal"], b["goal"]), torch.equal(a["observation"], b["observation"])
+        (True, True)
     """
 
     def __init__(
@@ -115,6 +143,33 @@ class GoalCommand(Transform):
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator (created if it had none)."""
         self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
+
+    # ---------------------------------------------------------------------------- checkpoints
+    def get_extra_state(self) -> dict[str, Any]:
+        """The command's generator: ``{"own_generator", "seed", "generator_state"}`` (``None`` without one)."""
+        generator = self.generator
+        if generator is None:
+            return {"own_generator": False, "seed": None, "generator_state": None}
+        return {"own_generator": True, "seed": generator.initial_seed(), "generator_state": generator.get_state()}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the generator saved by :meth:`get_extra_state` (none saved: use torch's global one)."""
+        if not isinstance(state, Mapping) or not {"own_generator", "generator_state"} <= set(state):
+            raise ValueError(
+                "GoalCommand.load_state_dict: the extra state must be a dict with 'own_generator' and "
+                f"'generator_state' (as GoalCommand.state_dict() writes it), got {state!r}"
+            )
+        if not state["own_generator"]:
+            self.generator = None
+            return
+        saved = state["generator_state"]
+        if not isinstance(saved, torch.Tensor) or saved.dtype != torch.uint8:
+            raise ValueError(
+                f"GoalCommand.load_state_dict: 'generator_state' must be a uint8 tensor, got {type(saved).__name__}"
+            )
+        generator = torch.Generator()
+        generator.set_state(saved.cpu())
+        self.generator = generator
 
     # --------------------------------------------------------------------------- sampling
     def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:

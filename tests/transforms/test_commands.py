@@ -5,10 +5,12 @@ saw; the command's state survives SerialEnv/ParallelEnv and collectors; wrong or
 from __future__ import annotations
 
 import functools
+import io
 
 import pytest
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 
@@ -146,3 +148,89 @@ def test_wrong_orders_are_refused_at_set_up():
         GoalCommand(Box([-1.0], [float("inf")]))
     with pytest.raises(ValueError, match="low <= high"):
         GoalCommand(SPACE, resample_steps=(5, 2))
+
+
+# ------------------------------------------------------------------------------------------- checkpoints
+def resumed(env: TransformedEnv, **command) -> TransformedEnv:
+    """A fresh env (other seeds) into which the transforms' and the base env's states of ``env`` are loaded."""
+    fresh = make_env(seed=99, **command)
+    fresh.load_state_dict(env.state_dict())
+    fresh.base_env.load_state_dict(env.base_env.state_dict())
+    return fresh
+
+
+def test_a_loaded_command_draws_the_goals_of_the_uninterrupted_one():
+    env = make_env(resample_steps=(2, 5), seed=3)
+    env.transform[-1].set_seed(11)
+    torch.manual_seed(0)
+    env.rollout(17, break_when_any_done=False)
+    env.reset()
+    state = env.transform[-1].state_dict()
+    assert state["_extra_state"]["own_generator"] and state["_extra_state"]["seed"] == 11
+    fresh = resumed(env, resample_steps=(2, 5))  # its command had no generator: the state gives it one
+    assert fresh.transform[-1].generator is not None
+    for _ in range(2):
+        torch.manual_seed(1)
+        a = env.rollout(30, break_when_any_done=False)
+        torch.manual_seed(1)
+        b = fresh.rollout(30, break_when_any_done=False)
+        for key in ("goal", "goal_steps_left", ("next", "goal"), ("next", "goal_steps_left"), "observation"):
+            assert torch.equal(a[key], b[key]), key
+    # the command alone: the same next draws, bit for bit
+    command, loaded = env.transform[-1], GoalCommand(SPACE, resample_steps=(2, 5), seed=5)
+    loaded.load_state_dict(command.state_dict())
+    batch = torch.Size([8])
+    assert torch.equal(
+        command._sample_goals(batch, torch.float64, torch.device("cpu")),
+        loaded._sample_goals(batch, torch.float64, torch.device("cpu")),
+    )
+    assert torch.equal(
+        command._sample_timers(batch, torch.device("cpu")), loaded._sample_timers(batch, torch.device("cpu"))
+    )
+
+
+def test_a_command_on_the_global_generator_has_nothing_to_restore():
+    unseeded = GoalCommand(SPACE)
+    assert unseeded.state_dict()["_extra_state"] == {"own_generator": False, "seed": None, "generator_state": None}
+    seeded = GoalCommand(SPACE, seed=3)
+    seeded.load_state_dict(unseeded.state_dict())
+    assert seeded.generator is None  # it draws from torch's global generator, as the saved one did
+    with pytest.raises(ValueError, match="extra state must be a dict"):
+        seeded.load_state_dict({"_extra_state": {"seed": 3}})
+    with pytest.raises(ValueError, match="uint8 tensor"):
+        seeded.load_state_dict({"_extra_state": {"own_generator": True, "generator_state": [1, 2]}})
+
+
+def test_a_collector_checkpoint_restores_the_command():
+    def collector(seed: int) -> Collector:
+        torch.manual_seed(seed)
+        policy = TensorDictModule(torch.nn.Linear(2, 1, dtype=torch.float64), ["observation"], ["action"])
+        env = make_env(resample_steps=(3, 5), seed=seed)
+        return Collector(env, policy, frames_per_batch=8 * 10, total_frames=-1, auto_register_policy_transforms=False)
+
+    running = collector(5)
+    running.env.transform[-1].set_seed(6)
+    batches = iter(running)
+    for _ in range(3):
+        next(batches)
+    saved = {"collector": running.state_dict(), "base_env": running.env.base_env.state_dict()}
+    assert "transforms.2._extra_state" in saved["collector"]["env_state_dict"]
+    buffer = io.BytesIO()
+    torch.save(saved, buffer)
+    buffer.seek(0)
+    loaded = torch.load(buffer)
+    fresh = collector(42)
+    fresh.load_state_dict(loaded["collector"])
+    fresh.env.base_env.load_state_dict(loaded["base_env"])
+    # the command inside draws what the uninterrupted one draws, given the same calls
+    assert torch.equal(fresh.env.transform[-1].generator.get_state(), running.env.transform[-1].generator.get_state())
+    for source in (running, fresh):
+        source.reset()  # a loaded collector starts fresh trajectories: start them in both
+    fresh_batches = iter(fresh)
+    for _ in range(2):
+        a, b = next(batches), next(fresh_batches)
+        for key in ("goal", "goal_steps_left", ("next", "goal"), "observation", ("next", "observation"), "action"):
+            assert torch.equal(a[key], b[key]), key
+        check(b, (3, 5), on_success=False)
+    running.shutdown()
+    fresh.shutdown()

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -20,6 +21,13 @@ class StateEnv(EnvBase):
     in ``±action_bound`` of ``[*B, action_size]``, ``done``/``terminated`` flags), the env's own
     random generator, partial resets (only the entries of ``"_reset"`` get a new state) and a step
     that pays no reward and ends no episode: the task on the env does both.
+
+    Checkpoints: ``env.state_dict()`` holds the reset generator (its seed and state, under
+    ``"_extra_state"``); after ``load_state_dict`` the env draws the initial states that the saved
+    one would have drawn next, bit for bit. The states of the running episodes are not saved (the
+    next reset starts fresh ones). TorchRL's ``Collector.state_dict()`` and
+    ``TransformedEnv.state_dict()`` save the transforms of a ``TransformedEnv``, not its base env:
+    save ``env.base_env.state_dict()`` too.
     """
 
     batch_locked = True
@@ -103,3 +111,18 @@ class StateEnv(EnvBase):
             seed = int(torch.empty((), dtype=torch.int64).random_().item())
         seed = check_int(seed, f"{type(self).__name__}: seed")
         self.rng.manual_seed(seed)
+
+    # ------------------------------------------------------------------ checkpoints
+    def get_extra_state(self) -> dict[str, Any]:
+        """The reset generator: ``{"seed": int, "generator_state": uint8 tensor}``."""
+        return {"seed": self.rng.initial_seed(), "generator_state": self.rng.get_state()}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the reset generator saved by :meth:`get_extra_state`."""
+        saved = state.get("generator_state") if isinstance(state, Mapping) else None
+        if not isinstance(saved, torch.Tensor) or saved.dtype != torch.uint8:
+            raise ValueError(
+                f"{type(self).__name__}.load_state_dict: the extra state must be a dict with a uint8 tensor "
+                f"'generator_state' (as {type(self).__name__}.state_dict() writes it), got {state!r}"
+            )
+        self.rng.set_state(saved.cpu())

@@ -24,8 +24,10 @@ cost more (measured 13-17k against 38-44k). ``benchmarks/batched_mujoco.py`` mea
 
 from __future__ import annotations
 
+import copy
 import os
 import warnings
+from collections.abc import Mapping, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
@@ -130,6 +132,14 @@ class BatchedMujocoEnv(EnvBase):
     (``mj_resetData``, then ``qpos``/``qvel``, then ``mj_forward``). Partial resets (TorchRL's
     ``"_reset"`` mask) reset only the masked envs.
 
+    Checkpoints: ``env.state_dict()`` holds the ``num_envs`` reset generators (each numpy
+    ``bit_generator.state``, under ``"_extra_state"``); after ``load_state_dict`` (into an env of
+    the same ``num_envs``) every env draws the initial states that the saved one would have drawn
+    next, bit for bit. The MuJoCo states of the running episodes are not saved (the next reset
+    starts fresh ones; ``copy.deepcopy`` or ``pickle`` keep them). TorchRL's
+    ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
+    ``TransformedEnv``, not its base env: save ``env.base_env.state_dict()`` too.
+
     Args:
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
         num_envs: number of environments.
@@ -148,7 +158,12 @@ class BatchedMujocoEnv(EnvBase):
         >>> rollout = env.rollout(3)
         >>> rollout["next", "observation"].shape, rollout["next", "qpos"].dtype
         (torch.Size([2, 3, 11]), torch.float64)
-        >>> env.close()
+        >>> fresh = BatchedMujocoEnv("Hopper-v5", num_envs=2)
+        >>> fresh.load_state_dict(env.state_dict())
+        <All keys matched successfully>
+        >>> bool((fresh.reset()["qpos"] == env.reset()["qpos"]).all())
+        True
+        >>> env.close(); fresh.close()
     """
 
     batch_locked = True
@@ -468,6 +483,33 @@ class BatchedMujocoEnv(EnvBase):
     def _set_seed(self, seed: int | None) -> None:
         children = np.random.SeedSequence(None if seed is None else int(seed)).spawn(self.num_envs)
         self.np_random = [np.random.Generator(np.random.PCG64(child)) for child in children]
+
+    # ------------------------------------------------------------------ checkpoints
+    def get_extra_state(self) -> dict[str, Any]:
+        """The reset generators: ``{"bit_generators": [numpy bit_generator.state of each env]}``."""
+        return {"bit_generators": [copy.deepcopy(rng.bit_generator.state) for rng in self.np_random]}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the reset generators saved by :meth:`get_extra_state` (one per env)."""
+        saved = state.get("bit_generators") if isinstance(state, Mapping) else None
+        if not isinstance(saved, Sequence) or len(saved) != self.num_envs:
+            raise ValueError(
+                f"BatchedMujocoEnv.load_state_dict: the extra state must hold 'bit_generators', one numpy "
+                f"bit_generator.state per env ({self.num_envs}), got {state!r}"
+            )
+        generators = []
+        for i, bit_state in enumerate(saved):
+            name = bit_state.get("bit_generator") if isinstance(bit_state, Mapping) else None
+            kind = getattr(np.random, name, None) if isinstance(name, str) else None
+            if not (isinstance(kind, type) and issubclass(kind, np.random.BitGenerator)):
+                raise ValueError(
+                    f"BatchedMujocoEnv.load_state_dict: bit_generators[{i}] is not a numpy bit_generator.state "
+                    f"(a dict naming a numpy BitGenerator), got {bit_state!r}"
+                )
+            bit_generator = kind()
+            bit_generator.state = bit_state
+            generators.append(np.random.Generator(bit_generator))
+        self.np_random = generators
 
     # ------------------------------------------------------------------ copies and pickles
     def __getstate__(self) -> dict[str, Any]:
