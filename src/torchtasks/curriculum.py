@@ -1,0 +1,476 @@
+"""Schedules that follow the training: :class:`Curriculum` sets buffers of a task tree from the frames collected.
+
+A schedule maps the number of frames collected so far (an int64 tensor) to a value: :func:`constant`,
+:func:`linear` (a clamped ramp), :func:`staged` (piecewise constant, as mjlab's reward curriculum) and
+:func:`gated` (a stage that advances only when a moving average of the success rate, or of an episode
+return, passes a threshold, as ksim's curricula). :class:`Curriculum` is a TorchRL transform placed
+after the :class:`~torchtasks.transforms.TaskTransform` of an env: at every step it counts the env's
+frames, evaluates its schedules and writes each value into a float buffer of the task tree
+(``buffer.copy_(value)``). A schedule changes a task only through its registered buffers.
+
+The frame counter and the state of every gated schedule are buffers of the Curriculum: its
+``state_dict()`` (and so TorchRL's ``Collector.state_dict()``, which saves the env's transforms)
+restores them on resume.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+from torch import nn
+from torchrl.data import Composite, Unbounded
+from torchrl.envs.transforms import Transform
+
+from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
+from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
+from torchtasks.transforms import TaskTransform
+
+__all__ = ["Curriculum", "GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
+
+FRAMES = "frames"
+
+
+def _as_value(value: object, name: str) -> torch.Tensor:
+    """``value`` as a float64 tensor (a scalar or a tensor of the target's shape), rejecting NaN."""
+    if isinstance(value, torch.Tensor):
+        tensor = value.detach().to(dtype=torch.float64).clone()
+    else:
+        try:
+            tensor = torch.as_tensor(value, dtype=torch.float64).clone()
+        except (TypeError, ValueError, RuntimeError) as error:
+            raise TypeError(f"{name} must be a number or a tensor of numbers, got {value!r}") from error
+    if torch.isnan(tensor).any():
+        raise ValueError(f"{name} must not contain NaN, got {tensor.tolist()}")
+    return tensor
+
+
+def _stack_values(values: Sequence[object], name: str) -> torch.Tensor:
+    """The values of a schedule's stages stacked on a new first dim (all of one shape)."""
+    tensors = [_as_value(value, f"{name}[{i}]") for i, value in enumerate(values)]
+    shapes = {tuple(t.shape) for t in tensors}
+    if len(shapes) > 1:
+        raise ValueError(f"{name}: all values must have the same shape, got shapes {[tuple(t.shape) for t in tensors]}")
+    return torch.stack(tensors)
+
+
+class Schedule(nn.Module):
+    """A value that follows the frames collected: ``schedule(frames) -> value`` (float64, shape :attr:`value_shape`).
+
+    ``frames`` is a 0-d int64 tensor; evaluation is tensor code (no ``.item()``, no host sync). A schedule
+    whose value also follows the episodes (:class:`GatedSchedule`) names the entry it reads in
+    :attr:`metric_key` and is told about finished episodes by :meth:`observe`; its state is registered
+    buffers. Build schedules with :func:`constant`, :func:`linear`, :func:`staged` and :func:`gated`.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.curriculum import linear
+        >>> linear(0.0, 1.0, 0, 100)(torch.tensor(25))
+        tensor(0.2500, dtype=torch.float64)
+    """
+
+    #: the entry of the collected data (under ``"next"``) that :meth:`observe` reads; ``None``: reads none
+    metric_key: NestedKey | None = None
+
+    @property
+    def value_shape(self) -> torch.Size:
+        """The shape of the value (``()`` for a scalar, which is broadcast to its target)."""
+        raise NotImplementedError
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def observe(self, done: torch.Tensor, metric: torch.Tensor) -> None:
+        """Take note of the episodes that ended in a step (``done`` bool ``[*B]``, ``metric`` ``[*B]``); no-op here."""
+
+
+class _Constant(Schedule):
+    def __init__(self, value: object) -> None:
+        super().__init__()
+        self.register_buffer("value", _as_value(value, "constant: value"))
+
+    @property
+    def value_shape(self) -> torch.Size:
+        return self.value.shape
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        return self.value
+
+    def extra_repr(self) -> str:
+        return f"value={self.value.tolist()}"
+
+
+class _Linear(Schedule):
+    def __init__(self, start_value: object, end_value: object, start_frame: int, end_frame: int) -> None:
+        super().__init__()
+        values = _stack_values([start_value, end_value], "linear: (start_value, end_value)")
+        self.register_buffer("start_value", values[0].clone())
+        self.register_buffer("end_value", values[1].clone())
+        self.start_frame = check_non_negative_int(start_frame, "linear: start_frame")
+        self.end_frame = check_non_negative_int(end_frame, "linear: end_frame")
+        if self.end_frame < self.start_frame:
+            raise ValueError(f"linear: end_frame must be >= start_frame, got {start_frame} and {end_frame}")
+
+    @property
+    def value_shape(self) -> torch.Size:
+        return self.start_value.shape
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        if self.end_frame == self.start_frame:  # a step at start_frame
+            fraction = (frames >= self.start_frame).to(torch.float64)
+        else:
+            fraction = ((frames - self.start_frame).to(torch.float64) / (self.end_frame - self.start_frame)).clamp(
+                0.0, 1.0
+            )
+        return self.start_value + fraction * (self.end_value - self.start_value)
+
+    def extra_repr(self) -> str:
+        return (
+            f"start_value={self.start_value.tolist()}, end_value={self.end_value.tolist()}, "
+            f"start_frame={self.start_frame}, end_frame={self.end_frame}"
+        )
+
+
+class _Staged(Schedule):
+    def __init__(self, stages: Mapping[int, object]) -> None:
+        super().__init__()
+        if not isinstance(stages, Mapping) or not stages:
+            raise TypeError(f"staged: stages must be a non-empty mapping {{frames: value}}, got {stages!r}")
+        boundaries = sorted(check_non_negative_int(frames, "staged: a boundary") for frames in stages)
+        if boundaries[0] != 0:
+            raise ValueError(f"staged: the first boundary must be 0 (a value from the start), got {boundaries}")
+        self.register_buffer("boundaries", torch.tensor(boundaries, dtype=torch.int64))
+        self.register_buffer("values", _stack_values([stages[b] for b in boundaries], "staged: values"))
+
+    @property
+    def value_shape(self) -> torch.Size:
+        return self.values.shape[1:]
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        index = (frames >= self.boundaries).sum() - 1  # >= 0: the first boundary is 0 and frames >= 0
+        return self.values[index]
+
+    def extra_repr(self) -> str:
+        return f"boundaries={self.boundaries.tolist()}"
+
+
+class GatedSchedule(Schedule):
+    """A stage index that advances when a moving average over finished episodes passes a threshold.
+
+    The moving average is an exponential moving average over the episodes finished in the current
+    stage, with rate ``1 / window`` and bias-corrected as Adam's (so it is a weighted mean of those
+    episodes' metrics, the latest weighted most: episode ``j`` episodes ago has weight
+    ``(1 - 1/window)^j``); the ``k`` episodes that end in one step count as ``k`` episodes of their
+    mean. After a step in which episodes ended, the stage advances by one (up to the last) when at
+    least ``window`` episodes ended in the stage and ``average >= threshold``; the average and the
+    episode count then restart in the new stage. A stage never goes back. Build it with
+    :func:`gated`; the value is ``values[stage]``.
+
+    ``stage``, ``average`` and ``episodes`` are registered buffers (``state_dict()`` restores them).
+    """
+
+    def __init__(self, values: Sequence[object], metric: NestedKey, threshold: float, window: int) -> None:
+        super().__init__()
+        if isinstance(values, (str, Mapping)) or not isinstance(values, Sequence) or len(values) < 1:
+            raise TypeError(f"gated: values must be a non-empty sequence of stage values, got {values!r}")
+        self.register_buffer("values", _stack_values(list(values), "gated: values"))
+        self.metric_key = nested_key(metric, "gated: metric")
+        self.threshold = check_finite_scalar(threshold, "gated: threshold")
+        self.window = check_positive_int(window, "gated: window")
+        self.register_buffer("stage", torch.zeros((), dtype=torch.int64))
+        self.register_buffer("average", torch.zeros((), dtype=torch.float64))
+        self.register_buffer("episodes", torch.zeros((), dtype=torch.int64))
+        self.register_buffer("keep", torch.tensor(1.0 - 1.0 / self.window, dtype=torch.float64), persistent=False)
+
+    def observe(self, done: torch.Tensor, metric: torch.Tensor) -> None:
+        """Fold the episodes that ended (``done``) into the moving average; advance the stage if it passes."""
+        done = done.reshape(-1)
+        metric = metric.reshape(-1).to(torch.float64)
+        count = done.sum()
+        mean = torch.where(done, metric, torch.zeros_like(metric)).sum() / count.clamp(min=1)
+        decay = self.keep.pow(count)  # the weight left to the earlier episodes of the stage
+        old_weight = 1.0 - self.keep.pow(self.episodes)  # the total weight of the bias-corrected mean so far
+        new_weight = decay * old_weight + (1.0 - decay)
+        total = decay * old_weight * self.average + (1.0 - decay) * mean
+        average = torch.where(new_weight > 0, total / new_weight.clamp(min=1e-300), self.average)
+        episodes = self.episodes + count
+        advance = (
+            (count > 0)
+            & (episodes >= self.window)
+            & (average >= self.threshold)
+            & (self.stage < self.values.shape[0] - 1)
+        )
+        self.stage.add_(advance.to(torch.int64))
+        self.average.copy_(torch.where(advance, torch.zeros_like(average), average))
+        self.episodes.copy_(torch.where(advance, torch.zeros_like(episodes), episodes))
+
+    @property
+    def value_shape(self) -> torch.Size:
+        return self.values.shape[1:]
+
+    def forward(self, frames: torch.Tensor) -> torch.Tensor:
+        return self.values[self.stage]
+
+    def extra_repr(self) -> str:
+        return f"stages={self.values.shape[0]}, metric={self.metric_key!r}, threshold={self.threshold}, " + (
+            f"window={self.window}"
+        )
+
+
+def constant(value: object) -> Schedule:
+    """A schedule that is ``value`` at every frame count (a scalar or a tensor of the target's shape).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.curriculum import constant
+        >>> constant(0.5)(torch.tensor(10_000))
+        tensor(0.5000, dtype=torch.float64)
+    """
+    return _Constant(value)
+
+
+def linear(start_value: object, end_value: object, start_frame: int, end_frame: int) -> Schedule:
+    """A linear ramp from ``start_value`` at ``start_frame`` to ``end_value`` at ``end_frame``, clamped outside.
+
+    ``start_frame == end_frame`` is a step to ``end_value`` at that frame count.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.curriculum import linear
+        >>> ramp = linear(0.0, 1.0, start_frame=100, end_frame=300)
+        >>> [round(float(ramp(torch.tensor(f))), 3) for f in (0, 100, 200, 300, 1000)]
+        [0.0, 0.0, 0.5, 1.0, 1.0]
+    """
+    return _Linear(start_value, end_value, start_frame, end_frame)
+
+
+def staged(stages: Mapping[int, object]) -> Schedule:
+    """A piecewise-constant schedule: the value of the last boundary ``b`` with ``frames >= b``.
+
+    ``stages`` maps frame counts to values (mjlab's reward curriculum); a boundary at 0 is required.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.curriculum import staged
+        >>> weight = staged({0: 0.0, 50_000: 0.5, 100_000: 1.0})
+        >>> [float(weight(torch.tensor(f))) for f in (49_999, 50_000, 100_000)]
+        [0.0, 0.5, 1.0]
+    """
+    return _Staged(stages)
+
+
+def gated(
+    values: Sequence[object], metric: NestedKey = "success", threshold: float = 0.8, window: int = 100
+) -> GatedSchedule:
+    """A schedule through ``values`` that advances a stage when the episodes' moving average passes ``threshold``.
+
+    ``metric`` is the entry read at the end of every episode (under ``"next"``): the success flag by
+    default, or an episode return such as a ``RewardSum``'s ``"episode_reward"`` or
+    ``("task_reward", "episode_track")`` (then the Curriculum must come after that ``RewardSum``).
+    The average is a bias-corrected exponential moving average over the episodes finished in the
+    stage, with rate ``1 / window``; a stage lasts at least ``window`` episodes (see :class:`GatedSchedule`).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.curriculum import gated
+        >>> levels = gated([0.1, 0.5, 1.0], threshold=0.8, window=2)
+        >>> done = torch.tensor([True, True])
+        >>> levels.observe(done, torch.tensor([1.0, 0.0]))  # a success and a failure: average 0.5 < 0.8
+        >>> levels.stage, float(levels.average), float(levels(torch.tensor(0)))
+        (tensor(0), 0.5, 0.1)
+        >>> levels.observe(done, torch.tensor([1.0, 1.0]))  # average 0.9: the next stage; the average restarts
+        >>> levels.stage, float(levels.average), float(levels(torch.tensor(0)))
+        (tensor(1), 0.0, 0.5)
+    """
+    return GatedSchedule(values, metric, threshold, window)
+
+
+def _entry_name(target: str) -> str:
+    return target.replace(".", "/")
+
+
+class Curriculum(Transform):
+    """Set float buffers of the env's task tree from schedules that follow the frames collected.
+
+    Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
+    ``Compose``, and after a ``RewardSum`` whose episode sums a gated schedule reads). Each key of
+    ``schedules`` names a float buffer of that transform's task, as ``task.named_buffers()`` names
+    it (e.g. ``"wrapped_task.reward.Q"``); a misspelt name is a ``ValueError`` listing every
+    schedulable name when the env's specs are built, and so is a value whose shape is neither
+    ``()`` nor the buffer's.
+
+    At every step the frame counter grows by the env's batch size (frames follow the steps of all
+    envs, not their resets), gated schedules take note of the episodes that ended, and every
+    schedule's value at the new count is written into its buffer (``buffer.copy_(value)``), where
+    the next step's reward reads it. At reset the values of the current count are written too.
+
+    Written entries (observation spec): ``(curriculum_key, "frames")`` (int64 ``[*B, 1]``) and
+    ``(curriculum_key, <target with "." replaced by "/">)`` (the buffer's dtype, ``[*B, *value_shape]``,
+    ``[*B, 1]`` for a scalar value). As observations, the entries at the root of a step are the
+    frame count and the values that step's reward was computed with.
+
+    The frame counter (``frames``) and each gated schedule's stage and moving average are
+    registered buffers: ``state_dict()``/``load_state_dict()`` restore them, also through TorchRL's
+    ``Collector.state_dict()``.
+
+    Args:
+        schedules: ``{target buffer name: schedule}``.
+        curriculum_key: where the entries are written.
+
+    Example:
+        >>> import torch
+        >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
+        >>> from torchtasks.curriculum import Curriculum, linear
+        >>> from torchtasks.envs import PendulumEnv, swing_up_task
+        >>> from torchtasks.transforms import TaskTransform
+        >>> curriculum = Curriculum({"success_value": linear(0.0, 100.0, 0, 40)})  # the final reward on success
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
+        ...     StepCounter(50), TaskTransform(swing_up_task()), curriculum))
+        >>> data = env.rollout(5, break_when_any_done=False)
+        >>> data["next", "curriculum", "frames"][0, :, 0]
+        tensor([ 4,  8, 12, 16, 20])
+        >>> data["curriculum", "success_value"][0, :, 0]  # the value each step's reward was computed with
+        tensor([ 0., 10., 20., 30., 40.])
+    """
+
+    def __init__(self, schedules: Mapping[str, Schedule], *, curriculum_key: NestedKey = "curriculum") -> None:
+        if not isinstance(schedules, Mapping) or not schedules:
+            raise TypeError(
+                f"Curriculum: schedules must be a non-empty mapping {{target: schedule}}, got {schedules!r}"
+            )
+        for target, schedule in schedules.items():
+            if not isinstance(target, str):
+                raise TypeError(f"Curriculum: targets must be buffer names (strings), got {target!r}")
+            if not isinstance(schedule, Schedule):
+                raise TypeError(
+                    f"Curriculum: the schedule of {target!r} must be a torchtasks.curriculum Schedule (constant, "
+                    f"linear, staged, gated), got {type(schedule).__name__}"
+                )
+        self.curriculum_key = nested_key(curriculum_key, "Curriculum: curriculum_key")
+        self.targets = tuple(schedules)
+        entries = [_entry_name(target) for target in self.targets]
+        if FRAMES in entries:
+            raise ValueError(f"Curriculum: a target may not be named {FRAMES!r}: that entry is the frame count")
+        self._value_keys = [(*key_parts(self.curriculum_key), name) for name in entries]
+        self._frames_key = (*key_parts(self.curriculum_key), FRAMES)
+        metrics = [s.metric_key for s in schedules.values() if s.metric_key is not None]
+        super().__init__(in_keys=[], out_keys=[self._frames_key, *self._value_keys])
+        self._metric_keys = metrics
+        self.schedules = nn.ModuleList(schedules.values())
+        self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
+
+    # ------------------------------------------------------------------ setup
+    def _task_transform(self) -> TaskTransform:
+        env = container_env(self)
+        transform = getattr(env, "transform", None)
+        if transform is None:
+            raise ValueError("Curriculum must sit in a TransformedEnv, after the TaskTransform whose task it schedules")
+        flat = flat_transforms(transform)
+        position = next(i for i, t in enumerate(flat) if t is self)
+        tasks = [t for t in flat[:position] if isinstance(t, TaskTransform)]
+        if len(tasks) != 1:
+            after = any(isinstance(t, TaskTransform) for t in flat[position:])
+            raise ValueError(
+                f"Curriculum must come after exactly one TaskTransform in its env, found {len(tasks)} before it"
+                + (" (put Curriculum after TaskTransform in the Compose)" if after and not tasks else "")
+            )
+        return tasks[0]
+
+    def _resolve(self) -> list[tuple[nn.Module, str]]:
+        """Find each target buffer in the task tree (checked names and shapes); ``(module, buffer name)`` pairs."""
+        task = self._task_transform().task
+        schedulable = {name: buffer for name, buffer in task.named_buffers() if buffer.is_floating_point()}
+        unknown = [target for target in self.targets if target not in schedulable]
+        if unknown:
+            raise ValueError(
+                f"Curriculum: unknown target(s) {unknown} in the {type(task).__name__} tree; the schedulable names "
+                f"(float buffers of the task tree) are {sorted(schedulable)}"
+            )
+        slots = []
+        for target, schedule in zip(self.targets, self.schedules, strict=True):
+            expected, received = schedulable[target].shape, schedule.value_shape
+            if received != torch.Size(()) and received != expected:
+                raise ValueError(
+                    f"Curriculum: the schedule of {target!r} has values of shape {tuple(received)}, but the target "
+                    f"has shape {tuple(expected)}; give values of shape {tuple(expected)} or scalars"
+                )
+            module_name, _, leaf = target.rpartition(".")
+            slots.append((task.get_submodule(module_name), leaf))
+        self.__dict__["_slots"] = slots
+        return slots
+
+    def _get_slots(self) -> list[tuple[nn.Module, str]]:
+        slots = self.__dict__.get("_slots")
+        return self._resolve() if slots is None else slots
+
+    def _forget_setup(self) -> None:
+        self.__dict__.pop("_slots", None)
+
+    def set_container(self, container: Transform | Any) -> None:
+        super().set_container(container)
+        self._forget_setup()
+
+    def reset_parent(self) -> None:
+        super().reset_parent()
+        self._forget_setup()
+
+    def clone(self) -> Curriculum:
+        copy = super().clone()
+        copy._forget_setup()
+        return copy
+
+    # ------------------------------------------------------------------ specs
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        slots = self._resolve()
+        batch, device = observation_spec.shape, observation_spec.device
+        for key in self._metric_keys:
+            if key not in observation_spec.keys(True, True):
+                raise ValueError(
+                    f"Curriculum: a gated schedule reads {key!r}, which is not in the env's observation spec (put "
+                    "Curriculum after the transform that writes it, e.g. the TaskTransform or a RewardSum)"
+                )
+        observation_spec[self._frames_key] = Unbounded(shape=(*batch, 1), dtype=torch.int64, device=device)
+        for key, (module, leaf), schedule in zip(self._value_keys, slots, self.schedules, strict=True):
+            shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
+            dtype = module._buffers[leaf].dtype
+            observation_spec[key] = Unbounded(shape=(*batch, *shape), dtype=dtype, device=device)
+        return observation_spec
+
+    # ------------------------------------------------------------------ TorchRL hooks
+    @torch.no_grad()
+    def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Write every schedule's value at the current count into its buffer and into ``tensordict``."""
+        batch = tensordict.batch_size
+        frames = self.frames
+        tensordict.set(self._frames_key, frames.expand(*batch, 1).clone())
+        for key, (module, leaf), schedule in zip(self._value_keys, self._get_slots(), self.schedules, strict=True):
+            buffer = module._buffers[leaf]
+            value = schedule(frames)
+            buffer.copy_(value)
+            shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
+            tensordict.set(key, value.to(device=buffer.device, dtype=buffer.dtype).expand(*batch, *shape).clone())
+        return tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._write(tensordict_reset)
+
+    @torch.no_grad()
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        self.frames.add_(next_tensordict.batch_size.numel())
+        done = next_tensordict.get("done", None)
+        for schedule in self.schedules:
+            if schedule.metric_key is not None:
+                if done is None:
+                    raise KeyError("Curriculum: a gated schedule needs the 'done' flags of the step")
+                schedule.observe(done, next_tensordict.get(schedule.metric_key))
+        return self._write(next_tensordict)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Leave stored data as it is: a curriculum follows the collection, not replayed transitions."""
+        return tensordict
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(targets={list(self.targets)})"

@@ -1,0 +1,306 @@
+"""Curriculum: schedules against hand-computed values at their boundaries; frames follow the steps of all envs, not
+their resets (IsaacLab #2079); a scheduled buffer really changes the reward; a gated stage advances only once the
+success average passes its threshold; misspelt targets and wrong shapes are refused at set-up; the counters survive
+state_dict and a Collector checkpoint (resume continues exactly)."""
+
+from __future__ import annotations
+
+import functools
+import io
+import math
+
+import pytest
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.collectors import Collector
+from torchrl.envs import Compose, StepCounter, TransformedEnv
+
+from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
+from torchtasks.envs import PendulumEnv, swing_up_task
+from torchtasks.rewards import CompoundReward, ControlCostReward, QuadraticErrorReward
+from torchtasks.spaces import EnvSpec
+from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
+from torchtasks.transforms import TaskTransform
+
+WEIGHT = "wrapped_task.reward.rewards.effort.weight"
+BATCH = 8
+
+
+def weighted_task(success_threshold: float = 0.1) -> FinalRewardTask:
+    """Track [0, 0] (-(θ² + 0.1 θ̇²)) with an effort term -w·u² whose weight w is scheduled; +10 on success."""
+    reward = CompoundReward({"track": QuadraticErrorReward([1.0, 0.1]), "effort": ControlCostReward(weight=0.0)})
+    near = functools.partial(proximity_succeeded, threshold=success_threshold)
+    return FinalRewardTask(DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], reward, near), factor=10.0)
+
+
+def make_env(schedules, *, task=None, max_steps: int = 1000, batch: int = BATCH, seed: int = 0) -> TransformedEnv:
+    return TransformedEnv(
+        PendulumEnv(batch_size=[batch], seed=seed),
+        Compose(
+            StepCounter(max_steps), TaskTransform(task if task is not None else weighted_task()), Curriculum(schedules)
+        ),
+    )
+
+
+def policy() -> TensorDictModule:
+    """A deterministic policy: a torque against the angle."""
+    return TensorDictModule(lambda obs: (-0.8 * obs[..., :1]).clamp(-2.0, 2.0), ["observation"], ["action"])
+
+
+def frames(value: int) -> torch.Tensor:
+    return torch.tensor(value, dtype=torch.int64)
+
+
+# ----------------------------------------------------------------------------------------------- schedules
+def test_constant_is_its_value_at_every_count():
+    schedule = constant(torch.tensor([1.0, 2.0]))
+    for count in (0, 1, 10**9):
+        assert torch.equal(schedule(frames(count)), torch.tensor([1.0, 2.0], dtype=torch.float64))
+    assert schedule.value_shape == (2,)
+
+
+def test_linear_ramp_endpoints_midpoint_and_clamping():
+    ramp = linear(2.0, 4.0, start_frame=1000, end_frame=3000)
+    expected = {0: 2.0, 999: 2.0, 1000: 2.0, 1500: 2.5, 2000: 3.0, 3000: 4.0, 3001: 4.0, 10**12: 4.0}
+    for count, value in expected.items():
+        assert float(ramp(frames(count))) == pytest.approx(value, abs=1e-12), count
+    vector = linear([0.0, 10.0], [1.0, 0.0], 0, 10)
+    assert torch.allclose(vector(frames(5)), torch.tensor([0.5, 5.0], dtype=torch.float64))
+    step = linear(0.0, 1.0, 50, 50)
+    assert [float(step(frames(c))) for c in (49, 50, 51)] == [0.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match="end_frame must be >= start_frame"):
+        linear(0.0, 1.0, 10, 5)
+    with pytest.raises(ValueError, match="same shape"):
+        linear([0.0, 1.0], [1.0, 2.0, 3.0], 0, 10)
+
+
+def test_staged_takes_the_last_boundary_reached():
+    schedule = staged({50_000: 0.5, 0: 0.0, 100_000: 1.0})  # any order
+    expected = {0: 0.0, 49_999: 0.0, 50_000: 0.5, 50_001: 0.5, 99_999: 0.5, 100_000: 1.0, 10**10: 1.0}
+    for count, value in expected.items():
+        assert float(schedule(frames(count))) == value, count
+    with pytest.raises(ValueError, match="first boundary must be 0"):
+        staged({10: 1.0})
+
+
+def test_gated_schedule_unit():
+    schedule = gated([0.0, 1.0], threshold=0.5, window=1)  # rate 1: the average is the last step's mean
+    schedule.observe(torch.tensor([False, False, False]), torch.tensor([1.0, 1.0, 1.0]))  # no episode ended
+    assert int(schedule.stage) == 0 and int(schedule.episodes) == 0
+    done = torch.tensor([True, True, False])
+    schedule.observe(done, torch.tensor([1.0, 0.0, 1.0]))  # the running env's metric does not count
+    assert int(schedule.stage) == 1  # mean 0.5 >= 0.5
+    schedule.observe(done, torch.tensor([1.0, 1.0, 1.0]))
+    assert int(schedule.stage) == 1  # the last stage stays
+
+
+# --------------------------------------------------------------------------------------------- in an env
+def test_the_real_names_of_the_task_trees():
+    """The names a Curriculum takes are task.named_buffers()' float buffers (checked on two trees)."""
+    quadratic = FinalRewardTask(DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.1])))
+    names = {name for name, buffer in quadratic.named_buffers() if buffer.is_floating_point()}
+    assert {"wrapped_task.reward.Q", "wrapped_task.reward.R", "wrapped_task.state_des", "success_value"} <= names
+    names = {name for name, buffer in swing_up_task().named_buffers() if buffer.is_floating_point()}
+    assert {"wrapped_task.reward.rewards.track.Q", "wrapped_task.reward.rewards.effort.R"} <= names
+    env = make_env({"wrapped_task.reward.Q": constant([2.0, 0.5])}, task=quadratic)
+    env.rollout(2)
+    assert torch.equal(quadratic.wrapped_task.reward.Q, torch.tensor([2.0, 0.5]))
+
+
+def test_entries_frames_and_values():
+    env = make_env({WEIGHT: linear(0.0, 1.0, 0, 80), "wrapped_task.state_des": constant([0.0, 0.0])})
+    data = env.rollout(12, policy())
+    counts = torch.arange(1, 13) * BATCH
+    assert data["next", "curriculum", "frames"].shape == (BATCH, 12, 1)
+    assert data["next", "curriculum", "frames"].dtype == torch.int64
+    assert torch.equal(data["next", "curriculum", "frames"][:, :, 0], counts.expand(BATCH, 12))
+    assert torch.equal(data["curriculum", "frames"][:, :, 0], (counts - BATCH).expand(BATCH, 12))
+    weight = data["next", "curriculum", WEIGHT.replace(".", "/")]
+    assert weight.shape == (BATCH, 12, 1) and weight.dtype == torch.float32
+    assert torch.allclose(weight[0, :, 0], (counts / 80).clamp(max=1.0).float())
+    assert data["curriculum", "wrapped_task/state_des"].shape == (BATCH, 12, 2)
+    spec = env.observation_spec
+    assert ("curriculum", "frames") in spec.keys(True, True)
+    assert ("curriculum", WEIGHT.replace(".", "/")) in spec.keys(True, True)
+
+
+def test_frames_follow_steps_not_resets():
+    """IsaacLab #2079: envs that reset every other step and envs that never reset see the same schedule."""
+    schedules = {WEIGHT: linear(0.0, 1.0, 0, 64), "success_value": staged({0: 1.0, 40: 2.0, 80: 3.0})}
+    often = make_env(schedules, max_steps=2)
+    never = make_env({k: v for k, v in schedules.items()}, max_steps=1000)  # the same schedule objects: stateless
+    a = often.rollout(14, policy(), break_when_any_done=False)
+    b = never.rollout(14, policy(), break_when_any_done=False)
+    assert int(a["next", "done"].sum()) == BATCH * 7 and not bool(b["next", "done"].any())
+    for key in (("curriculum", "frames"), ("curriculum", WEIGHT.replace(".", "/")), ("curriculum", "success_value")):
+        assert torch.equal(a[("next", *key)], b[("next", *key)]), key
+    assert torch.equal(
+        a["next", "curriculum", "success_value"][0, :, 0], torch.tensor([1.0] * 4 + [2.0] * 5 + [3.0] * 5)
+    )
+
+
+def test_the_scheduled_weight_changes_the_reward():
+    """The weight ramped 0 -> 1 in the task tree is the one each step's reward was computed with."""
+    env = make_env({WEIGHT: linear(0.0, 1.0, 0, 10 * BATCH)})
+    data = env.rollout(15, policy())
+    weight = data["curriculum", WEIGHT.replace(".", "/")]  # the value in force when the step's reward was computed
+    state, action = data["next", "observation"].double(), data["action"].double()
+    track = -(state[..., :1] ** 2 + 0.1 * state[..., 1:] ** 2)
+    final = 10.0 * data["next", "success"].double()
+    expected = track - weight.double() * action**2 + final
+    assert torch.allclose(data["next", "reward"].double(), expected, atol=1e-5)
+    assert float(weight[0, 0]) == 0.0 and float(weight[0, -1]) == 1.0
+    assert bool((action.abs() > 0.05).any())  # the effort term matters in the data
+    unweighted = track + final
+    assert not torch.allclose(data["next", "reward"].double(), unweighted, atol=1e-3)
+
+
+def test_gated_stage_advances_only_after_the_success_average_passes():
+    """Success is controlled by a switch the task's success function reads."""
+    switch = torch.tensor(False)
+
+    def succeeded(error: torch.Tensor) -> torch.Tensor:
+        return switch.expand(error.shape[:-1]).clone()
+
+    task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.0]), succeeded)
+    batch, window, threshold = 2, 8, 0.8
+    curriculum_schedules = {"reward.Q": gated([[1.0, 0.0], [2.0, 0.0], [3.0, 0.0]], threshold=threshold, window=window)}
+    env = make_env(curriculum_schedules, task=task, max_steps=2, batch=batch)
+    curriculum = env.transform[-1]
+    td = env.reset()
+    for _ in range(20):  # failures only (episodes truncated every 2 steps): the average stays 0
+        td = env.step_and_maybe_reset(policy()(td))[1]
+    assert int(curriculum.schedules[0].stage) == 0 and float(curriculum.schedules[0].average) == 0.0
+    switch.fill_(True)  # from now on every step ends every episode with a success
+    keep = 1.0 - 1.0 / window
+    failures = batch * 10  # the episodes that ended (truncated) before: they stay in the average, weighted less
+
+    def average(successes: int) -> float:  # the bias-corrected moving average, in closed form
+        return (1.0 - keep**successes) / (1.0 - keep ** (failures + successes))
+
+    needed = next(n for n in range(1, 100) if average(batch * n) >= threshold)
+    assert needed > 1
+    for n in range(1, needed + 1):
+        td = env.step_and_maybe_reset(policy()(td))[1]
+        stage = int(curriculum.schedules[0].stage)
+        assert stage == (1 if n == needed else 0), n
+        if n < needed:
+            assert float(curriculum.schedules[0].average) == pytest.approx(average(batch * n), rel=1e-12)
+    assert float(curriculum.schedules[0].average) == 0.0  # restarted in the new stage
+    assert int(curriculum.schedules[0].episodes) == 0
+    assert torch.equal(task.reward.Q, torch.tensor([2.0, 0.0]))  # the stage's value is in the task
+    assert torch.equal(td["curriculum", "reward/Q"], torch.tensor([[2.0, 0.0]] * batch))
+    for _ in range(2 * needed):
+        td = env.step_and_maybe_reset(policy()(td))[1]
+    assert int(curriculum.schedules[0].stage) == 2  # the last stage, where it stays
+    assert math.isclose(float(task.reward.Q[0]), 3.0)
+
+
+def test_a_gated_schedule_on_an_episode_return():
+    from torchrl.envs import RewardSum
+
+    env = TransformedEnv(
+        PendulumEnv(batch_size=[BATCH], seed=0),
+        Compose(
+            StepCounter(3),
+            TaskTransform(weighted_task()),
+            RewardSum(in_keys=[("task_reward", "track")]),
+            Curriculum({WEIGHT: gated([0.0, 1.0], metric=("task_reward", "episode_track"), threshold=-1e9, window=1)}),
+        ),
+    )
+    data = env.rollout(3, policy())
+    stage = data["next", "curriculum", WEIGHT.replace(".", "/")][0, :, 0]
+    assert torch.equal(stage, torch.tensor([0.0, 0.0, 1.0]))  # the first episodes end at step 3
+    with pytest.raises(ValueError, match="not in the env's observation spec"):
+        make_env({WEIGHT: gated([0.0, 1.0], metric="episode_reward")}).observation_spec  # noqa: B018
+
+
+def test_a_misspelt_target_lists_the_schedulable_names():
+    env = make_env({"wrapped_task.reward.rewards.efort.weight": constant(1.0), "success_value": constant(1.0)})
+    with pytest.raises(ValueError, match="unknown target") as error:
+        env.reset()
+    message = str(error.value)
+    assert "'wrapped_task.reward.rewards.efort.weight'" in message
+    for name in (WEIGHT, "wrapped_task.reward.rewards.track.Q", "wrapped_task.state_des", "success_value"):
+        assert repr(name) in message
+    assert "no_remaining_steps" not in message  # an int buffer is not schedulable
+
+
+def test_a_value_of_the_wrong_shape_names_target_and_shapes():
+    env = make_env({"wrapped_task.reward.rewards.track.Q": linear([0.0, 0.0, 0.0], [1.0, 1.0, 1.0], 0, 10)})
+    with pytest.raises(ValueError, match=r"'wrapped_task\.reward\.rewards\.track\.Q'.*\(3,\).*\(2,\)"):
+        env.reset()
+
+
+def test_placement_is_checked():
+    env = TransformedEnv(
+        PendulumEnv(batch_size=[2]),
+        Compose(StepCounter(5), Curriculum({"success_value": constant(1.0)}), TaskTransform(weighted_task())),
+    )
+    with pytest.raises(ValueError, match="after TaskTransform"):
+        env.reset()
+    with pytest.raises(TypeError, match="Schedule"):
+        Curriculum({"success_value": 1.0})
+
+
+def test_state_dict_round_trip():
+    def build():
+        return make_env(
+            {WEIGHT: linear(0.0, 1.0, 0, 400), "success_value": gated([1.0, 2.0, 3.0], window=60)},
+            task=weighted_task(success_threshold=100.0),
+        )  # every step a success
+
+    env = build()
+    env.rollout(6, policy(), break_when_any_done=False)
+    state = env.transform[-1].state_dict()
+    assert int(state["frames"]) == 6 * BATCH
+    assert {"frames", "schedules.1.stage", "schedules.1.average", "schedules.1.episodes"} <= set(state)
+    assert int(state["schedules.1.episodes"]) == 6 * BATCH and int(state["schedules.1.stage"]) == 0
+    fresh = build()
+    fresh.transform[-1].load_state_dict(state)
+    assert torch.equal(fresh.transform[-1].frames, torch.tensor(6 * BATCH))
+    a = env.rollout(4, policy(), break_when_any_done=False)
+    b = fresh.rollout(4, policy(), break_when_any_done=False)  # rollout resets: the same values are written
+    for key in (("curriculum", "frames"), ("curriculum", WEIGHT.replace(".", "/")), ("curriculum", "success_value")):
+        assert torch.equal(a[("next", *key)], b[("next", *key)]), key
+        assert torch.equal(a[key], b[key]), key
+    # the gated schedule moved after 60 episodes (step 8), and equally in both
+    assert int(env.transform[-1].schedules[1].stage) == 1 == int(fresh.transform[-1].schedules[1].stage)
+    assert torch.equal(env.transform[-1].schedules[1].average, fresh.transform[-1].schedules[1].average)
+
+
+def test_a_collector_checkpoint_resumes_the_curriculum():
+    """Collector.state_dict() saves the env's transforms, so the Curriculum's frames and gated stage; a fresh
+    collector that loads it continues the schedules exactly where an uninterrupted one goes on."""
+
+    def collector() -> Collector:
+        task = weighted_task(success_threshold=100.0)  # every step ends every episode with a success
+        schedules = {WEIGHT: linear(0.0, 1.0, 0, 20 * 32), "success_value": gated([0.0, 10.0, 20.0, 30.0], window=200)}
+        return Collector(
+            make_env(schedules, task=task, max_steps=50), policy(), frames_per_batch=4 * BATCH, total_frames=-1
+        )
+
+    running = collector()
+    batches = iter(running)
+    for _ in range(12):
+        next(batches)
+    buffer = io.BytesIO()
+    torch.save(running.state_dict(), buffer)
+    buffer.seek(0)
+    saved = torch.load(buffer)
+    assert int(saved["env_state_dict"]["transforms.2.frames"]) == 12 * 4 * BATCH
+    assert "transforms.2.schedules.1.stage" in saved["env_state_dict"]
+    fresh = collector()  # a new collector and env, as in a new process
+    fresh.load_state_dict(saved)
+    fresh.reset()  # a loaded collector starts fresh trajectories: the reset writes the restored values at the root
+    expected = next(batches)
+    resumed = next(iter(fresh))
+    keys = [("curriculum", "frames"), ("curriculum", WEIGHT.replace(".", "/")), ("curriculum", "success_value")]
+    for key in keys:
+        assert torch.equal(expected[("next", *key)], resumed[("next", *key)]), key
+        assert torch.equal(expected[key], resumed[key]), key
+    # the gated stage went up during the run and the next batch continues from it
+    assert float(expected["curriculum", "success_value"].min()) > 0.0
+    assert int(expected["next", "curriculum", "frames"].max()) == 13 * 4 * BATCH
+    running.shutdown()
+    fresh.shutdown()
