@@ -305,7 +305,12 @@ class Curriculum(Transform):
     At every step the frame counter grows by the env's batch size (frames follow the steps of all
     envs, not their resets), gated schedules take note of the episodes that ended, and every
     schedule's value at the new count is written into its buffer (``buffer.copy_(value)``), where
-    the next step's reward reads it. At reset the values of the current count are written too.
+    the next step's reward reads it. At reset the values of the current count are written too. Under
+    grad mode (a differentiable ``env.rollout``; collectors run under ``no_grad``) the buffer gets a new
+    tensor instead, so that the autograd graph of earlier steps keeps the values it was built with.
+    A buffer the task reads only at reset (a desired state, copied into the episode memory) changes
+    each env's task at its next reset; a fact the task derives once at construction (whether its state
+    bounds are all infinite) does not follow a scheduled bound.
 
     Written entries (observation spec): ``(curriculum_key, "frames")`` (int64 ``[*B, 1]``) and
     ``(curriculum_key, <target with "." replaced by "/">)`` (the buffer's dtype, ``[*B, *value_shape]``,
@@ -440,33 +445,42 @@ class Curriculum(Transform):
         return observation_spec
 
     # ------------------------------------------------------------------ TorchRL hooks
-    @torch.no_grad()
-    def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write every schedule's value at the current count into its buffer and into ``tensordict``."""
+    def _write(self, tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
+        """Write every schedule's value at the current count into its buffer and into ``tensordict``.
+
+        ``replace``: put a new tensor in the buffer's place instead of writing into it, so that the autograd
+        graph of earlier steps (a differentiable ``env.rollout`` under grad mode) keeps the values it saved.
+        """
         batch = tensordict.batch_size
         frames = self.frames
         tensordict.set(self._frames_key, frames.expand(*batch, 1).clone())
         for key, (module, leaf), schedule in zip(self._value_keys, self._get_slots(), self.schedules, strict=True):
             buffer = module._buffers[leaf]
-            value = schedule(frames)
-            buffer.copy_(value)
+            value = schedule(frames).to(device=buffer.device, dtype=buffer.dtype)
+            if replace:
+                module._buffers[leaf] = value.expand_as(buffer).clone()
+            else:
+                buffer.copy_(value)
             shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
-            tensordict.set(key, value.to(device=buffer.device, dtype=buffer.dtype).expand(*batch, *shape).clone())
+            tensordict.set(key, value.expand(*batch, *shape).clone())
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        return self._write(tensordict_reset)
+        replace = torch.is_grad_enabled()
+        with torch.no_grad():
+            return self._write(tensordict_reset, replace)
 
-    @torch.no_grad()
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        self.frames.add_(next_tensordict.batch_size.numel())
-        done = next_tensordict.get("done", None)
-        for schedule in self.schedules:
-            if schedule.metric_key is not None:
-                if done is None:
-                    raise KeyError("Curriculum: a gated schedule needs the 'done' flags of the step")
-                schedule.observe(done, next_tensordict.get(schedule.metric_key))
-        return self._write(next_tensordict)
+        replace = torch.is_grad_enabled()  # a host fact: collectors run under no_grad, a differentiable rollout not
+        with torch.no_grad():
+            self.frames.add_(next_tensordict.batch_size.numel())
+            done = next_tensordict.get("done", None)
+            for schedule in self.schedules:
+                if schedule.metric_key is not None:
+                    if done is None:
+                        raise KeyError("Curriculum: a gated schedule needs the 'done' flags of the step")
+                    schedule.observe(done, next_tensordict.get(schedule.metric_key))
+            return self._write(next_tensordict, replace)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Leave stored data as it is: a curriculum follows the collection, not replayed transitions."""

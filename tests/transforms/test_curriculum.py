@@ -155,6 +155,17 @@ def test_the_scheduled_weight_changes_the_reward():
     assert not torch.allclose(data["next", "reward"].double(), unweighted, atol=1e-3)
 
 
+def test_a_differentiable_rollout_through_scheduled_buffers():
+    """Under grad mode the buffer is replaced, not written into: the graph of earlier steps stays valid."""
+    track_q = "wrapped_task.reward.rewards.track.Q"
+    env = make_env({WEIGHT: linear(0.0, 1.0, 0, 40), track_q: linear([1.0, 0.1], [2.0, 0.2], 0, 40)})
+    layer = torch.nn.Linear(2, 1)
+    data = env.rollout(6, TensorDictModule(layer, ["observation"], ["action"]))
+    data["next", "reward"].sum().backward()
+    assert layer.weight.grad is not None and bool(torch.isfinite(layer.weight.grad).all())
+    assert torch.allclose(data["next", "curriculum", track_q.replace(".", "/")][0, -1], torch.tensor([2.0, 0.2]))
+
+
 def test_gated_stage_advances_only_after_the_success_average_passes():
     """Success is controlled by a switch the task's success function reads."""
     switch = torch.tensor(False)
