@@ -85,3 +85,18 @@ def test_a_tree_without_final_reward_or_terms_writes_no_breakdown() -> None:
     swing_up = swing_up_task()
     keys = set(_env(swing_up).rollout(3)["next"]["task_reward"].keys())
     assert ("step" in keys) == ("final" in keys) == swing_up.pays_final_reward
+
+
+class _PaysOnFinalReward(GoallessTask):
+    """A task of one's own that pays its final reward by overriding ``_final_reward`` itself."""
+
+    def _final_reward(self, state, memory, remaining_steps, done, flags=None):
+        return torch.where(done, 7.0, 0.0).to(state.dtype), memory
+
+
+def test_a_task_overriding_final_reward_pays_it() -> None:
+    task = _PaysOnFinalReward(EnvSpec(2, 1), ConstantReward(1.0))
+    assert task.pays_final_reward
+    state = torch.zeros(2, 2)
+    out = task.transition(state, torch.zeros(2, 1), state, task.reset(state), truncated=torch.tensor([True, False]))
+    assert out.final_reward.tolist() == [7.0, 0.0]

@@ -261,10 +261,14 @@ class Task(nn.Module):
     def pays_final_reward(self) -> bool:
         """Whether any task of this tree can pay a final reward (else ``final_reward`` is always 0).
 
-        A task pays one when it defines its own ``_compute_final_reward``; a task that only forwards
-        its children's (a mask, a composite) says so by overriding this property.
+        A task pays one when it defines its own ``_compute_final_reward`` (or its own ``_final_reward``);
+        a task that only forwards its children's (a mask, a composite) says so by overriding this property.
         """
-        own = type(self)._compute_final_reward is not Task._compute_final_reward
+        cls = type(self)
+        own = cls._compute_final_reward is not Task._compute_final_reward or cls._final_reward not in (
+            Task._final_reward,
+            TaskWrapper._final_reward,
+        )
         return own or any(child.pays_final_reward for child in self.children_tasks())
 
     def all_reset_keys(self) -> set[str]:
