@@ -48,8 +48,14 @@ class GoalCommand(Transform):
     generator when ``seed`` is given (:meth:`set_seed` re-seeds it). TorchRL's
     ``TransformedEnv.set_seed`` seeds the base env only, not its transforms.
 
+    Sampling range: with a ``Box`` the goals are drawn from the registered float64 buffers ``low`` and
+    ``high`` (shape ``[k]``, first the Box's bounds), so ``.to()``, ``state_dict()`` and a
+    :class:`~torchtasks.curriculum.Curriculum` (targets ``"command.low"`` / ``"command.high"``) reach
+    them; the Box itself stays the bounds of the goal spec, the widest range a schedule may reach.
+    A sampler has no such buffers.
+
     Checkpoints: ``state_dict()`` holds the command's generator under ``"_extra_state"`` (whether
-    it has its own generator, its seed and its state), so ``load_state_dict`` makes the command
+    it has its own generator, its seed and its state) and the range buffers, so ``load_state_dict`` makes the command
     draw the goals and timers that the saved one would have drawn next, bit for bit. It is part of
     ``TransformedEnv.state_dict()`` and so of TorchRL's ``Collector.state_dict()`` (which saves
     the transforms of a ``TransformedEnv`` but not its base env: save ``env.base_env.state_dict()``
@@ -139,6 +145,9 @@ class GoalCommand(Transform):
         self.goal_size = size
         self.resample_on_success = resample_on_success
         self.generator = None if seed is None else torch.Generator().manual_seed(seed)
+        if isinstance(space, Box):  # the sampling range: registered, so .to(), state_dict and a Curriculum reach it
+            self.register_buffer("low", space.low.clone())
+            self.register_buffer("high", space.high.clone())
 
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator (created if it had none)."""
@@ -175,8 +184,8 @@ class GoalCommand(Transform):
     def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
         if isinstance(self.space, Box):
             unit = torch.rand((*batch, self.goal_size), generator=self.generator, dtype=torch.float64)
-            low, high = self.space.low, self.space.high
-            goals = low + unit * (high - low)
+            low, high = self.low, self.high
+            goals = low + unit.to(low.device) * (high - low)
         else:
             goals = torch.as_tensor(self.space(torch.Size(batch), self.generator))
             if goals.shape != (*batch, self.goal_size) or not goals.is_floating_point():

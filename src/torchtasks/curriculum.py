@@ -15,6 +15,7 @@ restores them on resume.
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -27,11 +28,13 @@ from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
+from torchtasks.commands import GoalCommand
 from torchtasks.transforms import TaskTransform
 
 __all__ = ["Curriculum", "GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
 
 FRAMES = "frames"
+COMMAND = "command"  # the prefix of the targets that name buffers of the env's GoalCommand(s)
 
 
 def _as_value(value: object, name: str) -> torch.Tensor:
@@ -292,15 +295,53 @@ def _entry_name(target: str) -> str:
     return target.replace(".", "/")
 
 
+def _check_frames(schedule: Schedule) -> set[int]:
+    """The frame counts at which a frame-driven schedule's extremes lie: 0 and each breakpoint ``b`` and ``b - 1``.
+
+    Between two consecutive breakpoints a constant, linear or staged schedule is linear (or constant) in
+    the integer frame count, so a linear inequality between two of them that holds at these counts holds at all.
+    """
+    if isinstance(schedule, _Linear):
+        points = [schedule.start_frame, schedule.end_frame]
+    elif isinstance(schedule, _Staged):
+        points = schedule.boundaries.tolist()
+    else:
+        points = []
+    return {0} | set(points) | {p - 1 for p in points if p > 0}
+
+
+def _possible_values(schedule: Schedule | None, current: torch.Tensor) -> torch.Tensor:
+    """The values a bound can take, stacked on a first dim (float64, CPU): the stages of a gated schedule, a
+    frame-driven schedule's values at its :func:`_check_frames`, the buffer's current value if unscheduled."""
+    if schedule is None:
+        return current.detach().to("cpu", torch.float64)[None]
+    if isinstance(schedule, GatedSchedule):
+        values = schedule.values.detach().to("cpu", torch.float64)
+    else:
+        values = torch.stack([_value_at(schedule, count) for count in sorted(_check_frames(schedule))])
+    return values.reshape(-1, *([1] * current.dim())) if schedule.value_shape == torch.Size(()) else values
+
+
+def _value_at(schedule: Schedule, count: int) -> torch.Tensor:
+    return schedule(torch.tensor(count, dtype=torch.int64)).detach().to("cpu", torch.float64)
+
+
 class Curriculum(Transform):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
     ``Compose``, and after a ``RewardSum`` whose episode sums a gated schedule reads). Each key of
     ``schedules`` names a float buffer of that transform's task, as ``task.named_buffers()`` names
-    it (e.g. ``"wrapped_task.reward.Q"``); a misspelt name is a ``ValueError`` listing every
-    schedulable name when the env's specs are built, and so is a value whose shape is neither
-    ``()`` nor the buffer's.
+    it (e.g. ``"wrapped_task.reward.Q"``), or, under the prefix ``"command."``, a sampling-range
+    buffer of the env's :class:`~torchtasks.commands.GoalCommand`: ``"command.low"`` and
+    ``"command.high"`` when the env has one GoalCommand, ``"command.<goal key>.low"`` (a nested goal
+    key joined by ``"/"``) always; a short name with several GoalCommands is ambiguous. A scheduled
+    GoalCommand must come after the Curriculum (the goal drawn in a step uses that step's range). A
+    misspelt or ambiguous name is a ``ValueError`` listing every schedulable name when the env's
+    specs are built, and so is a value whose shape is neither ``()`` nor the buffer's, and a
+    scheduled range that leaves the command's ``Box`` (the goal spec) or has ``low > high`` (checked
+    at every breakpoint of constant, linear and staged schedules, where their extremes lie, and for
+    every stage value of a gated schedule against every value the other bound can take).
 
     At every step the frame counter grows by the env's batch size (frames follow the steps of all
     envs, not their resets), gated schedules take note of the episodes that ended, and every
@@ -368,13 +409,17 @@ class Curriculum(Transform):
         self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
 
     # ------------------------------------------------------------------ setup
-    def _task_transform(self) -> TaskTransform:
+    def _flat(self) -> tuple[list[Transform], int]:
+        """The leaf transforms of the env and the Curriculum's position among them."""
         env = container_env(self)
         transform = getattr(env, "transform", None)
         if transform is None:
             raise ValueError("Curriculum must sit in a TransformedEnv, after the TaskTransform whose task it schedules")
         flat = flat_transforms(transform)
-        position = next(i for i, t in enumerate(flat) if t is self)
+        return flat, next(i for i, t in enumerate(flat) if t is self)
+
+    def _task_transform(self) -> TaskTransform:
+        flat, position = self._flat()
         tasks = [t for t in flat[:position] if isinstance(t, TaskTransform)]
         if len(tasks) != 1:
             after = any(isinstance(t, TaskTransform) for t in flat[position:])
@@ -384,28 +429,132 @@ class Curriculum(Transform):
             )
         return tasks[0]
 
+    def _command_env(self) -> Curriculum:
+        """The Curriculum whose env holds the scheduled GoalCommands: this one, or, for a clone that is the last
+        transform of its env (TorchRL's view of a later transform's parent env), the Curriculum it was cloned from."""
+        original = self.__dict__.get("_original")
+        source = None if original is None else original()
+        if source is None or source is self:
+            return self
+        flat, position = self._flat()
+        if position < len(flat) - 1 or container_env(source) is None:
+            return self
+        return source._command_env()
+
+    def _command_slots(self) -> tuple[dict[str, tuple[nn.Module, str]], dict[str, list[str]], list[str]]:
+        """The command targets: ``{name: (GoalCommand, buffer name)}``, ``{ambiguous short name: choices}`` and the
+        names an error lists (the short ones with one GoalCommand, the qualified ones with several)."""
+        flat, _ = self._command_env()._flat()
+        commands = [t for t in flat if isinstance(t, GoalCommand)]
+        names: dict[str, tuple[nn.Module, str]] = {}
+        ambiguous: dict[str, list[str]] = {}
+        for command in commands:
+            qualifier = "/".join(key_parts(command.goal_key))
+            for leaf, buffer in command.named_buffers(recurse=False):
+                if buffer.is_floating_point():
+                    names[f"{COMMAND}.{qualifier}.{leaf}"] = (command, leaf)
+                    ambiguous.setdefault(f"{COMMAND}.{leaf}", []).append(f"{COMMAND}.{qualifier}.{leaf}")
+        goal_keys = [command.goal_key for command in commands]
+        if len(set(goal_keys)) < len(goal_keys) and any(t.startswith(COMMAND + ".") for t in self.targets):
+            raise ValueError(
+                f"Curriculum: several GoalCommands of the env write the same goal key (goal keys {goal_keys}): their "
+                f"{COMMAND + '.'!r} targets cannot be told apart"
+            )
+        if len(commands) == 1:
+            names.update({short: names[full] for short, (full,) in ambiguous.items()})
+            return names, {}, sorted(ambiguous)
+        return names, ambiguous, sorted(choice for choices in ambiguous.values() for choice in choices)
+
     def _resolve(self) -> list[tuple[nn.Module, str]]:
-        """Find each target buffer in the task tree (checked names and shapes); ``(module, buffer name)`` pairs."""
+        """Find each target buffer in the task tree or a GoalCommand (checked names, shapes and ranges).
+
+        Returns ``(module, buffer name)`` pairs, one per target.
+        """
         task = self._task_transform().task
         schedulable = {name: buffer for name, buffer in task.named_buffers() if buffer.is_floating_point()}
-        unknown = [target for target in self.targets if target not in schedulable]
+        commands, ambiguous, listed = self._command_slots()
+        for target in self.targets:
+            if target in ambiguous:
+                raise ValueError(
+                    f"Curriculum: the target {target!r} is ambiguous: the env has several GoalCommands; name one of "
+                    f'{ambiguous[target]} ("{COMMAND}.<goal key>.<buffer>")'
+                )
+        unknown = [target for target in self.targets if target not in schedulable and target not in commands]
         if unknown:
             raise ValueError(
-                f"Curriculum: unknown target(s) {unknown} in the {type(task).__name__} tree; the schedulable names "
-                f"(float buffers of the task tree) are {sorted(schedulable)}"
+                f"Curriculum: unknown target(s) {unknown} in the {type(task).__name__} tree and the env's "
+                f"GoalCommands; the schedulable names (float buffers of the task tree, and under {COMMAND + '.'!r} "
+                f"the sampling range of a GoalCommand) are {sorted(schedulable) + listed}"
             )
         slots = []
         for target, schedule in zip(self.targets, self.schedules, strict=True):
-            expected, received = schedulable[target].shape, schedule.value_shape
+            if target in commands:
+                module, leaf = commands[target]
+            else:
+                module_name, _, leaf = target.rpartition(".")
+                module = task.get_submodule(module_name)
+            expected, received = module._buffers[leaf].shape, schedule.value_shape
             if received != torch.Size(()) and received != expected:
                 raise ValueError(
                     f"Curriculum: the schedule of {target!r} has values of shape {tuple(received)}, but the target "
                     f"has shape {tuple(expected)}; give values of shape {tuple(expected)} or scalars"
                 )
-            module_name, _, leaf = target.rpartition(".")
-            slots.append((task.get_submodule(module_name), leaf))
+            slots.append((module, leaf))
+        self._check_ranges(slots)
         self.__dict__["_slots"] = slots
         return slots
+
+    def _check_ranges(self, slots: list[tuple[nn.Module, str]]) -> None:
+        """Refuse a scheduled GoalCommand range that leaves its Box or has ``low > high``; check the command's order."""
+        flat, position = self._command_env()._flat()
+        scheduled: dict[int, dict[str, tuple[str, Schedule]]] = {}
+        for target, (module, leaf), schedule in zip(self.targets, slots, self.schedules, strict=True):
+            if isinstance(module, GoalCommand):
+                scheduled.setdefault(id(module), {})[leaf] = (target, schedule)
+        for command in (t for t in flat if isinstance(t, GoalCommand) and id(t) in scheduled):
+            bounds = scheduled[id(command)]
+            names = ", ".join(repr(target) for target, _ in bounds.values())
+            if flat.index(command) < position:
+                raise ValueError(
+                    f"Curriculum schedules {names} of the GoalCommand writing {command.goal_key!r}, which comes before "
+                    "it: put the Curriculum before that GoalCommand in the Compose (after the TaskTransform), so that "
+                    "the goal drawn in a step uses that step's range"
+                )
+            space_low = command.space.low.to(torch.float64)
+            space_high = command.space.high.to(torch.float64)
+            for leaf, (target, schedule) in bounds.items():
+                values = _possible_values(schedule, command._buffers[leaf])
+                if ((values < space_low) | (values > space_high)).any():
+                    raise ValueError(
+                        f"Curriculum: the schedule of {target!r} leaves the GoalCommand's space (its goal spec, "
+                        f"low={space_low.tolist()}, high={space_high.tolist()}): its values at its breakpoints or "
+                        f"stages are {values.tolist()}; build the GoalCommand with a Box that holds the widest range"
+                    )
+            low, high = bounds.get("low"), bounds.get("high")
+            low_schedule = None if low is None else low[1]
+            high_schedule = None if high is None else high[1]
+            gated = isinstance(low_schedule, GatedSchedule) or isinstance(high_schedule, GatedSchedule)
+            if not gated:  # both follow the frames only: compare them at every breakpoint of either
+                counts = set().union(*(_check_frames(s) for s in (low_schedule, high_schedule) if s is not None))
+                for count in sorted(counts):
+                    low_value = command.low if low_schedule is None else _value_at(low_schedule, count)
+                    high_value = command.high if high_schedule is None else _value_at(high_schedule, count)
+                    low_value, high_value = low_value.to("cpu", torch.float64), high_value.to("cpu", torch.float64)
+                    if (low_value > high_value).any():
+                        raise ValueError(
+                            f"Curriculum: the scheduled range {names} of the GoalCommand writing "
+                            f"{command.goal_key!r} has low > high at frame {count}: low={low_value.tolist()}, "
+                            f"high={high_value.tolist()}"
+                        )
+            else:  # a gated stage may be reached at any frame: every value of one bound against every one of the other
+                lows = _possible_values(low_schedule, command.low)
+                highs = _possible_values(high_schedule, command.high)
+                if (lows.amax(0) > highs.amin(0)).any():
+                    raise ValueError(
+                        f"Curriculum: the scheduled range {names} of the GoalCommand writing {command.goal_key!r} "
+                        f"can have low > high (a gated stage may be reached at any frame): low takes "
+                        f"{lows.tolist()}, high takes {highs.tolist()}"
+                    )
 
     def _get_slots(self) -> list[tuple[nn.Module, str]]:
         slots = self.__dict__.get("_slots")
@@ -425,6 +574,9 @@ class Curriculum(Transform):
     def clone(self) -> Curriculum:
         copy = super().clone()
         copy._forget_setup()
+        # TorchRL builds a transform's `parent` env from clones of the transforms before it: a clone of this
+        # Curriculum there has no GoalCommand after it, and finds the commands it schedules in this one's env
+        copy.__dict__["_original"] = weakref.ref(self)
         return copy
 
     # ------------------------------------------------------------------ specs

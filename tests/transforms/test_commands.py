@@ -234,3 +234,24 @@ def test_a_collector_checkpoint_restores_the_command():
         check(b, (3, 5), on_success=False)
     running.shutdown()
     fresh.shutdown()
+
+
+# ----------------------------------------------------------------------------------------- range buffers
+def test_the_range_is_registered_buffers_and_goals_are_drawn_as_before():
+    command = GoalCommand(Box([-1.0, 0.5], [1.0, 2.0]), seed=3)
+    state = command.state_dict()
+    assert torch.equal(state["low"], torch.tensor([-1.0, 0.5], dtype=torch.float64))
+    assert torch.equal(state["high"], torch.tensor([1.0, 2.0], dtype=torch.float64))
+    # the formula of the goals drawn before the range was a buffer, on the same generator
+    unit = torch.rand((5, 2), generator=torch.Generator().manual_seed(3), dtype=torch.float64)
+    expected = torch.tensor([-1.0, 0.5], dtype=torch.float64) + unit * torch.tensor([2.0, 1.5], dtype=torch.float64)
+    assert torch.equal(command._sample_goals(torch.Size([5]), torch.float64, torch.device("cpu")), expected)
+    # a narrower range loaded from a state_dict is the one sampled from
+    narrow = GoalCommand(Box([-1.0, 0.5], [1.0, 2.0]), seed=4)
+    narrow.high.fill_(0.6)
+    narrow.low.fill_(0.5)
+    command.load_state_dict(narrow.state_dict())
+    goals = command._sample_goals(torch.Size([100]), torch.float64, torch.device("cpu"))
+    assert ((goals >= 0.5) & (goals <= 0.6)).all()
+    sampler = GoalCommand(lambda shape, generator: torch.zeros(*shape, 1), goal_size=1)
+    assert dict(sampler.named_buffers()) == {}

@@ -15,10 +15,11 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
+from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.rewards import CompoundReward, ControlCostReward, QuadraticErrorReward
-from torchtasks.spaces import EnvSpec
+from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
 from torchtasks.transforms import TaskTransform
 
@@ -315,3 +316,114 @@ def test_a_collector_checkpoint_resumes_the_curriculum():
     assert int(expected["next", "curriculum", "frames"].max()) == 13 * 4 * BATCH
     running.shutdown()
     fresh.shutdown()
+
+
+# ------------------------------------------------------------------------------------------ goal ranges
+GOAL_SPACE = Box([-1.0, -0.5], [1.0, 0.5])  # the goal spec: the widest range a schedule may reach
+
+
+def goal_env(schedules, *, command=None, max_steps: int = 5, batch: int = BATCH) -> TransformedEnv:
+    """A pendulum tracking a goal state drawn by a GoalCommand whose range the Curriculum schedules."""
+    near = functools.partial(proximity_succeeded, threshold=0.1)
+    task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
+    command = command if command is not None else GoalCommand(GOAL_SPACE, resample_steps=1, seed=0)
+    return TransformedEnv(
+        PendulumEnv(batch_size=[batch], seed=0, dtype=torch.float64),
+        Compose(StepCounter(max_steps), TaskTransform(task, goal_key="goal"), Curriculum(schedules), command),
+    )
+
+
+def test_a_widening_goal_range_bounds_every_goal_drawn():
+    """high widens from 0.1 to 1.0 (and low from -0.05 to -0.5 on the second entry) over N frames; goals are
+    drawn at every reset and every step, each within the range of the frame count it was drawn at."""
+    n = 40 * BATCH
+    schedules = {
+        "command.high": linear([0.1, 0.05], [1.0, 0.5], 0, n),
+        "command.low": linear([-0.1, -0.05], [-1.0, -0.5], 0, n),
+    }
+    data = goal_env(schedules).rollout(60, policy(), break_when_any_done=False)
+    assert int(data["next", "done"].sum()) == BATCH * 12  # episodes of 5 steps: goals drawn at resets too
+    for prefix in ((), ("next",)):
+        count = data[(*prefix, "curriculum", "frames")].double()  # [B, T, 1]
+        fraction = (count / n).clamp(0.0, 1.0)  # the schedule's formula, recomputed here
+        high = torch.tensor([0.1, 0.05], dtype=torch.float64) + fraction * torch.tensor(
+            [0.9, 0.45], dtype=torch.float64
+        )
+        low = torch.tensor([-0.1, -0.05], dtype=torch.float64) + fraction * torch.tensor(
+            [-0.9, -0.45], dtype=torch.float64
+        )
+        goal = data[(*prefix, "goal")]
+        assert ((goal >= low - 1e-12) & (goal <= high + 1e-12)).all(), prefix
+        torch.testing.assert_close(data[(*prefix, "curriculum", "command/high")], high, rtol=0, atol=1e-12)
+        torch.testing.assert_close(data[(*prefix, "curriculum", "command/low")], low, rtol=0, atol=1e-12)
+    goal, count = data["next", "goal"], data["next", "curriculum", "frames"][..., 0]
+    early = goal[..., 0][count <= 4 * BATCH].abs()  # within 0.1 + 0.9 * 4 / 40 = 0.19
+    assert bool((goal[..., 0] > 0.5).any()) and bool((early <= 0.19 + 1e-12).all()) and bool((early > 0.1).any())
+    assert bool((data["next", "goal"] != data["goal"]).all())  # a new goal at every step
+    command = goal_env(schedules).transform[-1]
+    assert torch.equal(command.low, GOAL_SPACE.low) and torch.equal(command.high, GOAL_SPACE.high)  # before a reset
+
+
+def test_the_qualified_command_name_and_scalar_values():
+    env = goal_env({"command.goal.high": staged({0: 0.2, 3 * BATCH: 0.4})})
+    data = env.rollout(4, policy())
+    high = data["next", "curriculum", "command/goal/high"]
+    assert high.shape == (BATCH, 4, 1)  # a scalar value, as every scalar schedule's entry
+    assert torch.equal(high[0, :, 0], torch.tensor([0.2, 0.2, 0.4, 0.4], dtype=torch.float64))
+    assert torch.equal(env.transform[-1].high, torch.tensor([0.4, 0.4], dtype=torch.float64))
+    assert (data["next", "goal"] <= high).all()
+
+
+def test_misspelt_and_ambiguous_command_names():
+    with pytest.raises(ValueError, match="unknown target") as error:
+        goal_env({"command.hihg": constant(0.5)}).reset()
+    for name in ("command.low", "command.high", "reward.Q", "state_des"):
+        assert repr(name) in str(error.value), name
+    second = GoalCommand(Box([0.0], [1.0]), goal_key="other_goal")
+    env = goal_env({"command.high": constant(0.5)})
+    env.append_transform(second)
+    with pytest.raises(ValueError, match="ambiguous") as error:
+        env.reset()
+    assert "'command.goal.high'" in str(error.value) and "'command.other_goal.high'" in str(error.value)
+    sampler = GoalCommand(lambda shape, generator: torch.zeros(*shape, 2), goal_size=2)
+    with pytest.raises(ValueError, match="unknown target"):  # a sampler has no range buffers
+        goal_env({"command.high": constant(0.5)}, command=sampler).reset()
+
+
+def test_a_scheduled_range_with_low_above_high_is_refused():
+    cases = {
+        # the ramps cross: low reaches 0.4 at frame 100, where high starts from 0.1
+        "linear": {"command.low": linear(0.0, 0.4, 0, 100), "command.high": linear(0.1, 0.5, 100, 200)},
+        # a staged low jumps to 0.5 at frame 50, where the linear high is 0.2
+        "staged": {"command.low": staged({0: -0.1, 50: 0.5}), "command.high": linear(0.1, 0.5, 0, 200)},
+        # constant values: 0.3 > 0.2 on the second entry
+        "constant": {"command.low": constant([0.0, 0.3]), "command.high": constant([0.5, 0.2])},
+        # a gated stage may be reached at any frame: low's 0.3 against high's 0.2
+        "gated": {"command.low": gated([-0.1, 0.3]), "command.high": gated([0.2, 0.5])},
+    }
+    for name, schedules in cases.items():
+        with pytest.raises(ValueError, match="low > high") as error:
+            goal_env(schedules).reset()
+        assert "'command.low'" in str(error.value), name
+    goal_env({"command.low": gated([-0.1, -0.3]), "command.high": gated([0.2, 0.4])}).reset()  # valid: accepted
+    goal_env({"command.low": linear(0.0, -0.4, 0, 10), "command.high": linear(0.05, 0.4, 5, 10)}).reset()
+    with pytest.raises(ValueError, match=r"'command\.high' leaves the GoalCommand's space"):
+        goal_env({"command.high": linear(0.1, 2.0, 0, 100)}).reset()
+    with pytest.raises(ValueError, match=r"shape \(3,\)"):
+        goal_env({"command.high": constant([0.1, 0.1, 0.1])}).reset()
+
+
+def test_the_curriculum_must_come_before_the_command_it_schedules():
+    near = functools.partial(proximity_succeeded, threshold=0.1)
+    task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
+    env = TransformedEnv(
+        PendulumEnv(batch_size=[2]),
+        Compose(
+            StepCounter(5),
+            TaskTransform(task, goal_key="goal"),
+            GoalCommand(GOAL_SPACE),
+            Curriculum({"command.high": constant(0.5)}),
+        ),
+    )
+    with pytest.raises(ValueError, match="before that GoalCommand"):
+        env.reset()
