@@ -58,3 +58,28 @@ def container_env(transform: Transform) -> Any:
         return transform.container
     except (AttributeError, ValueError):
         return None
+
+
+class EnvDerivedTransform(Transform):
+    """A transform that caches facts derived from the env it sits in, and forgets them when that env changes.
+
+    Subclasses implement :meth:`_forget_setup` (drop the cached facts); moving the transform into another
+    container, re-parenting it or cloning it (TorchRL clones the transforms before a transform to build
+    that transform's ``parent`` env) calls it, so the next spec building or step derives them anew.
+    """
+
+    def _forget_setup(self) -> None:
+        raise NotImplementedError
+
+    def set_container(self, container: Transform | Any) -> None:
+        super().set_container(container)
+        self._forget_setup()
+
+    def reset_parent(self) -> None:
+        super().reset_parent()
+        self._forget_setup()
+
+    def clone(self) -> EnvDerivedTransform:
+        copy = super().clone()
+        copy._forget_setup()
+        return copy

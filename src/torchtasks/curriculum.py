@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Mapping, Sequence
-from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -27,7 +26,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
-from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
+from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.transforms import TaskTransform
 
@@ -326,7 +325,7 @@ def _value_at(schedule: Schedule, count: int) -> torch.Tensor:
     return schedule(torch.tensor(count, dtype=torch.int64)).detach().to("cpu", torch.float64)
 
 
-class Curriculum(Transform):
+class Curriculum(EnvDerivedTransform):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
@@ -563,17 +562,8 @@ class Curriculum(Transform):
     def _forget_setup(self) -> None:
         self.__dict__.pop("_slots", None)
 
-    def set_container(self, container: Transform | Any) -> None:
-        super().set_container(container)
-        self._forget_setup()
-
-    def reset_parent(self) -> None:
-        super().reset_parent()
-        self._forget_setup()
-
     def clone(self) -> Curriculum:
         copy = super().clone()
-        copy._forget_setup()
         # TorchRL builds a transform's `parent` env from clones of the transforms before it: a clone of this
         # Curriculum there has no GoalCommand after it, and finds the commands it schedules in this one's env
         copy.__dict__["_original"] = weakref.ref(self)

@@ -9,12 +9,12 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.data import Categorical, Composite, Unbounded
-from torchrl.envs.transforms import StepCounter, Transform, TransformedEnv
+from torchrl.envs.transforms import StepCounter, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_positive_int
 from torchtasks._memory import td_get, td_set
-from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
+from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
@@ -106,7 +106,7 @@ def _check_within_limit(
         )
 
 
-class TaskTransform(Transform):
+class TaskTransform(EnvDerivedTransform):
     """Apply a task to a TorchRL env: task reward, success, failure and termination on every step.
 
     In each step the transform reads ``s_t`` and ``a_t`` from the root tensordict, ``s_{t+1}`` from
@@ -346,19 +346,6 @@ class TaskTransform(Transform):
     def _forget_setup(self) -> None:
         """Drop what was derived for the previous env (the next spec building or step derives it again)."""
         self.__dict__.pop("_limit", None)
-
-    def set_container(self, container: Transform | Any) -> None:
-        super().set_container(container)
-        self._forget_setup()
-
-    def reset_parent(self) -> None:
-        super().reset_parent()
-        self._forget_setup()
-
-    def clone(self) -> TaskTransform:
-        copy = super().clone()
-        copy._forget_setup()
-        return copy
 
     @property
     def max_steps(self) -> int | None:
