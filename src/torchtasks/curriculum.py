@@ -26,6 +26,7 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
+from torchtasks._memory import td_set
 from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.transforms import TaskTransform
@@ -595,16 +596,18 @@ class Curriculum(EnvDerivedTransform):
         """
         batch = tensordict.batch_size
         frames = self.frames
-        tensordict.set(self._frames_key, frames.expand(*batch, 1).clone())
+        td_set(tensordict, self._frames_key, frames.expand(*batch, 1).clone())
         for key, (module, leaf), schedule in zip(self._value_keys, self._get_slots(), self.schedules, strict=True):
             buffer = module._buffers[leaf]
-            value = schedule(frames).to(device=buffer.device, dtype=buffer.dtype)
+            value = schedule(frames)
+            if value.dtype != buffer.dtype or value.device != buffer.device:
+                value = value.to(device=buffer.device, dtype=buffer.dtype)
             if replace:
                 module._buffers[leaf] = value.expand_as(buffer).clone()
             else:
                 buffer.copy_(value)
             shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
-            tensordict.set(key, value.expand(*batch, *shape).clone())
+            td_set(tensordict, key, value.expand(*batch, *shape).clone())
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
