@@ -84,11 +84,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--batches", type=int, default=20, help="timed batches of 20 steps (default: 20)")
     parser.add_argument("--output", default="runs/curriculum_overhead", help="results folder")
     args = parser.parse_args(argv)
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
     samples: dict[str, list[float]] = {"task": [], "curriculum": []}
-    for _ in range(args.repeats):
-        for name in samples:
-            samples[name].append(frames_per_second(args.envs, name == "curriculum", args.batches))
+    try:
+        for _ in range(args.repeats):
+            for name in samples:
+                samples[name].append(frames_per_second(args.envs, name == "curriculum", args.batches))
+    finally:
+        torch.set_num_threads(threads)
     medians = {name: statistics.median(values) for name, values in samples.items()}
     ratio = medians["curriculum"] / medians["task"]
     print(

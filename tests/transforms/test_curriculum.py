@@ -427,3 +427,20 @@ def test_the_curriculum_must_come_before_the_command_it_schedules():
     )
     with pytest.raises(ValueError, match="before that GoalCommand"):
         env.reset()
+
+
+def test_overhead_benchmark_script_runs(tmp_path) -> None:
+    """``benchmarks/curriculum_overhead.py`` on a tiny case: both pipelines measured, the results written."""
+    import importlib.util
+    import json
+
+    from repo_paths import ROOT
+
+    spec = importlib.util.spec_from_file_location("curriculum_overhead", ROOT / "benchmarks" / "curriculum_overhead.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    threads = torch.get_num_threads()
+    assert module.main(["--envs", "4", "--repeats", "1", "--batches", "1", "--output", str(tmp_path)]) == 0
+    assert torch.get_num_threads() == threads
+    results = json.loads((tmp_path / "results.json").read_text())
+    assert set(results["medians"]) == {"task", "curriculum"} and all(v > 0 for v in results["medians"].values())
