@@ -25,6 +25,10 @@ STEP_COUNT_KEY = "step_count"
 IS_INIT_KEY = "is_init"
 #: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
 EPISODE_SUM_PREFIX = "episode_"
+#: the Curriculum's frame count, under its curriculum_key
+CURRICULUM_FRAMES = "frames"
+#: prefix of the scheduled values in the returned dict
+CURRICULUM_PREFIX = "curriculum/"
 
 
 class _Frames:
@@ -133,6 +137,7 @@ def episode_statistics(
     terms_key: NestedKey | None = "task_reward",
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
+    curriculum_key: NestedKey | None = "curriculum",
     time_dim: int | None = None,
 ) -> dict[str, float]:
     """Return statistics of the episodes that end in ``batch``: outcome rates, mean length and returns per term.
@@ -161,7 +166,8 @@ def episode_statistics(
     results are the same with and without it.
 
     **No ended episode.** A mean or rate over zero episodes is left out, never NaN or a made-up 0:
-    with no ended episode the result is ``{"episodes": 0.0, "complete_episodes": 0.0}``.
+    with no ended episode the result is ``{"episodes": 0.0, "complete_episodes": 0.0}`` (and the
+    scheduled values, which need no episode).
 
     Returned keys (plain floats, ready for ``logger.log_scalar(name, value, step)``):
 
@@ -183,6 +189,16 @@ def episode_statistics(
       may already have redrawn: after a success with ``resample_on_success``, or when its timer ran
       out in that step). The achieved goal is read under ``"next"`` (that of ``s_{t+1}``, as
       ``TaskTransform(achieved_goal_key=...)`` writes it).
+    - ``curriculum/frames`` and ``curriculum/<target>`` (when the data holds a
+      :class:`~torchtasks.curriculum.Curriculum`'s entries ``("next", curriculum_key, ...)``): the
+      schedule at the end of the batch, read under ``"next"`` at the latest frame: the frame count and
+      the values the step after the batch will use. ``<target>`` is the entry's name (the target with
+      ``"/"`` for ``"."``, e.g. ``curriculum/wrapped_task/reward/rewards/effort/R``); a tensor-valued
+      target gives one key per entry, ``curriculum/<target>/<i>`` (row-major index, e.g.
+      ``curriculum/command/high/0``). The latest frame is the last one of every row along
+      ``time_dim`` (flat layout: the frames with the largest frame count); the values are means over
+      those frames, i.e. over the envs, which hold the same values when they share one Curriculum.
+      Data without the entries give none of these keys.
 
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
@@ -193,6 +209,8 @@ def episode_statistics(
             written: a goal carried in the task memory is the one the step was judged with in the
             memory after the step (e.g. ``("next", "task", "wrapped", "state_des")``; the memory at
             the root holds the previous step's goal when a ``goal_key`` feeds the task).
+        curriculum_key: the Curriculum's ``curriculum_key`` (its entries are read under ``"next"``);
+            data without it report no scheduled values; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
 
@@ -227,6 +245,7 @@ def episode_statistics(
             ("terms_key", terms_key),
             ("goal_key", goal_key),
             ("achieved_goal_key", achieved_goal_key),
+            ("curriculum_key", curriculum_key),
         )
     }
     with torch.no_grad():
@@ -265,6 +284,7 @@ def _statistics(
                 "episode_statistics: goal_key and achieved_goal_key hold different sizes per frame "
                 f"({list(goals[0].shape[1:])} and {list(goals[1].shape[1:])})"
             )
+    schedule = {} if keys["curriculum_key"] is None else _schedule(frames, keys["curriculum_key"])
     device = done.device
 
     # ------------------------------------------------------------- episode id of every frame
@@ -296,6 +316,7 @@ def _statistics(
     stats: dict[str, float] = {"episodes": float(n_ended)}
     if n_ended == 0:
         stats["complete_episodes"] = 0.0
+        stats.update(_floats(schedule))
         return stats
 
     frames_per_episode = torch.bincount(ids, minlength=slots)
@@ -339,13 +360,54 @@ def _statistics(
         goal, achieved = (value[ends].to(torch.float64) for value in goals)
         results["final_goal_distance_mean"] = torch.linalg.vector_norm(goal - achieved, dim=-1).mean()
 
-    values = torch.stack(list(results.values())).tolist() if results else []  # one device-to-host copy
-    stats.update(zip(results, values, strict=True))
+    results.update(schedule)
+    stats.update(_floats(results))
     return stats
+
+
+def _floats(results: dict[str, torch.Tensor]) -> dict[str, float]:
+    """0-d tensors as plain floats, with one device-to-host copy."""
+    values = torch.stack([value.to(torch.float64) for value in results.values()]).tolist() if results else []
+    return dict(zip(results, values, strict=True))
 
 
 def _mean(values: torch.Tensor) -> torch.Tensor:
     return values.to(torch.float64).mean()
+
+
+def _schedule(frames: _Frames, key: tuple[str, ...]) -> dict[str, torch.Tensor]:
+    """The Curriculum's entries ``("next", *key, ...)`` at the latest frame as ``curriculum/<name>``; {} if none."""
+    entries = frames.batch.get(("next", *key), None)
+    if entries is None or frames.count == 0:
+        return {}
+    if not isinstance(entries, TensorDictBase):
+        raise TypeError(
+            f"episode_statistics: ('next', *{key!r}) must hold a Curriculum's entries (a TensorDict); pass the "
+            "Curriculum's curriculum_key, or curriculum_key=None"
+        )
+    names = [(name,) if isinstance(name, str) else tuple(name) for name in entries.keys(True, True)]
+    if frames.time_dim is not None:  # the last frame of every row
+        latest = torch.arange(frames.rows) * frames.steps + frames.steps - 1
+    else:  # flat: the frames with the largest frame count
+        count = frames.get((*key, CURRICULUM_FRAMES))
+        if count is None:
+            raise KeyError(
+                f"episode_statistics: a flat batch needs the Curriculum's frame count ('next', *{key!r}, "
+                f"{CURRICULUM_FRAMES!r}) to find its latest frame"
+            )
+        count = count.reshape(frames.count, -1)[:, 0]
+        latest = torch.nonzero(count == count.max()).squeeze(-1)
+    schedule: dict[str, torch.Tensor] = {}
+    for name in names:
+        value = frames.get((*key, *name))
+        value = value[latest.to(value.device)]
+        value = value.to(torch.float64).mean(0).reshape(-1)  # mean over the envs, then one value per entry
+        stat = CURRICULUM_PREFIX + "/".join(name)
+        if value.numel() == 1:
+            schedule[stat] = value[0]
+        else:
+            schedule.update((f"{stat}/{i}", entry) for i, entry in enumerate(value))
+    return schedule
 
 
 def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where: str) -> torch.Tensor:

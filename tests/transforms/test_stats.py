@@ -23,6 +23,7 @@ from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter, Transform
 from torchrl.record import CSVLogger
 
 from torchtasks.commands import GoalCommand
+from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import CompoundReward, ConstantReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
@@ -491,6 +492,112 @@ def test_keys_and_arguments(data: TensorDictBase) -> None:
     two_rewards["next", "reward"] = two_rewards["next", "reward"].expand(8, 40, 2).clone()
     with pytest.raises(ValueError, match="one value per frame"):
         episode_statistics(two_rewards)
+
+
+# --------------------------------------------------------------------------------------------------
+# The curriculum's scheduled values at the end of the batch
+# --------------------------------------------------------------------------------------------------
+
+EFFORT_R = "wrapped_task.reward.rewards.effort.R"  # [1] buffer, scalar schedule
+TRACK_Q = "wrapped_task.reward.rewards.track.Q"  # [2] buffer, tensor schedule
+R_RAMP = (0.0, 0.02, 40, 440)  # start_value, end_value, start_frame, end_frame
+Q_RAMP = ((1.0, 0.1), (3.0, 0.5), 0, 1000)
+
+
+def make_curriculum(**kwargs) -> Curriculum:
+    return Curriculum(
+        {
+            EFFORT_R: linear(R_RAMP[0], R_RAMP[1], start_frame=R_RAMP[2], end_frame=R_RAMP[3]),
+            TRACK_Q: linear(list(Q_RAMP[0]), list(Q_RAMP[1]), start_frame=Q_RAMP[2], end_frame=Q_RAMP[3]),
+        },
+        **kwargs,
+    )
+
+
+def ramp(frames: int, start, end, first: int, last: int) -> float:
+    """The linear schedule's formula in plain Python: clamped interpolation."""
+    fraction = min(max((frames - first) / (last - first), 0.0), 1.0)
+    return start + (end - start) * fraction
+
+
+def expected_schedule(frames: int) -> dict[str, float]:
+    """The values at ``frames`` in the buffers' dtype: the TaskTransform casts the task to the env's float32."""
+    q = [ramp(frames, start, end, *Q_RAMP[2:]) for start, end in zip(*Q_RAMP[:2], strict=True)]
+    values = {
+        "curriculum/wrapped_task/reward/rewards/effort/R": ramp(frames, *R_RAMP),
+        "curriculum/wrapped_task/reward/rewards/track/Q/0": q[0],
+        "curriculum/wrapped_task/reward/rewards/track/Q/1": q[1],
+    }
+    return {"curriculum/frames": float(frames)} | {
+        name: torch.tensor(value, dtype=torch.float32).item() for name, value in values.items()
+    }
+
+
+def without_curriculum(data: TensorDictBase, key=("curriculum",)) -> TensorDictBase:
+    return data.exclude(key, ("next", *key))
+
+
+def test_curriculum_values_of_a_rollout(data: TensorDictBase) -> None:
+    scheduled = rollout((8,), 40, make_curriculum())
+    assert int(scheduled["next", "curriculum", "frames"][0, -1]) == 8 * 40
+    assert (scheduled["next", "reward"] != data["next", "reward"]).any()  # the schedule changed the rewards
+    stats = episode_statistics(scheduled)
+    bare = episode_statistics(without_curriculum(scheduled))
+    assert not any(key.startswith("curriculum/") for key in bare)
+    assert_same(bare, reference_statistics(scheduled))
+    assert_same(stats, {**bare, **expected_schedule(8 * 40)})
+    assert list(stats)[: len(bare)] == list(bare)  # the scheduled values come after the episode statistics
+    assert 0.0 < stats["curriculum/wrapped_task/reward/rewards/effort/R"] < R_RAMP[1]  # mid-ramp: not clamped
+    assert episode_statistics(scheduled, curriculum_key=None) == bare
+    # the end of a shorter stretch of the same data: the value at that frame count
+    head = scheduled[:, :13]
+    assert_same(episode_statistics(head), {**episode_statistics(without_curriculum(head)), **expected_schedule(8 * 13)})
+    # several env dims, time first
+    grid = rollout((2, 3), 30, make_curriculum())
+    assert_same(episode_statistics(grid), {**reference_statistics(grid), **expected_schedule(6 * 30)})
+    time_first = scheduled.permute(1, 0).contiguous()
+    assert_same(episode_statistics(time_first, time_dim=0), stats)
+    # no episode ended: the schedule is still reported
+    quiet = scheduled[:, :1][~scheduled[:, :1]["next", "done"][:, 0, 0]]
+    assert episode_statistics(quiet) == {"episodes": 0.0, "complete_episodes": 0.0, **expected_schedule(8)}
+
+
+def test_curriculum_values_of_collector_batches() -> None:
+    threads = torch.get_num_threads()
+    torch.manual_seed(2)
+    env = functools.partial(make_env, (8,), InitTracker(), make_curriculum())
+    collector = Collector(env, None, frames_per_batch=40, total_frames=320)
+    try:
+        batches = [batch.clone() for batch in collector]
+    finally:
+        collector.shutdown()
+        torch.set_num_threads(threads)
+    assert len(batches) == 8
+    for index, batch in enumerate(batches, start=1):
+        frames = 40 * index  # frames collected at the end of the batch
+        assert (batch["next", "curriculum", "frames"][:, -1] == frames).all()
+        stats = episode_statistics(batch)
+        assert_same(stats, {**reference_statistics(batch), **expected_schedule(frames)})
+        flat = batch.reshape(-1)  # grouped by trajectory ids; the latest frames have the largest count
+        assert_same(episode_statistics(flat), stats)
+        assert_same(episode_statistics(flat.flip(0)), stats)
+
+
+def test_curriculum_key_and_entries(data: TensorDictBase) -> None:
+    scheduled = rollout((4,), 12, make_curriculum(curriculum_key=("schedule", "values")))
+    bare = episode_statistics(without_curriculum(scheduled, ("schedule",)))
+    assert episode_statistics(scheduled) == bare  # the default key finds nothing: unchanged output
+    stats = episode_statistics(scheduled, curriculum_key=("schedule", "values"))
+    assert_same(stats, {**bare, **expected_schedule(4 * 12)})
+    assert all(type(value) is float for value in stats.values())
+    with pytest.raises(TypeError, match="Curriculum's entries"):
+        episode_statistics(data, curriculum_key="reward")
+    with pytest.raises(TypeError, match="key"):
+        episode_statistics(data, curriculum_key=3)
+    flat = scheduled.reshape(-1).exclude(("next", "schedule", "values", "frames"))
+    flat["collector", "traj_ids"] = torch.zeros(flat.shape[0], dtype=torch.long)
+    with pytest.raises(KeyError, match="frame count"):
+        episode_statistics(flat[:5], curriculum_key=("schedule", "values"))
 
 
 # --------------------------------------------------------------------------------------------------
