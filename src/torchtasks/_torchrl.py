@@ -10,6 +10,7 @@ e.g. the :class:`~torchtasks.transforms.TaskTransform`\\ s of an env, filters
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Iterable
 from typing import Any
 
@@ -66,6 +67,7 @@ class EnvDerivedTransform(Transform):
     Subclasses implement :meth:`_forget_setup` (drop the cached facts); moving the transform into another
     container, re-parenting it or cloning it (TorchRL clones the transforms before a transform to build
     that transform's ``parent`` env) calls it, so the next spec building or step derives them anew.
+    :meth:`home_transforms` finds the transforms of the env the transform works in, also from such a clone.
     """
 
     def _forget_setup(self) -> None:
@@ -82,4 +84,27 @@ class EnvDerivedTransform(Transform):
     def clone(self) -> EnvDerivedTransform:
         copy = super().clone()
         copy._forget_setup()
+        # a clone in a later transform's parent env (TorchRL's partial view of the env) sees none of the transforms
+        # after it; home_transforms answers for the transform it was cloned from
+        copy.__dict__["_original"] = weakref.ref(self)
         return copy
+
+    def home_transforms(self) -> tuple[list[Transform], int] | None:
+        """The leaf transforms of the env this transform works in and its index among them; ``None`` outside an env.
+
+        For a clone that is the last transform of its env (TorchRL's ``parent`` view built for a later
+        transform), the answer of the transform it was cloned from, whose env also holds the later transforms.
+        """
+        env = container_env(self)
+        transform = getattr(env, "transform", None)
+        if transform is None:
+            return None
+        flat = flat_transforms(transform)
+        position = next(i for i, t in enumerate(flat) if t is self)
+        original = self.__dict__.get("_original")
+        source = None if original is None else original()
+        if source is not None and source is not self and position == len(flat) - 1:
+            home = source.home_transforms()
+            if home is not None:
+                return home
+        return flat, position

@@ -29,6 +29,8 @@ EPISODE_SUM_PREFIX = "episode_"
 CURRICULUM_FRAMES = "frames"
 #: prefix of the scheduled values in the returned dict
 CURRICULUM_PREFIX = "curriculum/"
+#: the per-env levels of a DifficultyLevels, under its curriculum_key
+CURRICULUM_LEVEL = "level"
 
 
 class _Frames:
@@ -199,6 +201,10 @@ def episode_statistics(
       ``time_dim`` (flat layout: the frames with the largest frame count); the values are means over
       those frames, i.e. over the envs, which hold the same values when they share one Curriculum.
       Data without the entries give none of these keys.
+    - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
+      :class:`~torchtasks.levels.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
+      at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
+      for ``k`` from 0 to the highest level reached.
 
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
@@ -401,13 +407,26 @@ def _schedule(frames: _Frames, key: tuple[str, ...]) -> dict[str, torch.Tensor]:
     for name in names:
         value = frames.get((*key, *name))
         value = value[latest.to(value.device)]
-        value = value.to(torch.float64).mean(0).reshape(-1)  # mean over the envs, then one value per entry
         stat = CURRICULUM_PREFIX + "/".join(name)
+        if name == (CURRICULUM_LEVEL,) and not value.is_floating_point():  # DifficultyLevels: one level per env
+            schedule.update(_level_stats(value.reshape(-1), stat))
+            continue
+        value = value.to(torch.float64).mean(0).reshape(-1)  # mean over the envs, then one value per entry
         if value.numel() == 1:
             schedule[stat] = value[0]
         else:
             schedule.update((f"{stat}/{i}", entry) for i, entry in enumerate(value))
     return schedule
+
+
+def _level_stats(levels: torch.Tensor, stat: str) -> dict[str, torch.Tensor]:
+    """Per-env levels (int ``[N]``) as their mean (``stat``) and the fraction of envs at each level up to the highest
+    (``stat + "_fraction/<k>"``)."""
+    counts = torch.bincount(levels.cpu())
+    fractions = counts.to(torch.float64) / levels.numel()
+    result = {stat: levels.to(torch.float64).mean()}
+    result.update((f"{stat}_fraction/{k}", fraction) for k, fraction in enumerate(fractions))
+    return result
 
 
 def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where: str) -> torch.Tensor:
