@@ -32,3 +32,18 @@ def _restore_torch_threads(request: pytest.FixtureRequest):
     if request.node.get_closest_marker("multiprocess") is not None:
         gc.collect()
     torch.set_num_threads(threads)
+
+
+@pytest.fixture
+def fork_start_method():
+    """Start worker processes by fork (seconds instead of tens of seconds per spawned worker on this machine).
+
+    The constructors the tests hand to workers are module-level functions of the shared helpers, so they are
+    spawn-safe too (``transforms/test_transform_collectors.py::test_parallel_env_spawn`` checks one).
+    """
+    import multiprocessing as mp
+
+    previous = mp.get_start_method(allow_none=True)
+    mp.set_start_method("fork", force=True)
+    yield
+    mp.set_start_method(previous, force=True)

@@ -11,8 +11,8 @@ import functools
 import pytest
 import torch
 from tensordict import TensorDictBase
-from torchrl.collectors import Collector
-from torchrl.envs import Compose, StepCounter, TransformedEnv
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.envs import Compose, ParallelEnv, StepCounter, TransformedEnv
 
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, linear
@@ -233,3 +233,31 @@ def test_placement_and_ownership_are_checked():
     scheduled = Curriculum({"command.low": linear(-0.1, -1.0, 0, 100)})
     with pytest.raises(ValueError, match="a buffer has one owner"):
         _goal_env(DifficultyLevels(2, {"command.low": [[-0.1], [-1.0]]}), curriculum=scheduled).reset()
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+def test_levels_in_parallel_env_workers_follow_their_own_episodes(fork_start_method):
+    env = ParallelEnv(2, functools.partial(make_walk_env, 4))
+    collector = Collector(env, random_walk_policy, frames_per_batch=8 * 25, total_frames=8 * 50)
+    torch.manual_seed(8)
+    try:
+        batches = [batch.clone() for batch in collector]
+    finally:
+        collector.shutdown()
+    data = torch.cat(batches, -1)  # [workers, envs, time]: each row one env's frames in order
+    _check_levels(data, torch.zeros(2, 4, dtype=torch.int64))
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+def test_levels_in_multi_sync_collector_workers_follow_their_own_episodes(fork_start_method):
+    collector = MultiSyncCollector(
+        [functools.partial(make_walk_env, 4)] * 2, random_walk_policy, frames_per_batch=8 * 25, total_frames=8 * 50
+    )
+    try:
+        batches = [batch.clone() for batch in collector]
+    finally:
+        collector.shutdown()
+    data = torch.cat([batch.reshape(8, -1) for batch in batches], -1)
+    _check_levels(data, torch.zeros(8, dtype=torch.int64))
