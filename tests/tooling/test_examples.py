@@ -150,3 +150,33 @@ def test_goal_reaching(tmp_path: Path) -> None:
         assert all(0.0 <= point["eval_success_rate"] <= 1.0 for point in run["curve"])
         assert variant["frames_to_target"] == [run["frames_to_target"]]
     assert (output / "goal_reaching.png").stat().st_size > 0
+
+
+def test_curriculum_reaching(tmp_path: Path) -> None:
+    out = run_example("curriculum_reaching.py", tmp_path)
+    output = tmp_path / "runs" / "curriculum_reaching"  # the default --output
+    for variant in ("curriculum", "baseline"):
+        assert re.search(rf"^{variant}, seed 0: 80% (after [\d,]+ frames|not reached)", out, re.MULTILINE)
+    experiment = json.loads((output / "curriculum_reaching.json").read_text())
+    assert set(experiment["variants"]) == {"curriculum", "baseline"}
+    budget = experiment["config"]["total_frames"]
+    batches = budget // (experiment["config"]["num_envs"] * experiment["config"]["rollout_steps"])
+    runs = {variant: run for variant, (run,) in experiment["variants"].items()}  # one seed each
+    for run in runs.values():
+        assert run["seed"] == 0 and run["total_frames"] == budget
+        frames = [point["frames"] for point in run["curve"]]
+        assert frames[0] == 0 and frames[-1] == budget and frames == sorted(frames)
+        assert all(0.0 <= point["eval_success_rate"] <= 1.0 for point in run["curve"])
+        assert len(run["train_curve"]) == batches
+    # the same evaluation set: the two runs start from the same policy (seed 0) and score the same at frame 0
+    assert runs["curriculum"]["curve"][0] == runs["baseline"]["curve"][0]
+    # the curriculum's effort weight ramps to the full weight by ramp_frames; the baseline has it from the start
+    full, ramp = experiment["env"]["effort_weight"], experiment["config"]["ramp_frames"]
+    for point in runs["curriculum"]["train_curve"]:
+        assert point["effort_weight"] == pytest.approx(full * min(1.0, point["frames"] / ramp), rel=1e-5)
+        assert len(point["level_fractions"]) == len(experiment["env"]["goal_half_widths"])
+        assert sum(point["level_fractions"]) == pytest.approx(1.0)
+    assert all(point["effort_weight"] == full for point in runs["baseline"]["train_curve"])
+    assert "level_fractions" not in runs["baseline"]["train_curve"][0]
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "curriculum_reaching.png").stat().st_size > 0
