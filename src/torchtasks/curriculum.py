@@ -15,11 +15,12 @@ restores them on resume.
 
 from __future__ import annotations
 
+import bisect
 import weakref
-from collections.abc import Mapping, Sequence
+from collections.abc import Hashable, Mapping, Sequence
 
 import torch
-from tensordict import TensorDictBase
+from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Composite, Unbounded
@@ -89,6 +90,27 @@ class Schedule(nn.Module):
     def observe(self, done: torch.Tensor, metric: torch.Tensor) -> None:
         """Take note of the episodes that ended in a step (``done`` bool ``[*B]``, ``metric`` ``[*B]``); no-op here."""
 
+    # A frame-driven schedule can also be evaluated on the host, from a Python int frame count (a host fact:
+    # the Curriculum counts batch sizes), so that the Curriculum writes its buffer and entry only when the value
+    # changes. Both hooks give what forward() gives, bit for bit. A schedule that also follows tensor state
+    # (GatedSchedule) keeps the default: None, evaluate forward() every step.
+    def _state_at(self, frames: int) -> Hashable | None:
+        """A host fact that fixes the value at ``frames`` (equal facts: equal values), or ``None`` (tensor state)."""
+        return None
+
+    def _value_of(self, state: Hashable) -> torch.Tensor | float:
+        """The value for a :meth:`_state_at` fact: a Python float for a scalar schedule, else a float64 tensor."""
+        raise NotImplementedError
+
+    def _host_copy(self, name: str) -> float | list:
+        """``self.<name>.tolist()``, cached until that buffer is replaced or written to (a host copy taken once)."""
+        buffer = self._buffers[name]
+        cache = self.__dict__.setdefault("_host_copies", {})
+        cached = cache.get(name)
+        if cached is None or cached[0] is not buffer or cached[1] != buffer._version:
+            cached = cache[name] = (buffer, buffer._version, buffer.tolist())
+        return cached[2]
+
 
 class _Constant(Schedule):
     def __init__(self, value: object) -> None:
@@ -101,6 +123,12 @@ class _Constant(Schedule):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         return self.value
+
+    def _state_at(self, frames: int) -> Hashable:
+        return 0
+
+    def _value_of(self, state: Hashable) -> torch.Tensor | float:
+        return self._host_copy("value") if self.value.dim() == 0 else self.value
 
     def extra_repr(self) -> str:
         return f"value={self.value.tolist()}"
@@ -130,6 +158,19 @@ class _Linear(Schedule):
             )
         return self.start_value + fraction * (self.end_value - self.start_value)
 
+    def _state_at(self, frames: int) -> Hashable:
+        # the fraction of forward() in Python floats: an int64 count below 2**53 converts exactly, and the
+        # division and the clamp round as torch's float64 ops do
+        if self.end_frame == self.start_frame:
+            return float(frames >= self.start_frame)
+        return min(max((frames - self.start_frame) / (self.end_frame - self.start_frame), 0.0), 1.0)
+
+    def _value_of(self, state: Hashable) -> torch.Tensor | float:
+        if self.start_value.dim() == 0:  # forward()'s three float64 ops, in its order, on the host
+            start, end = self._host_copy("start_value"), self._host_copy("end_value")
+            return start + state * (end - start)
+        return self.start_value + state * (self.end_value - self.start_value)
+
     def extra_repr(self) -> str:
         return (
             f"start_value={self.start_value.tolist()}, end_value={self.end_value.tolist()}, "
@@ -155,6 +196,12 @@ class _Staged(Schedule):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         index = (frames >= self.boundaries).sum() - 1  # >= 0: the first boundary is 0 and frames >= 0
         return self.values[index]
+
+    def _state_at(self, frames: int) -> Hashable:
+        return bisect.bisect_right(self._host_copy("boundaries"), frames) - 1
+
+    def _value_of(self, state: Hashable) -> torch.Tensor | float:
+        return self._host_copy("values")[state] if self.values.dim() == 1 else self.values[state]
 
     def extra_repr(self) -> str:
         return f"boundaries={self.boundaries.tolist()}"
@@ -344,11 +391,14 @@ class Curriculum(EnvDerivedTransform):
     every stage value of a gated schedule against every value the other bound can take).
 
     At every step the frame counter grows by the env's batch size (frames follow the steps of all
-    envs, not their resets), gated schedules take note of the episodes that ended, and every
-    schedule's value at the new count is written into its buffer (``buffer.copy_(value)``), where
-    the next step's reward reads it. At reset the values of the current count are written too. Under
-    grad mode (a differentiable ``env.rollout``; collectors run under ``no_grad``) the buffer gets a new
-    tensor instead, so that the autograd graph of earlier steps keeps the values it was built with.
+    envs, not their resets), gated schedules take note of the episodes that ended, and
+    every schedule's value at the new count is written into its buffer (``buffer.copy_(value)``),
+    where the next step's reward reads it. At reset the values of the current count are written too.
+    Constant, linear and staged schedules are evaluated on the host from the count (a sum of batch
+    sizes); their buffer and entry are written again only when the value changes (the same entry tensor
+    goes into the data meanwhile, never written into afterwards). Under grad mode (a differentiable
+    ``env.rollout``; collectors run under ``no_grad``) a new value goes into a new tensor put in the
+    buffer's place instead, so that the autograd graph of earlier steps keeps the values it was built with.
     A buffer the task reads only at reset (a desired state, copied into the episode memory) changes
     each env's task at its next reset; a fact the task derives once at construction (whether its state
     bounds are all infinite) does not follow a scheduled bound.
@@ -407,6 +457,53 @@ class Curriculum(EnvDerivedTransform):
         self._metric_keys = metrics
         self.schedules = nn.ModuleList(schedules.values())
         self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
+        # construction-time facts for the step (plain attributes: a submodule's lookup costs ~1 µs a step): per
+        # target its entry's name and shape and its schedule, and the schedules that observe episodes
+        self.__dict__["_plan"] = [
+            (name, s.value_shape if s.value_shape != torch.Size(()) else torch.Size([1]), s)
+            for name, s in zip(entries, self.schedules, strict=True)
+        ]
+        self.__dict__["_observing"] = [s for s in self.schedules if s.metric_key is not None]
+        self._forget_written()
+
+    # ------------------------------------------------------------------ host mirrors
+    # The hot path keeps two kinds of host facts beside the registered state. The frame count as a Python int
+    # (``_count_of``): the sum of batch sizes the ``frames`` buffer also adds, kept with that buffer's identity
+    # and version counter, so that any other write to the buffer (load_state_dict, .to(), a user's fill_)
+    # is noticed and the mirror re-read from it. And per target what was written last (``_written``): the
+    # schedule's host state (a frame-driven schedule's fraction or stage), the buffer and its version after
+    # the write, and the entry tensor put in the data. When the state, the buffer and the entry are as they
+    # were, the value is the same: the buffer is not written again and the same entry tensor goes into the
+    # step's data. That entry is never written into afterwards (a changed value gets a new tensor), so the
+    # data of earlier steps that hold it, e.g. until env.rollout stacks them, keep their values.
+    def _forget_written(self) -> None:
+        self.__dict__["_written"] = [None] * len(self.targets)
+        self.__dict__["_count_of"] = None  # (frames buffer, its version, count)
+
+    def _frame_count(self) -> int:
+        """The frame count as a Python int, re-read from the ``frames`` buffer if anything but this wrote to it."""
+        frames = self._buffers["frames"]
+        mirror = self.__dict__["_count_of"]
+        if mirror is not None and mirror[0] is frames and mirror[1] == frames._version:
+            return mirror[2]
+        count = int(frames)  # a host copy: once after a load or a move, never in a step of a running collection
+        self.__dict__["_count_of"] = (frames, frames._version, count)
+        return count
+
+    def _add_frames(self, added: int) -> int:
+        count = self._frame_count() + added
+        frames = self._buffers["frames"]
+        frames.fill_(count)
+        self.__dict__["_count_of"] = (frames, frames._version, count)
+        return count
+
+    def _load_from_state_dict(self, *args, **kwargs) -> None:
+        super()._load_from_state_dict(*args, **kwargs)
+        self._forget_written()  # the schedules' parameters may change with it (loaded after this call)
+
+    def _apply(self, fn, *args, **kwargs):
+        self._forget_written()
+        return super()._apply(fn, *args, **kwargs)
 
     # ------------------------------------------------------------------ setup
     def _flat(self) -> tuple[list[Transform], int]:
@@ -502,6 +599,7 @@ class Curriculum(EnvDerivedTransform):
             slots.append((module, leaf))
         self._check_ranges(slots)
         self.__dict__["_slots"] = slots
+        self._forget_written()
         return slots
 
     def _check_ranges(self, slots: list[tuple[nn.Module, str]]) -> None:
@@ -562,6 +660,7 @@ class Curriculum(EnvDerivedTransform):
 
     def _forget_setup(self) -> None:
         self.__dict__.pop("_slots", None)
+        self._forget_written()
 
     def clone(self) -> Curriculum:
         copy = super().clone()
@@ -588,44 +687,93 @@ class Curriculum(EnvDerivedTransform):
         return observation_spec
 
     # ------------------------------------------------------------------ TorchRL hooks
-    def _write(self, tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
-        """Write every schedule's value at the current count into its buffer and into ``tensordict``.
+    def _write(self, tensordict: TensorDictBase, count: int, replace: bool) -> TensorDictBase:
+        """Write every schedule's value at ``count`` frames into its buffer and into ``tensordict``.
 
         ``replace``: put a new tensor in the buffer's place instead of writing into it, so that the autograd
         graph of earlier steps (a differentiable ``env.rollout`` under grad mode) keeps the values it saved.
+        A frame-driven schedule is evaluated on the host; its buffer and entry are written only when its value
+        changed (see :meth:`_forget_written`). A gated schedule is evaluated and written every step.
         """
         batch = tensordict.batch_size
-        frames = self.frames
-        td_set(tensordict, self._frames_key, frames.expand(*batch, 1).clone())
-        for key, (module, leaf), schedule in zip(self._value_keys, self._get_slots(), self.schedules, strict=True):
+        frames = self._buffers["frames"]
+        entries = {FRAMES: torch.full((*batch, 1), count, dtype=torch.int64, device=frames.device)}
+        slots = self.__dict__.get("_slots")
+        if slots is None:
+            slots = self._resolve()
+        written = self.__dict__["_written"]
+        for i, ((name, shape, schedule), (module, leaf)) in enumerate(zip(self.__dict__["_plan"], slots, strict=True)):
             buffer = module._buffers[leaf]
-            value = schedule(frames)
-            if value.dtype != buffer.dtype or value.device != buffer.device:
-                value = value.to(device=buffer.device, dtype=buffer.dtype)
-            if replace:
-                module._buffers[leaf] = value.expand_as(buffer).clone()
+            state = schedule._state_at(count)
+            last = written[i]
+            if (
+                state is not None
+                and last is not None
+                and last[0] == state
+                and last[1] is buffer
+                and last[2] == buffer._version
+                and last[3]._version == last[4]
+                and last[5] == batch
+            ):
+                entries[name] = last[3]  # the same value: the entry of the last write
+                continue
+            value = schedule(frames) if state is None else schedule._value_of(state)
+            if isinstance(value, float):  # a scalar frame-driven value, on the host
+                if replace:
+                    buffer = module._buffers[leaf] = torch.full_like(buffer, value)
+                else:
+                    buffer.fill_(value)
+                entry = torch.full((*batch, 1), value, dtype=buffer.dtype, device=buffer.device)
             else:
-                buffer.copy_(value)
-            shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
-            td_set(tensordict, key, value.expand(*batch, *shape).clone())
+                if value.dtype != buffer.dtype or value.device != buffer.device:
+                    value = value.to(device=buffer.device, dtype=buffer.dtype)
+                if replace:
+                    buffer = module._buffers[leaf] = value.expand_as(buffer).clone()
+                else:
+                    buffer.copy_(value)
+                entry = value.expand(*batch, *shape).clone()
+            entries[name] = entry
+            written[i] = None if state is None else (state, buffer, buffer._version, entry, entry._version, batch)
+        self._put(tensordict, entries)
         return tensordict
 
+    def _put(self, tensordict: TensorDictBase, entries: dict[str, torch.Tensor]) -> None:
+        """Set ``entries`` under ``curriculum_key`` (one new sub-TensorDict when there is none yet: the usual case)."""
+        prefix = key_parts(self.curriculum_key)
+        if (
+            type(tensordict) is TensorDict
+            and len(prefix) == 1
+            and not tensordict._has_names()
+            and tensordict._get_str(prefix[0], None) is None
+        ):
+            node = TensorDict._new_unsafe(entries, batch_size=tensordict.batch_size, device=tensordict.device)
+            tensordict._set_str(prefix[0], node, inplace=False, validated=True)
+            return
+        for name, value in entries.items():
+            td_set(tensordict, (*prefix, name), value)
+
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
-        replace = torch.is_grad_enabled()
-        with torch.no_grad():
-            return self._write(tensordict_reset, replace)
+        if torch.is_grad_enabled():  # a host fact: collectors run under no_grad, a differentiable rollout not
+            with torch.no_grad():
+                return self._write(tensordict_reset, self._frame_count(), replace=True)
+        return self._write(tensordict_reset, self._frame_count(), replace=False)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
-        replace = torch.is_grad_enabled()  # a host fact: collectors run under no_grad, a differentiable rollout not
-        with torch.no_grad():
-            self.frames.add_(next_tensordict.batch_size.numel())
+        if torch.is_grad_enabled():
+            with torch.no_grad():
+                return self._advance(next_tensordict, replace=True)
+        return self._advance(next_tensordict, replace=False)
+
+    def _advance(self, next_tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
+        count = self._add_frames(next_tensordict.batch_size.numel())
+        observing = self.__dict__["_observing"]
+        if observing:
             done = next_tensordict.get("done", None)
-            for schedule in self.schedules:
-                if schedule.metric_key is not None:
-                    if done is None:
-                        raise KeyError("Curriculum: a gated schedule needs the 'done' flags of the step")
-                    schedule.observe(done, next_tensordict.get(schedule.metric_key))
-            return self._write(next_tensordict, replace)
+            if done is None:
+                raise KeyError("Curriculum: a gated schedule needs the 'done' flags of the step")
+            for schedule in observing:
+                schedule.observe(done, next_tensordict.get(schedule.metric_key))
+        return self._write(next_tensordict, count, replace)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Leave stored data as it is: a curriculum follows the collection, not replayed transitions."""

@@ -1,7 +1,8 @@
 """Curriculum: schedules against hand-computed values at their boundaries; frames follow the steps of all envs, not
 their resets (IsaacLab #2079); a scheduled buffer really changes the reward; a gated stage advances only once the
 success average passes its threshold; misspelt targets and wrong shapes are refused at set-up; the counters survive
-state_dict and a Collector checkpoint (resume continues exactly)."""
+state_dict and a Collector checkpoint (resume continues exactly); the host-evaluated step gives forward()'s values
+bit for bit and never changes the data of earlier steps."""
 
 from __future__ import annotations
 
@@ -34,11 +35,21 @@ def weighted_task(success_threshold: float = 0.1) -> FinalRewardTask:
     return FinalRewardTask(DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], reward, near), factor=10.0)
 
 
-def make_env(schedules, *, task=None, max_steps: int = 1000, batch: int = BATCH, seed: int = 0) -> TransformedEnv:
+def make_env(
+    schedules,
+    *,
+    task=None,
+    max_steps: int = 1000,
+    batch: int = BATCH,
+    seed: int = 0,
+    dtype: torch.dtype = torch.float32,
+) -> TransformedEnv:
     return TransformedEnv(
-        PendulumEnv(batch_size=[batch], seed=seed),
+        PendulumEnv(batch_size=[batch], seed=seed, dtype=dtype),
         Compose(
-            StepCounter(max_steps), TaskTransform(task if task is not None else weighted_task()), Curriculum(schedules)
+            StepCounter(max_steps),
+            TaskTransform(task if task is not None else weighted_task()),
+            Curriculum(schedules),
         ),
     )
 
@@ -316,6 +327,75 @@ def test_a_collector_checkpoint_resumes_the_curriculum():
     assert int(expected["next", "curriculum", "frames"].max()) == 13 * 4 * BATCH
     running.shutdown()
     fresh.shutdown()
+
+
+# ------------------------------------------------------------------------------------------ the cheap step
+def test_the_host_evaluated_values_are_forwards_bit_for_bit():
+    """Frame-driven schedules are evaluated on the host in a step: in a float64 env every entry and the buffers equal
+    forward() at the entry's frame count exactly, on counts that round (a batch of 7, ramps over odd spans)."""
+    track_q = "wrapped_task.reward.rewards.track.Q"
+    schedules = {
+        WEIGHT: linear(0.1, 0.7, start_frame=3, end_frame=1001),
+        "success_value": staged({0: 0.3, 50: 1.0 / 3.0, 100: 2.0 / 7.0}),
+        track_q: linear([1.0, 0.1], [1.0 / 3.0, 0.7], 10, 10 + 7 * 11),
+        "wrapped_task.state_des": constant([0.1, -0.2]),
+        "failure_value": linear(0.0, -1.0, 70, 70),  # a step at frame 70
+    }
+    env = make_env(schedules, batch=7, dtype=torch.float64)
+    data = env.rollout(30, policy())
+    counts = data["next", "curriculum", "frames"][0, :, 0]
+    assert torch.equal(counts, torch.arange(1, 31) * 7)
+    for target, schedule in schedules.items():
+        name = target.replace(".", "/")
+        for t, count in enumerate(counts.tolist()):
+            expected = schedule(frames(count)).expand(data["next", "curriculum", name].shape[2:])
+            assert torch.equal(data["next", "curriculum", name][:, t], expected.expand(7, *expected.shape)), (target, t)
+        buffer = env.transform[1].task.get_buffer(target)
+        assert torch.equal(buffer, schedule(frames(30 * 7)).expand_as(buffer)), target
+
+
+def test_whatever_else_writes_the_counter_or_a_buffer_is_written_over():
+    """A write by anyone else (a user's fill_, load_state_dict) into the frame counter, a scheduled buffer or a
+    schedule's parameters is noticed: the next step counts on from the buffer and writes the schedule's value."""
+    env = make_env({WEIGHT: constant(0.5)})
+    curriculum, task = env.transform[-1], env.transform[1].task
+    td = env.reset()
+    td = env.step_and_maybe_reset(policy()(td))[1]
+    task.get_buffer(WEIGHT).fill_(3.0)
+    data, td = env.step_and_maybe_reset(policy()(td))
+    assert float(task.get_buffer(WEIGHT)) == 0.5 and bool(
+        (data["next", "curriculum", WEIGHT.replace(".", "/")] == 0.5).all()
+    )
+    curriculum.frames.fill_(1000)
+    data, td = env.step_and_maybe_reset(policy()(td))
+    assert bool((data["next", "curriculum", "frames"] == 1000 + BATCH).all())
+    state = curriculum.state_dict()
+    state["frames"] = torch.tensor(5000)
+    state["schedules.0.value"] = torch.tensor(0.25, dtype=torch.float64)  # a different constant, same host state
+    curriculum.load_state_dict(state)
+    data, td = env.step_and_maybe_reset(policy()(td))
+    assert bool((data["next", "curriculum", "frames"] == 5000 + BATCH).all())
+    assert float(task.get_buffer(WEIGHT)) == 0.25 and bool(
+        (data["next", "curriculum", WEIGHT.replace(".", "/")] == 0.25).all()
+    )
+
+
+def test_entries_of_earlier_steps_keep_their_values():
+    """An unchanged value puts the same entry tensor in the data (no new tensor per step); a new value gets a new
+    tensor, so the data of earlier steps, held until the end (as env.rollout does), keep theirs; an entry someone
+    wrote into is not handed out again."""
+    env = make_env({"success_value": staged({0: 1.0, 3 * BATCH: 2.0})})
+    td = env.reset()
+    steps = []
+    for _ in range(5):
+        data, td = env.step_and_maybe_reset(policy()(td))
+        steps.append(data)
+    key = ("next", "curriculum", "success_value")
+    assert [float(step[key][0, 0]) for step in steps] == [1.0, 1.0, 2.0, 2.0, 2.0]
+    assert steps[0][key] is steps[1][key] and steps[2][key] is steps[4][key]
+    steps[4][key].zero_()  # a user writes into the entry of the last step
+    data, td = env.step_and_maybe_reset(policy()(td))
+    assert bool((data[key] == 2.0).all()) and float(steps[1][key][0, 0]) == 1.0
 
 
 # ------------------------------------------------------------------------------------------ goal ranges
