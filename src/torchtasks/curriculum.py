@@ -390,8 +390,8 @@ class Curriculum(EnvDerivedTransform):
     at every breakpoint of constant, linear and staged schedules, where their extremes lie, and for
     every stage value of a gated schedule against every value the other bound can take).
 
-    At every step the frame counter grows by the env's batch size (frames follow the steps of all
-    envs, not their resets), gated schedules take note of the episodes that ended, and
+    At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the
+    steps of all envs, not their resets), gated schedules take note of the episodes that ended, and
     every schedule's value at the new count is written into its buffer (``buffer.copy_(value)``),
     where the next step's reward reads it. At reset the values of the current count are written too.
     Constant, linear and staged schedules are evaluated on the host from the count (a sum of batch
@@ -412,9 +412,32 @@ class Curriculum(EnvDerivedTransform):
     registered buffers: ``state_dict()``/``load_state_dict()`` restore them, also through TorchRL's
     ``Collector.state_dict()``.
 
+    Several processes: every worker of a ``ParallelEnv`` or of a multi-process collector runs its own
+    copy of the env, and so of the Curriculum, which sees only its worker's steps. With
+    ``workers=n`` (the number of copies that step in lockstep with this one) the counter grows by
+    ``n`` times the batch size per step: the global frame count of the synchronous run, so a
+    frame-driven schedule gives every worker the values a single process stepping all ``n`` batches
+    at once would have at the same frame count (within one step)::
+
+        def make_env():  # one worker's env: B = 64 pendulums
+            return TransformedEnv(PendulumEnv(batch_size=[64]), Compose(
+                StepCounter(200), TaskTransform(swing_up_task()),
+                Curriculum({"success_value": linear(0.0, 100.0, 0, 1_000_000)}, workers=4)))
+
+        env = ParallelEnv(4, make_env)  # 4 x 64 pendulums count as one env of 256
+        collector = MultiSyncCollector([make_env] * 4, policy, frames_per_batch=4 * 64 * 50)  # the same
+
+    A Curriculum outside the workers (``TransformedEnv(ParallelEnv(...), Curriculum(...))``) sees the
+    whole batch: keep ``workers=1`` there. ``MultiAsyncCollector`` workers do not step in lockstep:
+    each count is then ``n`` times its own worker's frames, the global count only while the workers
+    keep pace. A gated schedule stays per worker: each copy gates on the episodes of its own envs, so
+    the workers' stages may differ.
+
     Args:
         schedules: ``{target buffer name: schedule}``.
         curriculum_key: where the entries are written.
+        workers: how many copies of this env (processes, workers) step in lockstep with it; the frame
+            counter grows by ``workers`` times the batch size per step. A positive int.
 
     Example:
         >>> import torch
@@ -432,7 +455,9 @@ class Curriculum(EnvDerivedTransform):
         tensor([ 0., 10., 20., 30., 40.])
     """
 
-    def __init__(self, schedules: Mapping[str, Schedule], *, curriculum_key: NestedKey = "curriculum") -> None:
+    def __init__(
+        self, schedules: Mapping[str, Schedule], *, curriculum_key: NestedKey = "curriculum", workers: int = 1
+    ) -> None:
         if not isinstance(schedules, Mapping) or not schedules:
             raise TypeError(
                 f"Curriculum: schedules must be a non-empty mapping {{target: schedule}}, got {schedules!r}"
@@ -446,6 +471,7 @@ class Curriculum(EnvDerivedTransform):
                     f"linear, staged, gated), got {type(schedule).__name__}"
                 )
         self.curriculum_key = nested_key(curriculum_key, "Curriculum: curriculum_key")
+        self.workers = check_positive_int(workers, "Curriculum: workers")
         self.targets = tuple(schedules)
         entries = [_entry_name(target) for target in self.targets]
         if FRAMES in entries:
@@ -765,7 +791,8 @@ class Curriculum(EnvDerivedTransform):
         return self._advance(next_tensordict, replace=False)
 
     def _advance(self, next_tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
-        count = self._add_frames(next_tensordict.batch_size.numel())
+        # the global frame count of a synchronous run: every one of the `workers` copies of this env steps as well
+        count = self._add_frames(self.workers * next_tensordict.batch_size.numel())
         observing = self.__dict__["_observing"]
         if observing:
             done = next_tensordict.get("done", None)

@@ -2,7 +2,8 @@
 their resets (IsaacLab #2079); a scheduled buffer really changes the reward; a gated stage advances only once the
 success average passes its threshold; misspelt targets and wrong shapes are refused at set-up; the counters survive
 state_dict and a Collector checkpoint (resume continues exactly); the host-evaluated step gives forward()'s values
-bit for bit and never changes the data of earlier steps."""
+bit for bit and never changes the data of earlier steps; with ``workers=n`` the workers of a ParallelEnv or a
+MultiSyncCollector see the schedule of one process stepping all their envs."""
 
 from __future__ import annotations
 
@@ -13,8 +14,8 @@ import math
 import pytest
 import torch
 from tensordict.nn import TensorDictModule
-from torchrl.collectors import Collector
-from torchrl.envs import Compose, StepCounter, TransformedEnv
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.envs import Compose, ParallelEnv, StepCounter, TransformedEnv
 
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
@@ -42,6 +43,7 @@ def make_env(
     max_steps: int = 1000,
     batch: int = BATCH,
     seed: int = 0,
+    workers: int = 1,
     dtype: torch.dtype = torch.float32,
 ) -> TransformedEnv:
     return TransformedEnv(
@@ -49,7 +51,7 @@ def make_env(
         Compose(
             StepCounter(max_steps),
             TaskTransform(task if task is not None else weighted_task()),
-            Curriculum(schedules),
+            Curriculum(schedules, workers=workers),
         ),
     )
 
@@ -396,6 +398,114 @@ def test_entries_of_earlier_steps_keep_their_values():
     steps[4][key].zero_()  # a user writes into the entry of the last step
     data, td = env.step_and_maybe_reset(policy()(td))
     assert bool((data[key] == 2.0).all()) and float(steps[1][key][0, 0]) == 1.0
+
+
+# ----------------------------------------------------------------------------------------------- workers
+def test_workers_multiply_the_frame_count():
+    """workers=3: each step counts three copies of the env's batch (a linear ramp follows the global count)."""
+    env = make_env({WEIGHT: linear(0.0, 1.0, 0, 3 * 10 * BATCH)}, workers=3)
+    data = env.rollout(12, policy())
+    counts = torch.arange(1, 13) * 3 * BATCH
+    assert torch.equal(data["next", "curriculum", "frames"][0, :, 0], counts)
+    assert torch.equal(
+        data["next", "curriculum", WEIGHT.replace(".", "/")][0, :, 0], (counts / (30 * BATCH)).clamp(max=1.0)
+    )
+    assert env.transform[-1].workers == 3 and int(env.transform[-1].frames) == 12 * 3 * BATCH
+    with pytest.raises(ValueError, match="workers"):
+        Curriculum({"success_value": constant(1.0)}, workers=0)
+    for wrong in (2.0, True, "2"):
+        with pytest.raises(TypeError, match="workers"):
+            Curriculum({"success_value": constant(1.0)}, workers=wrong)
+
+
+def test_a_gated_schedule_gates_on_its_own_episodes_whatever_the_workers():
+    """workers scales the frame count only: a gated stage advances after the same episodes of this copy's envs."""
+
+    def stages(workers: int) -> torch.Tensor:
+        schedules = {"success_value": gated([1.0, 2.0, 3.0], threshold=0.5, window=3 * BATCH)}
+        env = make_env(schedules, task=weighted_task(success_threshold=100.0), max_steps=2, workers=workers)
+        return env.rollout(12, policy(), break_when_any_done=False)["next", "curriculum", "success_value"][0, :, 0]
+
+    single = stages(1)
+    assert torch.equal(single, torch.tensor([1.0] * 2 + [2.0] * 3 + [3.0] * 7))  # every episode one step long
+    assert torch.equal(stages(3), single)
+
+
+class ZeroTorque(torch.nn.Module):
+    """The workers' policy (a module: picklable, no autograd state)."""
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return torch.zeros(*observation.shape[:-1], 1, dtype=observation.dtype)
+
+
+WORKER_BATCH, WORKER_STEPS, BATCHES = 4, 6, 2
+WORKER_TARGETS = ("success_value", "wrapped_task.reward.rewards.effort.R")
+
+
+def worker_env(batch: int, workers: int) -> TransformedEnv:
+    """The swing-up pendulums with a ramped success bonus and a staged effort weight over a 2-worker run's frames."""
+    frames_per_step = 2 * WORKER_BATCH
+    schedules = {
+        "success_value": linear(0.0, 100.0, 0, frames_per_step * 10),
+        "wrapped_task.reward.rewards.effort.R": staged({0: [0.0], frames_per_step * 3: [0.001]}),
+    }
+    return TransformedEnv(
+        PendulumEnv(batch_size=[batch], seed=0),
+        Compose(StepCounter(4), TaskTransform(swing_up_task()), Curriculum(schedules, workers=workers)),
+    )
+
+
+def collect(collector) -> list:
+    try:
+        return [batch.clone() for batch in collector]
+    finally:
+        collector.shutdown()
+
+
+def single_process_batches() -> list:
+    """One env of 2 x WORKER_BATCH pendulums in one process: the reference schedule, per step."""
+    frames_per_batch = 2 * WORKER_BATCH * WORKER_STEPS
+    env = worker_env(2 * WORKER_BATCH, workers=1)
+    policy = TensorDictModule(ZeroTorque(), ["observation"], ["action"])
+    return collect(Collector(env, policy, frames_per_batch=frames_per_batch, total_frames=BATCHES * frames_per_batch))
+
+
+def assert_same_schedule(batches: list, reference: list) -> None:
+    """Every worker's data ``[2, B, T]`` hold, at every step, the entries of the single process's step."""
+    assert len(batches) == len(reference) == BATCHES
+    names = ["frames", *(target.replace(".", "/") for target in WORKER_TARGETS)]
+    for batch, expected in zip(batches, reference, strict=True):
+        assert batch.shape == (2, WORKER_BATCH, WORKER_STEPS)
+        for key in [(*prefix, "curriculum", name) for prefix in ((), ("next",)) for name in names]:
+            assert torch.equal(batch[key], expected[key].reshape(batch[key].shape)), key
+    counts = torch.cat([b["next", "curriculum", "frames"][0, 0, :, 0] for b in batches])
+    assert torch.equal(counts, torch.arange(1, BATCHES * WORKER_STEPS + 1) * 2 * WORKER_BATCH)  # the global count
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+def test_a_parallel_env_of_two_workers_sees_the_single_process_schedule():
+    frames_per_batch = 2 * WORKER_BATCH * WORKER_STEPS
+    env = ParallelEnv(2, functools.partial(worker_env, WORKER_BATCH, 2), mp_start_method="fork")
+    policy = TensorDictModule(ZeroTorque(), ["observation"], ["action"])
+    batches = collect(
+        Collector(env, policy, frames_per_batch=frames_per_batch, total_frames=BATCHES * frames_per_batch)
+    )
+    assert_same_schedule(batches, single_process_batches())
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+def test_a_multi_sync_collector_of_two_workers_sees_the_single_process_schedule(fork_start_method):
+    frames_per_batch = 2 * WORKER_BATCH * WORKER_STEPS
+    policy = TensorDictModule(ZeroTorque(), ["observation"], ["action"])
+    collector = MultiSyncCollector(
+        [functools.partial(worker_env, WORKER_BATCH, 2)] * 2,
+        policy,
+        frames_per_batch=frames_per_batch,
+        total_frames=BATCHES * frames_per_batch,
+    )
+    assert_same_schedule(collect(collector), single_process_batches())
 
 
 # ------------------------------------------------------------------------------------------ goal ranges
