@@ -98,8 +98,9 @@ class Schedule(nn.Module):
         """A host fact that fixes the value at ``frames`` (equal facts: equal values), or ``None`` (tensor state)."""
         return None
 
-    def _value_of(self, state: Hashable) -> torch.Tensor | float:
-        """The value for a :meth:`_state_at` fact: a Python float for a scalar schedule, else a float64 tensor."""
+    def _value_of(self, state: Hashable) -> torch.Tensor | float | list:
+        """The value for a :meth:`_state_at` fact: a Python float for a scalar schedule, else a float64 tensor or
+        (a small value computed on the host) nested lists of Python floats of its shape."""
         raise NotImplementedError
 
     def _host_copy(self, name: str) -> float | list:
@@ -134,6 +135,16 @@ class _Constant(Schedule):
         return f"value={self.value.tolist()}"
 
 
+_HOST_VALUES = 64  # a linear schedule's values of at most this many elements are computed on the host
+
+
+def _lerp(start: float | list, end: float | list, fraction: float) -> float | list:
+    """``start + fraction * (end - start)`` on nested lists of Python floats, element by element."""
+    if isinstance(start, list):
+        return [_lerp(s, e, fraction) for s, e in zip(start, end, strict=True)]
+    return start + fraction * (end - start)
+
+
 class _Linear(Schedule):
     def __init__(self, start_value: object, end_value: object, start_frame: int, end_frame: int) -> None:
         super().__init__()
@@ -165,11 +176,11 @@ class _Linear(Schedule):
             return float(frames >= self.start_frame)
         return min(max((frames - self.start_frame) / (self.end_frame - self.start_frame), 0.0), 1.0)
 
-    def _value_of(self, state: Hashable) -> torch.Tensor | float:
-        if self.start_value.dim() == 0:  # forward()'s three float64 ops, in its order, on the host
-            start, end = self._host_copy("start_value"), self._host_copy("end_value")
-            return start + state * (end - start)
-        return self.start_value + state * (self.end_value - self.start_value)
+    def _value_of(self, state: Hashable) -> torch.Tensor | float | list:
+        if self.start_value.numel() > _HOST_VALUES:
+            return self.start_value + state * (self.end_value - self.start_value)
+        # forward()'s three float64 ops, in its order, on the host: one tensor to make instead of four ops
+        return _lerp(self._host_copy("start_value"), self._host_copy("end_value"), state)
 
     def extra_repr(self) -> str:
         return (
@@ -476,6 +487,7 @@ class Curriculum(EnvDerivedTransform):
         entries = [_entry_name(target) for target in self.targets]
         if FRAMES in entries:
             raise ValueError(f"Curriculum: a target may not be named {FRAMES!r}: that entry is the frame count")
+        self._prefix = key_parts(self.curriculum_key)
         self._value_keys = [(*key_parts(self.curriculum_key), name) for name in entries]
         self._frames_key = (*key_parts(self.curriculum_key), FRAMES)
         metrics = [s.metric_key for s in schedules.values() if s.metric_key is not None]
@@ -744,6 +756,8 @@ class Curriculum(EnvDerivedTransform):
                 entries[name] = last[3]  # the same value: the entry of the last write
                 continue
             value = schedule(frames) if state is None else schedule._value_of(state)
+            if isinstance(value, list):
+                value = torch.tensor(value, dtype=buffer.dtype, device=buffer.device)
             if isinstance(value, float):  # a scalar frame-driven value, on the host
                 if replace:
                     buffer = module._buffers[leaf] = torch.full_like(buffer, value)
@@ -760,19 +774,19 @@ class Curriculum(EnvDerivedTransform):
                 entry = value.expand(*batch, *shape).clone()
             entries[name] = entry
             written[i] = None if state is None else (state, buffer, buffer._version, entry, entry._version, batch)
-        self._put(tensordict, entries)
+        self._put(tensordict, batch, entries)
         return tensordict
 
-    def _put(self, tensordict: TensorDictBase, entries: dict[str, torch.Tensor]) -> None:
+    def _put(self, tensordict: TensorDictBase, batch: torch.Size, entries: dict[str, torch.Tensor]) -> None:
         """Set ``entries`` under ``curriculum_key`` (one new sub-TensorDict when there is none yet: the usual case)."""
-        prefix = key_parts(self.curriculum_key)
+        prefix = self._prefix
         if (
             type(tensordict) is TensorDict
             and len(prefix) == 1
             and not tensordict._has_names()
             and tensordict._get_str(prefix[0], None) is None
         ):
-            node = TensorDict._new_unsafe(entries, batch_size=tensordict.batch_size, device=tensordict.device)
+            node = TensorDict._new_unsafe(entries, batch_size=batch, device=tensordict.device)
             tensordict._set_str(prefix[0], node, inplace=False, validated=True)
             return
         for name, value in entries.items():

@@ -332,9 +332,10 @@ def test_a_collector_checkpoint_resumes_the_curriculum():
 
 
 # ------------------------------------------------------------------------------------------ the cheap step
-def test_the_host_evaluated_values_are_forwards_bit_for_bit():
-    """Frame-driven schedules are evaluated on the host in a step: in a float64 env every entry and the buffers equal
-    forward() at the entry's frame count exactly, on counts that round (a batch of 7, ramps over odd spans)."""
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
+def test_the_host_evaluated_values_are_forwards_bit_for_bit(dtype):
+    """Frame-driven schedules are evaluated on the host in a step: every entry and the buffers equal forward() at the
+    entry's frame count, cast to the env's dtype, exactly, on counts that round (a batch of 7, odd ramp spans)."""
     track_q = "wrapped_task.reward.rewards.track.Q"
     schedules = {
         WEIGHT: linear(0.1, 0.7, start_frame=3, end_frame=1001),
@@ -343,17 +344,17 @@ def test_the_host_evaluated_values_are_forwards_bit_for_bit():
         "wrapped_task.state_des": constant([0.1, -0.2]),
         "failure_value": linear(0.0, -1.0, 70, 70),  # a step at frame 70
     }
-    env = make_env(schedules, batch=7, dtype=torch.float64)
+    env = make_env(schedules, batch=7, dtype=dtype)
     data = env.rollout(30, policy())
     counts = data["next", "curriculum", "frames"][0, :, 0]
     assert torch.equal(counts, torch.arange(1, 31) * 7)
     for target, schedule in schedules.items():
         name = target.replace(".", "/")
         for t, count in enumerate(counts.tolist()):
-            expected = schedule(frames(count)).expand(data["next", "curriculum", name].shape[2:])
+            expected = schedule(frames(count)).to(dtype).expand(data["next", "curriculum", name].shape[2:])
             assert torch.equal(data["next", "curriculum", name][:, t], expected.expand(7, *expected.shape)), (target, t)
         buffer = env.transform[1].task.get_buffer(target)
-        assert torch.equal(buffer, schedule(frames(30 * 7)).expand_as(buffer)), target
+        assert torch.equal(buffer, schedule(frames(30 * 7)).to(dtype).expand_as(buffer)), target
 
 
 def test_whatever_else_writes_the_counter_or_a_buffer_is_written_over():
@@ -633,4 +634,9 @@ def test_overhead_benchmark_script_runs(tmp_path) -> None:
     assert module.main(["--envs", "4", "--repeats", "1", "--batches", "1", "--output", str(tmp_path)]) == 0
     assert torch.get_num_threads() == threads
     results = json.loads((tmp_path / "results.json").read_text())
-    assert set(results["medians"]) == {"task", "curriculum"} and all(v > 0 for v in results["medians"].values())
+    assert set(results["medians"]) == {"task", "curriculum", "entries"} and all(
+        v > 0 for v in results["medians"].values()
+    )
+    assert results["ratio"] == results["medians"]["curriculum"] / results["medians"]["task"]
+    entries = {name: module.make_env(4, name).observation_spec["curriculum"] for name in ("curriculum", "entries")}
+    assert entries["entries"] == entries["curriculum"]  # the floor carries the Curriculum's entries exactly
