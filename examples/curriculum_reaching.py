@@ -78,6 +78,7 @@ class Config:
     total_frames: int = 2_097_152
     eval_every: int = 32_768
     ramp_frames: int = 262_144  # the curriculum's effort weight reaches its full value here
+    effort_weight: float = EFFORT_WEIGHT  # the full task's w
     epochs: int = 4
     minibatch_size: int = 1024
     learning_rate: float = 3e-4
@@ -128,13 +129,15 @@ def level_change(tensordict: TensorDictBase, next_tensordict: TensorDictBase) ->
     return success.long() - (next_tensordict["truncated"] & ~success).long()
 
 
-def make_env(num_envs: int, seed: int, variant: str = "baseline", ramp_frames: int = 0) -> TransformedEnv:
-    """Point masses with the reaching task, and the per-env goal levels and the effort ramp of ``variant``."""
+def make_env(
+    num_envs: int, seed: int, variant: str = "baseline", ramp_frames: int = 0, effort_weight: float = EFFORT_WEIGHT
+) -> TransformedEnv:
+    """Point masses with the reaching task (full effort weight w) and the goal levels and effort ramp of ``variant``."""
     levels, ramp = VARIANTS[variant]
     full = GOAL_HALF_WIDTHS[-1]
-    transforms = [StepCounter(MAX_STEPS), TaskTransform(make_task(EFFORT_WEIGHT), goal_key="goal")]
+    transforms = [StepCounter(MAX_STEPS), TaskTransform(make_task(effort_weight), goal_key="goal")]
     if ramp:
-        weight = linear(0.0, EFFORT_WEIGHT / MAX_FORCE**2, start_frame=0, end_frame=ramp_frames)
+        weight = linear(0.0, effort_weight / MAX_FORCE**2, start_frame=0, end_frame=ramp_frames)
         transforms.append(Curriculum({EFFORT_TARGET: weight}))
     if levels:
         low = [[-h, -h] for h in GOAL_HALF_WIDTHS]
@@ -198,13 +201,15 @@ class _Chain(nn.Module):
 
 
 @torch.no_grad()
-def evaluate(actor: ProbabilisticActor, num_envs: int = EVAL_ENVS) -> dict[str, float]:
+def evaluate(
+    actor: ProbabilisticActor, num_envs: int = EVAL_ENVS, effort_weight: float = EFFORT_WEIGHT
+) -> dict[str, float]:
     """Success rate, mean length and mean return of one deterministic episode on each fixed (start, goal) pair.
 
     The pairs are the same at every call (seed ``EVAL_SEED``), the goals from the full box and the effort at
     its full weight, whichever variant trained the policy.
     """
-    env = make_env(num_envs, EVAL_SEED)
+    env = make_env(num_envs, EVAL_SEED, effort_weight=effort_weight)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         data = env.rollout(MAX_STEPS, actor, break_when_any_done=False)
     nxt = data["next"]
@@ -227,7 +232,7 @@ def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, q
     torch.manual_seed(seed)
     start = time.perf_counter()
     levels = VARIANTS[variant][0]
-    env = make_env(config.num_envs, seed, variant, config.ramp_frames)
+    env = make_env(config.num_envs, seed, variant, config.ramp_frames, config.effort_weight)
     actor, critic = make_policy(env, config.hidden)
     advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
     loss_module = ClipPPOLoss(
@@ -239,7 +244,7 @@ def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, q
         env, actor, frames_per_batch=config.frames_per_batch, total_frames=config.total_frames,
         auto_register_policy_transforms=False,
     )  # fmt: skip
-    first = evaluate(actor, eval_envs)
+    first = evaluate(actor, eval_envs, config.effort_weight)
     curve = [{"frames": 0, "seconds": 0.0, **{f"eval_{k}": v for k, v in first.items()}}]
     train_curve: list[dict[str, Any]] = []
     frames, next_eval = 0, config.eval_every
@@ -252,7 +257,7 @@ def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, q
             point["level_fractions"] = level_fractions(stats)
             point["mean_level"] = stats["curriculum/level"]
         scheduled = stats.get(f"curriculum/{EFFORT_TARGET.replace('.', '/')}")
-        point["effort_weight"] = EFFORT_WEIGHT if scheduled is None else scheduled * MAX_FORCE**2
+        point["effort_weight"] = config.effort_weight if scheduled is None else scheduled * MAX_FORCE**2
         train_curve.append(point)
         with torch.no_grad():
             advantage(batch)
@@ -264,7 +269,7 @@ def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, q
         bar.update(batch.numel())
         if frames >= next_eval or frames >= config.total_frames:
             next_eval += config.eval_every
-            result = evaluate(actor, eval_envs)
+            result = evaluate(actor, eval_envs, config.effort_weight)
             curve.append(
                 {
                     "frames": frames,
@@ -353,7 +358,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
         weight = levels.twinx()
         effort = [sum(run["train_curve"][i]["effort_weight"] for run in runs) / len(runs) for i in range(len(frames))]
         weight.plot(frames, effort, color="black", linewidth=1.5, label="effort weight")
-        weight.set_ylim(0, EFFORT_WEIGHT * 1.05)
+        weight.set_ylim(0, max(experiment["config"]["effort_weight"], 1e-6) * 1.05)
         weight.set_ylabel("effort weight w")
         levels.legend(loc="lower right", fontsize=8)
         weight.legend(loc="upper right", fontsize=8)
@@ -381,11 +386,16 @@ def main() -> None:
         help="curriculum, baseline (default: both); ablations: levels (no ramp), ramp (no levels)",
     )  # fmt: skip
     parser.add_argument("--frames", type=int, help=f"frame budget per run (default {Config.total_frames:,})")
+    parser.add_argument(
+        "--effort-weight", type=float, help=f"the full task's effort weight w (default {EFFORT_WEIGHT})"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else Config()
     if args.frames is not None:
         config = replace(config, total_frames=args.frames)
+    if args.effort_weight is not None:
+        config = replace(config, effort_weight=args.effort_weight)
     seeds = args.seeds[:1] if args.quick else args.seeds
     eval_envs = QUICK_EVAL_ENVS if args.quick else EVAL_ENVS
     experiment: dict[str, Any] = {
@@ -396,7 +406,6 @@ def main() -> None:
             "start_half_width": START_HALF_WIDTH,
             "success_radius": SUCCESS_RADIUS,
             "goal_half_widths": list(GOAL_HALF_WIDTHS),
-            "effort_weight": EFFORT_WEIGHT,
             "success_bonus": SUCCESS_BONUS,
         },
         "eval_envs": eval_envs,

@@ -171,7 +171,7 @@ def test_curriculum_reaching(tmp_path: Path) -> None:
     # the same evaluation set: the two runs start from the same policy (seed 0) and score the same at frame 0
     assert runs["curriculum"]["curve"][0] == runs["baseline"]["curve"][0]
     # the curriculum's effort weight ramps to the full weight by ramp_frames; the baseline has it from the start
-    full, ramp = experiment["env"]["effort_weight"], experiment["config"]["ramp_frames"]
+    full, ramp = experiment["config"]["effort_weight"], experiment["config"]["ramp_frames"]
     for point in runs["curriculum"]["train_curve"]:
         assert point["effort_weight"] == pytest.approx(full * min(1.0, point["frames"] / ramp), rel=1e-5)
         assert len(point["level_fractions"]) == len(experiment["env"]["goal_half_widths"])
