@@ -307,7 +307,12 @@ def mean_curve(runs: list[dict[str, Any]], key: str) -> list[float]:
 
 
 def plot(experiment: dict[str, Any], path: Path) -> Path | None:
-    """Success rates against frames per variant; the level fractions and the effort weight of the curriculum runs."""
+    """Success rates per variant and the level fractions and effort weight of the curriculum runs, against frames.
+
+    Top row: the first ``2 * ramp_frames`` frames, where the levels and the effort weight move; bottom row: the
+    whole run. Training success rates are left out before every env could have ended a full-length episode (the
+    episodes that end first are the quick successes).
+    """
     try:
         import matplotlib
     except ImportError:
@@ -318,58 +323,66 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
     from matplotlib.ticker import EngFormatter
 
     variants = experiment["variants"]
-    figure, axes = plt.subplots(1, 2, figsize=(12, 4.5))
-    colors = {"curriculum": "tab:blue", "baseline": "tab:orange", "levels": "tab:green", "ramp": "tab:purple"}
-    success = axes[0]
-    for variant, runs in variants.items():
-        for run in runs:
-            frames = [p["frames"] for p in run["curve"]]
-            success.plot(frames, [p["eval_success_rate"] for p in run["curve"]], color=colors[variant], alpha=0.35)
-            train = [p for p in run["train_curve"] if p["train_success_rate"] is not None]
-            success.plot(
-                [p["frames"] for p in train], moving_mean([p["train_success_rate"] for p in train], SMOOTHING),
-                color=colors[variant], alpha=0.5, linestyle=":", linewidth=1,
-            )  # fmt: skip
-        frames = [p["frames"] for p in runs[0]["curve"]]
-        success.plot(frames, mean_curve(runs, "eval_success_rate"), color=colors[variant], linewidth=2.5, label=variant)
-    target = experiment["config"]["target"]
-    success.axhline(target, color="grey", linestyle="--", linewidth=1)
-    success.set_ylim(-0.02, 1.02)
-    success.set_ylabel(f"evaluation success rate ({experiment['eval_envs']} fixed goals, full task)")
-    success.set_title(
-        f"evaluation (thin: seeds, thick: mean); training (dotted: mean of {SMOOTHING} batches, its own goals)",
-        fontsize=9,
-    )
-    success.legend(loc="upper left")
-    levels = axes[1]
+    config = experiment["config"]
+    first_full_episodes = config["num_envs"] * MAX_STEPS
     leveled = next((variant for variant in variants if VARIANTS[variant][0]), None)  # curriculum, or its ablation
-    runs = variants.get(leveled, [])
-    if runs:
-        frames = [p["frames"] for p in runs[0]["train_curve"]]
-        count = len(GOAL_HALF_WIDTHS)
-        fractions = [
-            [sum(run["train_curve"][i]["level_fractions"][k] for run in runs) / len(runs) for i in range(len(frames))]
-            for k in range(count)
-        ]
-        labels = [f"level {k}: goals in ±{h}" for k, h in enumerate(GOAL_HALF_WIDTHS)]
-        levels.stackplot(
-            frames, fractions, labels=labels, colors=plt.cm.viridis([k / (count - 1) for k in range(count)])
-        )
-        weight = levels.twinx()
-        effort = [sum(run["train_curve"][i]["effort_weight"] for run in runs) / len(runs) for i in range(len(frames))]
-        weight.plot(frames, effort, color="black", linewidth=1.5, label="effort weight")
-        weight.set_ylim(0, max(experiment["config"]["effort_weight"], 1e-6) * 1.05)
-        weight.set_ylabel("effort weight w")
-        levels.legend(loc="lower right", fontsize=8)
-        weight.legend(loc="upper right", fontsize=8)
-    levels.set_ylim(0, 1)
-    levels.set_ylabel("fraction of envs")
-    levels.set_title(f"{leveled}: level fractions (mean of {len(runs)} seed(s)) and effort weight", fontsize=10)
-    for axis in axes:
-        axis.set_xlabel("environment frames")
-        axis.xaxis.set_major_formatter(EngFormatter())
-        axis.grid(alpha=0.3)
-    figure.suptitle("Point-mass goal reaching, PPO: curriculum vs full task from the start")
+    figure, axes = plt.subplots(2, 2, figsize=(12, 8))
+    colors = {"curriculum": "tab:blue", "baseline": "tab:orange", "levels": "tab:green", "ramp": "tab:purple"}
+    palette = plt.cm.viridis([k / (len(GOAL_HALF_WIDTHS) - 1) for k in range(len(GOAL_HALF_WIDTHS))])
+    for row, end in enumerate((min(2 * config["ramp_frames"], config["total_frames"]), config["total_frames"])):
+        success, levels = axes[row]
+        for variant, runs in variants.items():
+            color = colors[variant]
+            for run in runs:
+                evals = [p for p in run["curve"] if p["frames"] <= end]
+                success.plot(
+                    [p["frames"] for p in evals], [p["eval_success_rate"] for p in evals], color=color, alpha=0.4
+                )
+                train = [
+                    p for p in run["train_curve"]
+                    if p["train_success_rate"] is not None and first_full_episodes <= p["frames"] <= end
+                ]  # fmt: skip
+                rates = moving_mean([p["train_success_rate"] for p in train], SMOOTHING)
+                success.plot([p["frames"] for p in train], rates, color=color, alpha=0.6, linestyle=":", linewidth=1)
+            frames = [p["frames"] for p in runs[0]["curve"] if p["frames"] <= end]  # increasing: a prefix
+            mean = mean_curve(runs, "eval_success_rate")[: len(frames)]
+            label = f"{variant}: evaluation, mean of {len(runs)} seeds"
+            success.plot(frames, mean, color=color, linewidth=2.5, label=label)
+        success.axhline(config["target"], color="grey", linestyle="--", linewidth=1)
+        success.set_ylim(-0.02, 1.02)
+        success.set_ylabel(f"success rate ({experiment['eval_envs']} fixed full-task goals)")
+        runs = variants.get(leveled, [])
+        if runs:
+            train = [[p for p in run["train_curve"] if p["frames"] <= end] for run in runs]
+            frames = [p["frames"] for p in train[0]]
+            fractions = [
+                [sum(points[i]["level_fractions"][k] for points in train) / len(runs) for i in range(len(frames))]
+                for k in range(len(GOAL_HALF_WIDTHS))
+            ]
+            labels = [f"level {k}: goals in ±{h}" for k, h in enumerate(GOAL_HALF_WIDTHS)]
+            levels.stackplot(frames, fractions, labels=labels, colors=palette)
+            weight = levels.twinx()
+            effort = [sum(points[i]["effort_weight"] for points in train) / len(runs) for i in range(len(frames))]
+            weight.plot(frames, effort, color="black", linewidth=1.5, label="effort weight w")
+            weight.set_ylim(0, max(config["effort_weight"], 1e-6) * 1.05)
+            weight.set_ylabel("effort weight w")
+            if row == 0:
+                levels.legend(loc="center right", fontsize=8)
+                weight.legend(loc="upper right", fontsize=8)
+        levels.set_ylim(0, 1)
+        levels.set_ylabel(f"{leveled}: fraction of envs per level" if runs else "fraction of envs per level")
+        for axis in (success, levels):
+            axis.set_xlim(0, end)
+            axis.xaxis.set_major_formatter(EngFormatter())
+            axis.grid(alpha=0.3)
+        levels.set_xlabel("environment frames")
+        success.set_xlabel("environment frames")
+    axes[0, 0].legend(loc="center right", fontsize=8)
+    axes[0, 0].set_title(
+        f"thin: evaluation per seed; dotted: training success on its own goals ({SMOOTHING}-batch mean)", fontsize=9
+    )
+    axes[0, 1].set_title(f"levels and effort weight (means over the {leveled or 'curriculum'} seeds)", fontsize=9)
+    figure.suptitle("Point-mass goal reaching, PPO: a curriculum against the full task from the first frame")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)
