@@ -15,10 +15,10 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, Unbounded
-from torchrl.envs.transforms import Transform
 
-from torchtasks._checks import check_int, check_positive_int
+from torchtasks._checks import check_int, check_non_negative_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
+from torchtasks.seeding import SeededTransform
 from torchtasks.spaces import Box
 from torchtasks.transforms import TaskTransform
 
@@ -27,7 +27,7 @@ __all__ = ["GoalCommand"]
 Sampler = Callable[[torch.Size, torch.Generator | None], torch.Tensor]
 
 
-class GoalCommand(Transform):
+class GoalCommand(SeededTransform):
     """Sample per-env goals into the observation; resample at reset, on a per-env timer, or after a success.
 
     The goal lives under ``goal_key`` (observation AND state spec, so ``ParallelEnv``, ``SerialEnv``,
@@ -43,27 +43,36 @@ class GoalCommand(Transform):
       command must come after the :class:`~torchtasks.transforms.TaskTransform` that writes it).
 
     The goal written in step ``t`` is the one the policy sees when it chooses ``a_{t+1}``, and the
-    one a ``TaskTransform(task, goal_key=...)`` judges the transition ``t+1`` with. Randomness comes
-    from ``torch``'s global generator (seeded by ``torch.manual_seed``), or from the command's own
-    generator when ``seed`` is given (:meth:`set_seed` re-seeds it). TorchRL's
-    ``TransformedEnv.set_seed`` seeds the base env only, not its transforms.
+    one a ``TaskTransform(task, goal_key=...)`` judges the transition ``t+1`` with.
+
+    Randomness: a command built with ``seed=None`` draws from ``torch``'s global generator (seeded by
+    ``torch.manual_seed``) until it is seeded; ``seed=k`` gives it its own generator from the start.
+    ``env.set_seed(s)`` on the ``TransformedEnv`` it sits in (and so ``SerialEnv``/``ParallelEnv``/
+    ``Collector``/``MultiSyncCollector.set_seed``, which seed each worker env with its own seed) seeds the
+    base env as TorchRL does and then gives the command its own generator, seeded with a seed derived
+    from ``s`` and the command's place in the env (:mod:`torchtasks.seeding`): from then on workers draw
+    different streams, two commands of one env too, and the same ``s`` gives the same goals, whatever
+    ``seed=`` was. :meth:`set_seed` seeds the generator with exactly the seed given.
 
     Sampling range: with a ``Box`` the goals are drawn from the registered float64 buffers ``low`` and
     ``high`` (shape ``[k]``, first the Box's bounds), so ``.to()``, ``state_dict()`` and a
     :class:`~torchtasks.curriculum.Curriculum` (targets ``"command.low"`` / ``"command.high"``) reach
     them; the Box itself stays the bounds of the goal spec, the widest range a schedule may reach.
-    A sampler has no such buffers.
+    :meth:`use_per_env_range` makes them ``[*B, k]``, one range per env of the batch ``B`` (env ``i``
+    draws from row ``i``). A sampler has no such buffers.
 
     Checkpoints: ``state_dict()`` holds the command's generator under ``"_extra_state"`` (whether
-    it has its own generator, its seed and its state) and the range buffers, so ``load_state_dict`` makes the command
-    draw the goals and timers that the saved one would have drawn next, bit for bit. It is part of
-    ``TransformedEnv.state_dict()`` and so of TorchRL's ``Collector.state_dict()`` (which saves
-    the transforms of a ``TransformedEnv`` but not its base env: save ``env.base_env.state_dict()``
-    too, as in the example). A command without its own generator draws from ``torch``'s global
-    one, which is not its state: it has nothing to restore (save ``torch.get_rng_state()``
-    yourself), and loading such a state drops the generator of the command it is loaded into.
-    The goals and timers of the running episodes are not saved: TorchRL starts fresh
-    trajectories after loading a collector.
+    it has its own generator, its seed and its state) and the range buffers, so ``load_state_dict``
+    makes the command draw the goals and timers that the saved one would have drawn next, bit for bit
+    (a saved range of shape ``[k]`` or ``[*B, k]`` loads into either: the buffers take the saved
+    shape). It is part of ``TransformedEnv.state_dict()`` and so of TorchRL's
+    ``Collector.state_dict()``, which saves the transforms of a ``TransformedEnv`` but not its base
+    env: put a :class:`~torchtasks.checkpoint.BaseEnvState` last in the ``Compose``, or save
+    ``env.base_env.state_dict()`` too, as in the example. A command without its own generator draws
+    from ``torch``'s global one, which is not its state: it has nothing to restore (seed the env, or
+    save ``torch.get_rng_state()`` yourself), and loading such a state drops the generator of the
+    command it is loaded into. The goals and timers of the running episodes are not saved: TorchRL
+    starts fresh trajectories after loading a collector.
 
     Args:
         space: the goal space (a ``Box`` of ``k`` finite entries) or a sampler.
@@ -71,7 +80,7 @@ class GoalCommand(Transform):
         resample_steps: ``None`` (only at reset), an int, or an inclusive ``(low, high)`` range.
         resample_on_success: draw a new goal right after a success.
         success_key: the success flag written by the TaskTransform.
-        seed: seed of the command's own generator (``None``: torch's global one).
+        seed: seed of the command's own generator (``None``: torch's global one until ``env.set_seed``).
         goal_size: the number of goal entries when ``space`` is a sampler.
 
     Example:
@@ -150,8 +159,15 @@ class GoalCommand(Transform):
             self.register_buffer("high", space.high.clone())
 
     def set_seed(self, seed: int) -> None:
-        """Seed the command's own generator (created if it had none)."""
+        """Seed the command's own generator with ``seed`` (created if it had none).
+
+        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.seeding`).
+        """
         self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
+
+    def seed_identity(self) -> str:
+        """``"GoalCommand(<goal key>)"``: mixed into the seed ``env.set_seed`` derives for this command."""
+        return f"{type(self).__name__}({self.goal_key!r})"
 
     # ---------------------------------------------------------------------------- checkpoints
     def get_extra_state(self) -> dict[str, Any]:
@@ -180,11 +196,75 @@ class GoalCommand(Transform):
         generator.set_state(saved.cpu())
         self.generator = generator
 
+    # ----------------------------------------------------------------------- range per env
+    def use_per_env_range(self, batch_size: torch.Size | Sequence[int]) -> None:
+        """Give every env of the batch its own sampling range: ``low``/``high`` become ``[*batch_size, k]``.
+
+        Each env starts with the current range (a ``[k]`` buffer is expanded and copied). Nothing
+        changes if the buffers already have that shape. Goals of env ``i`` are then drawn from
+        ``[low[i], high[i]]``, at reset and at every resampling; a transform that sets per-env
+        difficulty writes rows of these buffers.
+
+        Raises:
+            ValueError: the command samples with a callable (it has no range), or a buffer has another
+                per-env shape.
+            TypeError: ``batch_size`` is not a sequence of non-negative ints.
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.commands import GoalCommand
+            >>> from torchtasks.spaces import Box
+            >>> command = GoalCommand(Box([-1.0, 0.0], [1.0, 2.0]), seed=0)
+            >>> command.use_per_env_range(torch.Size([3]))
+            >>> command.low.shape
+            torch.Size([3, 2])
+            >>> command.high[2] = torch.tensor([-0.5, 0.5], dtype=torch.float64)  # env 2: a narrow range
+            >>> goals = command._sample_goals(torch.Size([3]), torch.float64, torch.device("cpu"))
+            >>> bool((goals[2] <= torch.tensor([-0.5, 0.5], dtype=torch.float64)).all())
+            True
+        """
+        if not isinstance(self.space, Box):
+            raise ValueError(
+                "GoalCommand.use_per_env_range: this command draws goals with a sampler callable, which has no "
+                "sampling range (low/high buffers); build it with a torchtasks.spaces.Box to give envs their own range"
+            )
+        batch = _batch_size(batch_size, "GoalCommand.use_per_env_range: batch_size")
+        target = torch.Size([*batch, self.goal_size])
+        for name in ("low", "high"):
+            shape = self._buffers[name].shape
+            if shape != target and shape != (self.goal_size,):
+                raise ValueError(
+                    f"GoalCommand.use_per_env_range: the range buffer {name!r} has shape {list(shape)}, which is "
+                    f"neither one range [{self.goal_size}] nor the requested per-env range {list(target)} "
+                    f"(batch_size {list(batch)}, {self.goal_size} goal entries)"
+                )
+        for name in ("low", "high"):
+            buffer = self._buffers[name]
+            if buffer.shape != target:
+                self._buffers[name] = buffer.expand(target).clone()
+
+    def _load_from_state_dict(self, state_dict: Mapping[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+        # a saved range of one shape ([k] or [*B, k]) loads into buffers of the other: the buffers take the saved shape
+        if isinstance(self.space, Box):
+            for name in ("low", "high"):
+                saved, own = state_dict.get(prefix + name), self._buffers.get(name)
+                if not isinstance(saved, torch.Tensor) or own is None or saved.shape == own.shape:
+                    continue
+                if saved.dim() == 0 or saved.shape[-1] != self.goal_size:
+                    raise ValueError(
+                        f"GoalCommand.load_state_dict: the saved range {name!r} must have shape [{self.goal_size}] "
+                        f"or [*B, {self.goal_size}] ({self.goal_size} goal entries), got {list(saved.shape)}"
+                    )
+                self._buffers[name] = torch.empty(saved.shape, dtype=own.dtype, device=own.device)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
     # --------------------------------------------------------------------------- sampling
     def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
         if isinstance(self.space, Box):
-            unit = torch.rand((*batch, self.goal_size), generator=self.generator, dtype=torch.float64)
             low, high = self.low, self.high
+            if low.dim() > 1 or high.dim() > 1:
+                self._check_range_batch(batch)
+            unit = torch.rand((*batch, self.goal_size), generator=self.generator, dtype=torch.float64)
             goals = low + unit.to(low.device) * (high - low)
         else:
             goals = torch.as_tensor(self.space(torch.Size(batch), self.generator))
@@ -194,6 +274,16 @@ class GoalCommand(Transform):
                     f"got {goals.dtype} {list(goals.shape)}"
                 )
         return goals.to(device=device, dtype=dtype)
+
+    def _check_range_batch(self, batch: torch.Size) -> None:
+        for name in ("low", "high"):
+            shape = self._buffers[name].shape
+            if len(shape) > 1 and shape[:-1] != batch:
+                raise ValueError(
+                    f"GoalCommand: the per-env range {name!r} has shape {list(shape)}, but goals are drawn for a "
+                    f"batch of {list(batch)} envs; call use_per_env_range({list(batch)}) on a command with one range "
+                    "or load a range saved from an env of this batch size"
+                )
 
     def _sample_timers(self, batch: torch.Size, device: torch.device) -> torch.Tensor:
         if self.timer_range is None:
@@ -309,6 +399,12 @@ class GoalCommand(Transform):
             f"{type(self).__name__}(goal_key={self.goal_key!r}, resample_steps={self.timer_range}, "
             f"resample_on_success={self.resample_on_success})"
         )
+
+
+def _batch_size(value: object, name: str) -> torch.Size:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise TypeError(f"{name} must be a torch.Size or a sequence of non-negative ints, got {value!r}")
+    return torch.Size([check_non_negative_int(n, f"{name}[{i}]") for i, n in enumerate(value)])
 
 
 def _timer_range(resample_steps: object) -> tuple[int, int] | None:

@@ -4,6 +4,7 @@ saw; the command's state survives SerialEnv/ParallelEnv and collectors; wrong or
 
 from __future__ import annotations
 
+import copy
 import functools
 import io
 
@@ -15,6 +16,7 @@ from torchrl.collectors import Collector
 from torchrl.envs import Compose, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 
 from torchtasks.commands import GoalCommand
+from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
@@ -255,3 +257,120 @@ def test_the_range_is_registered_buffers_and_goals_are_drawn_as_before():
     assert ((goals >= 0.5) & (goals <= 0.6)).all()
     sampler = GoalCommand(lambda shape, generator: torch.zeros(*shape, 1), goal_size=1)
     assert dict(sampler.named_buffers()) == {}
+
+
+# ------------------------------------------------------------------------------------------- ranges per env
+def per_env_ranges(batch: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Disjoint ranges inside SPACE, one per env: [low_i, low_i + 0.1]."""
+    low = torch.linspace(-0.6, 0.45, batch, dtype=torch.float64).unsqueeze(-1)
+    return low, low + 0.1
+
+
+def saved_and_loaded(state: dict) -> dict:
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    buffer.seek(0)
+    return torch.load(buffer)
+
+
+def in_own_range(goals: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> bool:
+    """Whether every goal of env ``i`` (``goals[i, ...]``, any time dims in between) lies in ``[low[i], high[i]]``."""
+    shape = (low.shape[0],) + (1,) * (goals.dim() - 2) + (low.shape[-1],)
+    return bool(((goals >= low.reshape(shape)) & (goals <= high.reshape(shape))).all())
+
+
+def test_each_env_draws_its_goals_from_its_own_range():
+    env = make_env(resample_steps=(1, 3), seed=2)
+    command = env.transform[-1]
+    command.use_per_env_range(env.batch_size)
+    assert command.low.shape == command.high.shape == (8, 1)
+    assert torch.equal(command.low, SPACE.low.to(torch.float64).expand(8, 1))  # each env starts with the range
+    low, high = per_env_ranges(8)
+    command.low.copy_(low)
+    command.high.copy_(high)
+    command.set_seed(0)
+    data = env.rollout(60, break_when_any_done=False)  # resets at 25 and 50 steps, goals drawn at every step
+    assert in_own_range(data["goal"], low, high) and in_own_range(data["next", "goal"], low, high)
+    check(data, (1, 3), on_success=False)
+    # a partial reset draws for the whole batch and keeps the new goals of the envs being reset only
+    td = env.reset()
+    td = env.step(td.set("action", env.action_spec.zero()))["next"]
+    reset = torch.zeros(8, 1, dtype=torch.bool)
+    reset[[1, 6]] = True
+    after = env.reset(td.clone().set("_reset", reset))
+    assert in_own_range(after["goal"], low, high)
+    kept = ~reset[:, 0]
+    assert torch.equal(after["goal"][kept], td["goal"][kept])
+    assert not torch.equal(after["goal"][~kept], td["goal"][~kept])
+
+
+def test_use_per_env_range_is_idempotent_and_checks_its_input():
+    command = GoalCommand(Box([-1.0, 0.0], [1.0, 2.0]), seed=0)
+    command.use_per_env_range(torch.Size([2, 3]))
+    low = command.low
+    command.use_per_env_range([2, 3])
+    assert command.low is low and low.shape == (2, 3, 2)
+    with pytest.raises(ValueError, match=r"'low' has shape \[2, 3, 2\], which is neither one range \[2\] nor the "):
+        command.use_per_env_range([4])
+    with pytest.raises(TypeError, match=r"batch_size must be a torch\.Size or a sequence of non-negative ints, got 4"):
+        command.use_per_env_range(4)
+    with pytest.raises(TypeError, match=r"batch_size\[0\] must be a non-negative int, got 2.0"):
+        command.use_per_env_range([2.0])
+    sampler = GoalCommand(lambda shape, generator: torch.zeros(*shape, 1), goal_size=1)
+    with pytest.raises(ValueError, match="draws goals with a sampler callable, which has no sampling range"):
+        sampler.use_per_env_range([2])
+    # a range per env of another batch than the env's is refused when goals are drawn
+    env = make_env(batch=4)
+    env.transform[-1].use_per_env_range([3])
+    with pytest.raises(ValueError, match=r"per-env range 'low' has shape \[3, 1\], but goals are drawn for a batch of"):
+        env.reset()
+
+
+def test_a_per_env_range_moves_and_loads_into_a_command_of_either_shape():
+    command = GoalCommand(SPACE, resample_steps=(2, 5), seed=1)
+    command.use_per_env_range([8])
+    low, high = per_env_ranges(8)
+    command.low.copy_(low)
+    command.high.copy_(high)
+    moved = copy.deepcopy(command).to("meta")
+    assert moved.low.shape == (8, 1) and moved.low.device.type == "meta"
+    # a checkpoint of a per-env command loads into a freshly built one (one range): the buffers take the saved shape
+    fresh = GoalCommand(SPACE, resample_steps=(2, 5))
+    fresh.load_state_dict(saved_and_loaded(command.state_dict()))
+    assert torch.equal(fresh.low, low) and torch.equal(fresh.high, high)
+    batch = torch.Size([8])
+    draws = [c._sample_goals(batch, torch.float64, torch.device("cpu")) for c in (command, fresh)]
+    assert torch.equal(draws[0], draws[1]) and in_own_range(draws[0], low, high)
+    # and back: one range into a per-env command
+    fresh.load_state_dict(GoalCommand(SPACE, seed=2).state_dict())
+    assert fresh.low.shape == fresh.high.shape == (1,)
+    state = command.state_dict()
+    state["low"] = torch.zeros(8, 2, dtype=torch.float64)
+    with pytest.raises(ValueError, match=r"the saved range 'low' must have shape \[1\] or \[\*B, 1\] .* got \[8, 2\]"):
+        fresh.load_state_dict(state)
+    # through the env's state (what a collector checkpoint holds)
+    env = make_env(resample_steps=(2, 5))
+    env.transform[-1].use_per_env_range(env.batch_size)
+    env.transform[-1].high.copy_(high)
+    rebuilt = make_env(resample_steps=(2, 5))
+    rebuilt.load_state_dict(env.state_dict())
+    assert torch.equal(rebuilt.transform[-1].high, high) and rebuilt.transform[-1].low.shape == (8, 1)
+
+
+def test_a_curriculum_schedules_a_per_env_range():
+    """A scalar schedule is written into every env's row (the buffer keeps its shape [B, k])."""
+    command = GoalCommand(SPACE, resample_steps=1, seed=0)
+    command.use_per_env_range([8])
+    env = TransformedEnv(
+        PendulumEnv(batch_size=[8], seed=0, dtype=torch.float64),
+        Compose(
+            StepCounter(MAX_STEPS),
+            TaskTransform(angle_task(), goal_key="goal"),
+            Curriculum({"command.high": linear(-0.5, 0.5, 0, 8 * 20)}),
+            command,
+        ),
+    )
+    data = env.rollout(20, break_when_any_done=False)
+    high = data["next", "curriculum", "command/high"]  # the value of each step, with which its goal was drawn
+    assert (data["next", "goal"] <= high).all() and (data["next", "goal"] >= SPACE.low).all()
+    assert command.high.shape == (8, 1) and torch.equal(command.high, torch.full((8, 1), 0.5, dtype=torch.float64))
