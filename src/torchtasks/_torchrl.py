@@ -89,6 +89,11 @@ class EnvDerivedTransform(Transform):
         copy.__dict__["_original"] = weakref.ref(self)
         return copy
 
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state.pop("_original", None)  # a weak reference: not picklable, and meaningless in a copy
+        return state
+
     def home_transforms(self) -> tuple[list[Transform], int] | None:
         """The leaf transforms of the env this transform works in and its index among them; ``None`` outside an env.
 
