@@ -99,8 +99,8 @@ class Schedule(nn.Module):
         return None
 
     def _value_of(self, state: Hashable) -> torch.Tensor | float | list:
-        """The value for a :meth:`_state_at` fact: a Python float for a scalar schedule, else a float64 tensor or
-        (a small value computed on the host) nested lists of Python floats of its shape."""
+        """The value for a :meth:`_state_at` fact: a Python float for a value of one element (of any shape), else a
+        float64 tensor or (a small value computed on the host) nested lists of Python floats of its shape."""
         raise NotImplementedError
 
     def _host_copy(self, name: str) -> float | list:
@@ -129,13 +129,20 @@ class _Constant(Schedule):
         return 0
 
     def _value_of(self, state: Hashable) -> torch.Tensor | float:
-        return self._host_copy("value") if self.value.dim() == 0 else self.value
+        return _single(self._host_copy("value")) if self.value.numel() == 1 else self.value
 
     def extra_repr(self) -> str:
         return f"value={self.value.tolist()}"
 
 
 _HOST_VALUES = 64  # a linear schedule's values of at most this many elements are computed on the host
+
+
+def _single(value: float | list) -> float:
+    """The one float of a value of one element (``x``, ``[x]``, ``[[x]]``, ...)."""
+    while isinstance(value, list):
+        (value,) = value
+    return value
 
 
 def _lerp(start: float | list, end: float | list, fraction: float) -> float | list:
@@ -180,7 +187,8 @@ class _Linear(Schedule):
         if self.start_value.numel() > _HOST_VALUES:
             return self.start_value + state * (self.end_value - self.start_value)
         # forward()'s three float64 ops, in its order, on the host: one tensor to make instead of four ops
-        return _lerp(self._host_copy("start_value"), self._host_copy("end_value"), state)
+        value = _lerp(self._host_copy("start_value"), self._host_copy("end_value"), state)
+        return _single(value) if self.start_value.numel() == 1 else value
 
     def extra_repr(self) -> str:
         return (
@@ -212,7 +220,7 @@ class _Staged(Schedule):
         return bisect.bisect_right(self._host_copy("boundaries"), frames) - 1
 
     def _value_of(self, state: Hashable) -> torch.Tensor | float:
-        return self._host_copy("values")[state] if self.values.dim() == 1 else self.values[state]
+        return _single(self._host_copy("values")[state]) if self.values[0].numel() == 1 else self.values[state]
 
     def extra_repr(self) -> str:
         return f"boundaries={self.boundaries.tolist()}"
@@ -758,12 +766,12 @@ class Curriculum(EnvDerivedTransform):
             value = schedule(frames) if state is None else schedule._value_of(state)
             if isinstance(value, list):
                 value = torch.tensor(value, dtype=buffer.dtype, device=buffer.device)
-            if isinstance(value, float):  # a scalar frame-driven value, on the host
+            if isinstance(value, float):  # a frame-driven value of one element, on the host
                 if replace:
                     buffer = module._buffers[leaf] = torch.full_like(buffer, value)
                 else:
                     buffer.fill_(value)
-                entry = torch.full((*batch, 1), value, dtype=buffer.dtype, device=buffer.device)
+                entry = torch.full((*batch, *shape), value, dtype=buffer.dtype, device=buffer.device)
             else:
                 if value.dtype != buffer.dtype or value.device != buffer.device:
                     value = value.to(device=buffer.device, dtype=buffer.dtype)

@@ -332,29 +332,38 @@ def test_a_collector_checkpoint_resumes_the_curriculum():
 
 
 # ------------------------------------------------------------------------------------------ the cheap step
+def assert_forwards_values(env: TransformedEnv, schedules: dict, dtype: torch.dtype, steps: int = 30) -> None:
+    """Every entry of a rollout and the buffers after it equal forward() at the entry's count, cast to ``dtype``."""
+    data = env.rollout(steps, policy())
+    batch = env.batch_size[0]
+    counts = data["next", "curriculum", "frames"][0, :, 0]
+    assert torch.equal(counts, torch.arange(1, steps + 1) * batch)
+    for target, schedule in schedules.items():
+        entry = data["next", "curriculum", target.replace(".", "/")]
+        for t, count in enumerate(counts.tolist()):
+            expected = schedule(frames(count)).to(dtype).expand(entry.shape[2:])
+            assert torch.equal(entry[:, t], expected.expand(batch, *expected.shape)), (target, t)
+        buffer = env.transform[1].task.get_buffer(target)
+        assert torch.equal(buffer, schedule(frames(steps * batch)).to(dtype).expand_as(buffer)), target
+
+
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32], ids=["float64", "float32"])
 def test_the_host_evaluated_values_are_forwards_bit_for_bit(dtype):
     """Frame-driven schedules are evaluated on the host in a step: every entry and the buffers equal forward() at the
-    entry's frame count, cast to the env's dtype, exactly, on counts that round (a batch of 7, odd ramp spans)."""
-    track_q = "wrapped_task.reward.rewards.track.Q"
+    entry's frame count, cast to the env's dtype, exactly, on counts that round (a batch of 7, odd ramp spans);
+    scalars, one-element values (the swing-up task's effort weight R, shape [1]) and vectors."""
     schedules = {
         WEIGHT: linear(0.1, 0.7, start_frame=3, end_frame=1001),
         "success_value": staged({0: 0.3, 50: 1.0 / 3.0, 100: 2.0 / 7.0}),
-        track_q: linear([1.0, 0.1], [1.0 / 3.0, 0.7], 10, 10 + 7 * 11),
+        "wrapped_task.reward.rewards.track.Q": linear([1.0, 0.1], [1.0 / 3.0, 0.7], 10, 10 + 7 * 11),
         "wrapped_task.state_des": constant([0.1, -0.2]),
         "failure_value": linear(0.0, -1.0, 70, 70),  # a step at frame 70
     }
-    env = make_env(schedules, batch=7, dtype=dtype)
-    data = env.rollout(30, policy())
-    counts = data["next", "curriculum", "frames"][0, :, 0]
-    assert torch.equal(counts, torch.arange(1, 31) * 7)
-    for target, schedule in schedules.items():
-        name = target.replace(".", "/")
-        for t, count in enumerate(counts.tolist()):
-            expected = schedule(frames(count)).to(dtype).expand(data["next", "curriculum", name].shape[2:])
-            assert torch.equal(data["next", "curriculum", name][:, t], expected.expand(7, *expected.shape)), (target, t)
-        buffer = env.transform[1].task.get_buffer(target)
-        assert torch.equal(buffer, schedule(frames(30 * 7)).to(dtype).expand_as(buffer)), target
+    assert_forwards_values(make_env(schedules, batch=7, dtype=dtype), schedules, dtype)
+    effort = "wrapped_task.reward.rewards.effort.R"
+    for schedule in (linear([0.1], [1.0 / 3.0], 3, 1001), staged({0: [0.3], 50: [2.0 / 7.0]}), constant([1.0 / 3.0])):
+        env = make_env({effort: schedule}, task=swing_up_task(), batch=7, dtype=dtype)
+        assert_forwards_values(env, {effort: schedule}, dtype)
 
 
 def test_whatever_else_writes_the_counter_or_a_buffer_is_written_over():
