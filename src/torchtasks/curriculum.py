@@ -16,7 +16,6 @@ restores them on resume.
 from __future__ import annotations
 
 import bisect
-import weakref
 from collections.abc import Hashable, Mapping, Sequence
 
 import torch
@@ -28,7 +27,7 @@ from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
-from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, nested_key
+from torchtasks._torchrl import EnvDerivedTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.transforms import TaskTransform
 
@@ -553,13 +552,13 @@ class Curriculum(EnvDerivedTransform):
 
     # ------------------------------------------------------------------ setup
     def _flat(self) -> tuple[list[Transform], int]:
-        """The leaf transforms of the env and the Curriculum's position among them."""
-        env = container_env(self)
-        transform = getattr(env, "transform", None)
-        if transform is None:
+        """The leaf transforms of the env and the Curriculum's position among them (for a clone in TorchRL's view of
+        a later transform's parent env, those of the env of the Curriculum it was cloned from, which holds the
+        GoalCommands it schedules)."""
+        home = self.home_transforms()
+        if home is None:
             raise ValueError("Curriculum must sit in a TransformedEnv, after the TaskTransform whose task it schedules")
-        flat = flat_transforms(transform)
-        return flat, next(i for i, t in enumerate(flat) if t is self)
+        return home
 
     def _task_transform(self) -> TaskTransform:
         flat, position = self._flat()
@@ -572,22 +571,10 @@ class Curriculum(EnvDerivedTransform):
             )
         return tasks[0]
 
-    def _command_env(self) -> Curriculum:
-        """The Curriculum whose env holds the scheduled GoalCommands: this one, or, for a clone that is the last
-        transform of its env (TorchRL's view of a later transform's parent env), the Curriculum it was cloned from."""
-        original = self.__dict__.get("_original")
-        source = None if original is None else original()
-        if source is None or source is self:
-            return self
-        flat, position = self._flat()
-        if position < len(flat) - 1 or container_env(source) is None:
-            return self
-        return source._command_env()
-
     def _command_slots(self) -> tuple[dict[str, tuple[nn.Module, str]], dict[str, list[str]], list[str]]:
         """The command targets: ``{name: (GoalCommand, buffer name)}``, ``{ambiguous short name: choices}`` and the
         names an error lists (the short ones with one GoalCommand, the qualified ones with several)."""
-        flat, _ = self._command_env()._flat()
+        flat, _ = self._flat()
         commands = [t for t in flat if isinstance(t, GoalCommand)]
         names: dict[str, tuple[nn.Module, str]] = {}
         ambiguous: dict[str, list[str]] = {}
@@ -650,7 +637,7 @@ class Curriculum(EnvDerivedTransform):
 
     def _check_ranges(self, slots: list[tuple[nn.Module, str]]) -> None:
         """Refuse a scheduled GoalCommand range that leaves its Box or has ``low > high``; check the command's order."""
-        flat, position = self._command_env()._flat()
+        flat, position = self._flat()
         scheduled: dict[int, dict[str, tuple[str, Schedule]]] = {}
         for target, (module, leaf), schedule in zip(self.targets, slots, self.schedules, strict=True):
             if isinstance(module, GoalCommand):
@@ -707,13 +694,6 @@ class Curriculum(EnvDerivedTransform):
     def _forget_setup(self) -> None:
         self.__dict__.pop("_slots", None)
         self._forget_written()
-
-    def clone(self) -> Curriculum:
-        copy = super().clone()
-        # TorchRL builds a transform's `parent` env from clones of the transforms before it: a clone of this
-        # Curriculum there has no GoalCommand after it, and finds the commands it schedules in this one's env
-        copy.__dict__["_original"] = weakref.ref(self)
-        return copy
 
     # ------------------------------------------------------------------ specs
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
