@@ -8,6 +8,9 @@ no threshold and knows no env: the numbers are the task's own verdicts, counted.
 
 from __future__ import annotations
 
+import math
+from collections.abc import Mapping
+
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
@@ -140,6 +143,8 @@ def episode_statistics(
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = "curriculum",
+    cost_terms_key: NestedKey | None = "task_cost",
+    cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
 ) -> dict[str, float]:
     """Return statistics of the episodes that end in ``batch``: outcome rates, mean length and returns per term.
@@ -201,6 +206,11 @@ def episode_statistics(
       ``time_dim`` (flat layout: the frames with the largest frame count); the values are means over
       those frames, i.e. over the envs, which hold the same values when they share one Curriculum.
       Data without the entries give none of these keys.
+    - ``cost_mean/<name>`` (when the data holds a task's costs ``("next", cost_terms_key, name)``, as a
+      :class:`~torchtasks.transforms.TaskTransform` of a :class:`~torchtasks.tasks.ConstrainedTask` writes
+      them): the mean over the complete episodes of the episode's summed cost, per constraint; with
+      ``cost_limits={name: limit}`` also ``cost_violation_rate/<name>``, the fraction of those episodes
+      whose summed cost exceeds the limit.
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
       :class:`~torchtasks.levels.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
@@ -215,6 +225,10 @@ def episode_statistics(
             written: a goal carried in the task memory is the one the step was judged with in the
             memory after the step (e.g. ``("next", "task", "wrapped", "state_des")``; the memory at
             the root holds the previous step's goal when a ``goal_key`` feeds the task).
+        cost_terms_key: the TaskTransform's ``cost_terms_key`` (per-constraint costs under ``"next"``); data
+            without it report no costs; ``None`` skips them.
+        cost_limits: ``{cost name: limit}`` for the violation rates (e.g. ``task.cost_limits`` without the
+            ``None`` ones); a name that is not a cost of the data is a ``KeyError``.
         curriculum_key: the Curriculum's ``curriculum_key`` (its entries are read under ``"next"``);
             data without it report no scheduled values; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
@@ -252,14 +266,29 @@ def episode_statistics(
             ("goal_key", goal_key),
             ("achieved_goal_key", achieved_goal_key),
             ("curriculum_key", curriculum_key),
+            ("cost_terms_key", cost_terms_key),
         )
     }
+    limits = _cost_limits(cost_limits)
     with torch.no_grad():
-        return _statistics(batch, keys, _time_dim(batch, time_dim))
+        return _statistics(batch, keys, limits, _time_dim(batch, time_dim))
+
+
+def _cost_limits(cost_limits: object) -> dict[str, float]:
+    if cost_limits is None:
+        return {}
+    if not isinstance(cost_limits, Mapping):
+        raise TypeError(f"episode_statistics: cost_limits must be a mapping {{cost name: limit}}, got {cost_limits!r}")
+    limits = {}
+    for name, limit in cost_limits.items():
+        if isinstance(limit, bool) or not isinstance(limit, (int, float)) or not math.isfinite(limit) or limit < 0:
+            raise ValueError(f"episode_statistics: cost_limits[{name!r}] must be a finite number >= 0, got {limit!r}")
+        limits[name] = float(limit)
+    return limits
 
 
 def _statistics(
-    batch: TensorDictBase, keys: dict[str, tuple[str, ...] | None], time_dim: int | None
+    batch: TensorDictBase, keys: dict[str, tuple[str, ...] | None], limits: dict[str, float], time_dim: int | None
 ) -> dict[str, float]:
     frames = _Frames(batch, time_dim)
     # every entry that a given key names is read (and checked) up front, whether or not an episode ended
@@ -279,6 +308,18 @@ def _statistics(
     if keys["terms_key"] is not None:
         for name in _term_names(batch, keys["terms_key"]):
             returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
+    costs: dict[str, torch.Tensor] = {}  # per constraint: the cost of every frame
+    if keys["cost_terms_key"] is not None and batch.get(("next", *keys["cost_terms_key"]), None) is not None:
+        for name in _term_names(batch, keys["cost_terms_key"]):
+            costs["/".join(name)] = _required(frames, (*keys["cost_terms_key"], *name), "cost_terms_key")
+    unknown = sorted(set(limits) - set(costs))
+    if unknown:
+        raise KeyError(
+            f"episode_statistics: cost_limits names {unknown}, which are not costs of the data (its costs under "
+            f"('next', *{keys['cost_terms_key']!r}): {sorted(costs)})"
+        )
+    for name, value in costs.items():
+        returns["cost_mean/" + name] = value
     goals = None
     if keys["goal_key"] is not None:
         goals = (  # the goal that judged step t, and the goal achieved by it
@@ -362,6 +403,9 @@ def _statistics(
         for stat, value in returns.items():
             sums = torch.zeros(slots, dtype=torch.float64, device=device).index_add_(0, ids, value.to(torch.float64))
             results[stat] = sums[episode][complete].mean()
+            name = stat[len("cost_mean/") :]
+            if stat.startswith("cost_mean/") and name in limits:
+                results["cost_violation_rate/" + name] = _mean(sums[episode][complete] > limits[name])
     if goals is not None:
         goal, achieved = (value[ends].to(torch.float64) for value in goals)
         results["final_goal_distance_mean"] = torch.linalg.vector_norm(goal - achieved, dim=-1).mean()

@@ -162,6 +162,12 @@ class TaskTransform(EnvDerivedTransform):
             with) of ``s_{t+1}`` under ``"next"`` (and of the initial state at reset).
         goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has
             several.
+        cost_key, cost_terms_key: where a tree with costs (:class:`~torchtasks.tasks.ConstrainedTask`)
+            writes them under ``"next"``: all costs as ``cost_key`` (``[*B, k]``, in
+            :attr:`cost_names` order) and each one as ``(cost_terms_key, name)`` (``[*B, 1]``, for a
+            ``RewardSum`` over :attr:`cost_keys` and for :func:`~torchtasks.stats.episode_statistics`);
+            both are reward-spec entries, so they are not carried to the next step's root. A tree
+            without costs writes neither.
 
     Example:
         >>> import torch
@@ -198,6 +204,8 @@ class TaskTransform(EnvDerivedTransform):
         goal_key: NestedKey | None = None,
         achieved_goal_key: NestedKey | None = None,
         goal_name: str | None = None,
+        cost_key: NestedKey = "cost",
+        cost_terms_key: NestedKey = "task_cost",
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -217,6 +225,10 @@ class TaskTransform(EnvDerivedTransform):
         self.success_key = nested_key(success_key, "TaskTransform: success_key")
         self.failure_key = nested_key(failure_key, "TaskTransform: failure_key")
         self.terms_key = nested_key(terms_key, "TaskTransform: terms_key")
+        self.cost_key = nested_key(cost_key, "TaskTransform: cost_key")
+        self.cost_terms_key = nested_key(cost_terms_key, "TaskTransform: cost_terms_key")
+        self.cost_names = tuple(task.cost_names)
+        self._cost_keys = [unravel_key((*key_parts(self.cost_terms_key), name)) for name in self.cost_names]
         self.reward_on = reward_on
         self.log_terms = log_terms
         self.goal_key = None if goal_key is None else nested_key(goal_key, "TaskTransform: goal_key")
@@ -252,6 +264,7 @@ class TaskTransform(EnvDerivedTransform):
     def _check_key_collisions(self) -> None:
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
         names = ["reward_key", "memory_key", "success_key", "failure_key", *(["terms_key"] if self.log_terms else [])]
+        names += ["cost_key", "cost_terms_key"] if self.cost_names else []
         outputs = [(f"{name}={getattr(self, name)!r}", getattr(self, name)) for name in names]
         others = [(f"the env's {flag!r} flag", flag) for flag in ("done", "terminated", "truncated")]
         others += [(f"the state key {key!r}", key) for key in self.state_keys]
@@ -272,6 +285,11 @@ class TaskTransform(EnvDerivedTransform):
     def term_keys(self) -> list[NestedKey]:
         """Keys of the reward breakdown: step and final reward (if the tree pays a final reward), then the terms."""
         return list(self._term_keys)
+
+    @property
+    def cost_keys(self) -> list[NestedKey]:
+        """Keys of the per-constraint costs ``(cost_terms_key, name)``, one per cost of the tree (none without)."""
+        return list(self._cost_keys)
 
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
@@ -453,6 +471,11 @@ class TaskTransform(EnvDerivedTransform):
         self.__dict__["_reward_dtype"] = base.dtype
         for key in self.term_keys:
             reward_spec[key] = Unbounded(shape=base.shape, dtype=base.dtype, device=base.device)
+        if self.cost_names:
+            shape = (*base.shape[:-1], len(self.cost_names))
+            reward_spec[self.cost_key] = Unbounded(shape=shape, dtype=base.dtype, device=base.device)
+            for key in self._cost_keys:
+                reward_spec[key] = Unbounded(shape=base.shape, dtype=base.dtype, device=base.device)
         return reward_spec
 
     # ----------------------------------------------------------------------- helpers
@@ -634,7 +657,7 @@ class TaskTransform(EnvDerivedTransform):
             next_tensordict, state.shape[:-1], offline
         )
         remaining = self._remaining(next_tensordict, state, offline)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms = self._evaluator()(
+        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs = self._evaluator()(
             state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
         )
         reward_dtype = self.__dict__.get("_reward_dtype")
@@ -656,6 +679,11 @@ class TaskTransform(EnvDerivedTransform):
             values = [step_reward, final] if self._writes_step_final else []
             values += [terms[name] for name in self._term_names]
             for key, value in zip(self._term_keys, values, strict=True):
+                td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
+        if self.cost_names:
+            values = [costs[name] for name in self.cost_names]
+            td_set(next_tensordict, self.cost_key, torch.stack(values, -1).to(reward_dtype))
+            for key, value in zip(self._cost_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
         return next_tensordict
 
@@ -806,7 +834,8 @@ class TaskTransform(EnvDerivedTransform):
         """The ``"next"`` entries :meth:`relabel` rewrites: every output of the step that depends on the goal."""
         memory_keys = [self.memory_key] if self._has_memory else []
         flags = [self.success_key, self.failure_key, "terminated", "done"]
-        return [self.reward_key, *flags, *self._term_keys, *memory_keys]
+        costs = [self.cost_key, *self._cost_keys] if self.cost_names else []
+        return [self.reward_key, *flags, *self._term_keys, *costs, *memory_keys]
 
     def __repr__(self) -> str:
         name = type(self.task).__name__

@@ -2,6 +2,7 @@
 
 from torchtasks.tasks.base import Task, TaskWrapper, all_tasks
 from torchtasks.tasks.composite import CompositeTask
+from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDesiredStateTask
 from torchtasks.tasks.final_reward import BestStateFinalRewardTask, FinalRewardMode, FinalRewardTask
 from torchtasks.tasks.flipping import FlippingTask
@@ -18,6 +19,8 @@ __all__ = [
     "BestStateFinalRewardTask",
     "CompositeTask",
     "ConditionTask",
+    "ConstrainedTask",
+    "Constraint",
     "DesiredSpaceTask",
     "DesiredStateTask",
     "FinalRewardMode",

@@ -54,6 +54,7 @@ TransitionTuple = tuple[
     torch.Tensor,  # done
     TensorDictBase,  # memory
     dict[str, torch.Tensor],  # terms
+    dict[str, torch.Tensor],  # costs
 ]
 
 
@@ -278,6 +279,30 @@ class Task(nn.Module):
             keys |= child.all_reset_keys()
         return keys
 
+    @property
+    def cost_names(self) -> tuple[str, ...]:
+        """The names of the tree's costs (:class:`~torchtasks.tasks.ConstrainedTask`), in evaluation order."""
+        return tuple(name for child in self.children_tasks() for name in child.cost_names)
+
+    @property
+    def cost_limits(self) -> dict[str, float | None]:
+        """``{cost name: limit}`` (``None``: no limit given) for every cost of the tree."""
+        limits: dict[str, float | None] = {}
+        for child in self.children_tasks():
+            limits.update(child.cost_limits)
+        return limits
+
+    def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``{name: cost [*B]}`` of the tree on ``state`` (raw, the task's state space) and ``action``.
+
+        Composites hand the state they give their children (a :class:`MaskedTask` its selection);
+        a :class:`~torchtasks.tasks.ConstrainedTask` adds its own.
+        """
+        costs: dict[str, torch.Tensor] = {}
+        for child in self.children_tasks():
+            costs.update(child._step_costs(state, action))
+        return costs
+
     # ------------------------------------------------------------------------- validation
     def _check_state(self, state: torch.Tensor, name: str = "state") -> None:
         check_input(state, name, self.state_size)
@@ -333,11 +358,11 @@ class Task(nn.Module):
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
-    def _static_facts(self) -> tuple[bool, bool, bool]:
-        """``(has named terms, reads remaining steps, pays a final reward)`` of this task tree: cached."""
+    def _static_facts(self) -> tuple[bool, bool, bool, bool]:
+        """``(has named terms, reads remaining steps, pays a final reward, has costs)`` of this task tree: cached."""
         facts = self.__dict__.get("_facts")
         if facts is None:
-            facts = (bool(self.term_names), self.uses_remaining_steps, self.pays_final_reward)
+            facts = (bool(self.term_names), self.uses_remaining_steps, self.pays_final_reward, bool(self.cost_names))
             self.__dict__["_facts"] = facts
         return facts
 
@@ -594,6 +619,8 @@ class Task(nn.Module):
         else:
             terms = {}
             step_reward, memory = self._step_reward(source, action, memory, remaining_steps, step_terminated)
+        # costs: stateless functions of the state the step reward sees (and the action), never shaped or paid once
+        costs = self._step_costs(source, action) if self._static_facts()[3] else {}
         success = self._has_succeeded(next_state, memory)
         failure = self._has_failed(next_state, memory)
         ended = success | failure
@@ -601,9 +628,10 @@ class Task(nn.Module):
             ended = ended | terminated
         done = ended if truncated is None else ended | truncated
         if not self._static_facts()[2]:  # no task of the tree pays a final reward: it is 0
-            return step_reward, step_reward, torch.zeros_like(step_reward), success, failure, ended, done, memory, terms
+            final = torch.zeros_like(step_reward)
+            return step_reward, step_reward, final, success, failure, ended, done, memory, terms, costs
         final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
-        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms
+        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms, costs
 
     # ------------------------------------------------------------------- implementation
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:

@@ -128,6 +128,9 @@ class MaskedTask(Task):
         action = self._action(action)
         return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps, terminated)
 
+    def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._step_costs(self._state(state), self._action(action))
+
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._has_succeeded(self._state(state), memory)
 

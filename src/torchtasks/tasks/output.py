@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 from tensordict import TensorDictBase
@@ -28,6 +28,8 @@ class TaskOutput:
         terms: ``{name: value[*B]}``, the named terms of the step reward (empty when the task has
             none); for a sum of terms (:class:`~torchtasks.rewards.CompoundReward`) they add up to
             ``step_reward``.
+        costs: ``{name: cost[*B]}``, the named costs of the tree's constraints on the state the step
+            reward sees (empty when the task has none, see :class:`~torchtasks.tasks.ConstrainedTask`).
 
     Example:
         >>> import torch
@@ -50,3 +52,4 @@ class TaskOutput:
     done: torch.Tensor
     memory: TensorDictBase
     terms: dict[str, torch.Tensor]
+    costs: dict[str, torch.Tensor] = field(default_factory=dict)
