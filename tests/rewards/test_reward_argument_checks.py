@@ -28,6 +28,7 @@ from tensordict import TensorDict
 import torchtasks.rewards as rewards_module
 from task_trees import class_cases, full_spec, make_drive_data, memory_leaves, predefined_cases
 from torchtasks.rewards import (
+    AboveThresholdIndicator,
     AbsoluteErrorReward,
     AffineReward,
     AntForwardReward,
@@ -377,6 +378,9 @@ SIZED = {
     ),
     "healthy": SizedCase(HealthyReward, *_healthy_case()),
     "contact_cost": SizedCase(ContactCostReward, *_contact_case()),
+    "above_threshold": SizedCase(
+        AboveThresholdIndicator, *_index_case(lambda i: AboveThresholdIndicator(0.5, index=i), "index")
+    ),
     "ant": SizedCase(AntForwardReward, *_locomotion_case(AntForwardReward)),
     "humanoid": SizedCase(HumanoidForwardReward, *_locomotion_case(HumanoidForwardReward)),
     "swing_up": SizedCase(SwingUpReward, *_swing_up_case()),
@@ -546,6 +550,7 @@ CALL_CASES = {
     "control_cost": CallCase(lambda: ControlCostReward(0.1)),
     "healthy": CallCase(lambda: HealthyReward(1.0, index=[0, 4], low=-1.0, high=1.0), min_state=5),
     "contact_cost": CallCase(lambda: ContactCostReward(0.5, start=2, stop=5), min_state=5),
+    "above_threshold": CallCase(lambda: AboveThresholdIndicator(0.5, index=[0, 4], norm=True), min_state=5),
     # stateful: step(state, action, memory) after reset(init_state)
     "forward_velocity": CallCase(lambda: ForwardVelocityReward(0.05, index=4), min_state=5, state_name="state"),
     "ant": CallCase(lambda: AntForwardReward(0.05, contact_forces_start=4), min_state=5, state_name="state"),

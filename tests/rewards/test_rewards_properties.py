@@ -22,6 +22,7 @@ from tensordict import TensorDict
 from torch import nn
 
 from torchtasks.rewards import (
+    AboveThresholdIndicator,
     AbsoluteErrorReward,
     AffineReward,
     AntForwardReward,
@@ -220,6 +221,13 @@ CASES = [
         "healthy",
         lambda: HealthyReward(5.0, index=[0, 2], low=[-0.5, -1.0], high=[0.5, 1.0], terminate_when_unhealthy=True),
         lambda s, a: 5.0 * ((np.abs(s[..., 0]) < 0.5) & (np.abs(s[..., 2]) < 1.0)),
+        uses_action=False,
+        differentiable=False,
+    ),
+    Case(
+        "above_threshold",
+        lambda: AboveThresholdIndicator(0.8, index=[0, 2], norm=True),
+        lambda s, a: (np.sqrt(s[..., 0] ** 2 + s[..., 2] ** 2) > 0.8).astype(np.float64),
         uses_action=False,
         differentiable=False,
     ),

@@ -46,7 +46,7 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
 
-from torchtasks.envs.gymnasium_v5 import ModelFacts, gymnasium_config, locomotion_record
+from torchtasks.envs.gymnasium_v5 import LocomotionEnvRecord, ModelFacts, gymnasium_config, locomotion_record
 
 __all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
 
@@ -71,6 +71,19 @@ _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 _REBUILT = ("_pool", "datas", "_state", "_readers", "_observation_plan", "_entry_sources", "_position", "_mass_weights")
 
 
+def _check_state_keys(task_state_keys: object, record: LocomotionEnvRecord) -> tuple[str, ...]:
+    """Return ``task_state_keys`` as a tuple; raise unless it names distinct task-state entries the env can write."""
+    if isinstance(task_state_keys, (str, bytes)) or not isinstance(task_state_keys, Sequence):
+        raise TypeError(f"task_state_keys must be a sequence of entry names, got {task_state_keys!r}")
+    keys = tuple(task_state_keys)
+    known = (*record.velocity_keys, "qpos", "qvel", "cfrc_ext")
+    if not keys or len(set(keys)) != len(keys) or not all(isinstance(key, str) and key in known for key in keys):
+        raise ValueError(
+            f"task_state_keys must be distinct names among {list(known)} ({record.env_id}), got {list(keys)!r}"
+        )
+    return keys
+
+
 def _default_threads() -> int:
     try:
         return len(os.sched_getaffinity(0))
@@ -93,12 +106,13 @@ class BatchedMujocoEnv(EnvBase):
 
     - ``"observation"``: Gymnasium's observation for these keywords (e.g. without the x position
       by default, Hopper's and Walker2d's velocities clipped to ±10, Ant's clipped contact forces).
-    - the task state of :func:`~torchtasks.envs.locomotion.locomotion_state_layout`, a subset of
-      ``"x_velocity"``, ``"qpos"``, ``"qvel"`` (unclipped) and ``"cfrc_ext"`` (all bodies,
-      flattened). ``"x_velocity"`` is Gymnasium's: ``qpos[0]`` (HalfCheetah, Hopper, Walker2d,
-      Swimmer), Ant's main-body ``xpos`` or Humanoid's centre of mass (from ``xipos``; these two lag
-      ``qpos`` by one substep, like Gymnasium's) finite-differenced over the step exactly as
-      Gymnasium does; 0 after a reset.
+    - the task state of :func:`~torchtasks.envs.locomotion.locomotion_state_layout` (or the
+      entries ``task_state_keys`` names), a subset of ``"x_velocity"``, ``"y_velocity"`` (Swimmer, Ant,
+      Humanoid), ``"qpos"``, ``"qvel"`` (unclipped) and ``"cfrc_ext"`` (all bodies, flattened).
+      ``"x_velocity"`` and ``"y_velocity"`` are Gymnasium's ``info`` entries: ``qpos[0]``
+      (HalfCheetah, Hopper, Walker2d; Swimmer ``qpos[0:2]``), Ant's main-body ``xpos[:2]`` or
+      Humanoid's centre of mass (from ``xipos``; these two lag ``qpos`` by one substep, like
+      Gymnasium's) finite-differenced over the step exactly as Gymnasium does; 0 after a reset.
 
     The env pays no reward (``"reward"`` is 0, float64) and ends no episode by itself: put a
     :class:`~torchtasks.transforms.TaskTransform` of
@@ -148,6 +162,9 @@ class BatchedMujocoEnv(EnvBase):
             moves them.
         num_threads: threads that step the envs (the calling thread included); default: the CPUs
             this process may use, at most ``num_envs``.
+        task_state_keys: the task-state entries to write, in order (default: the env record's
+            ``state_keys``, what :func:`~torchtasks.envs.locomotion.locomotion_task` reads; the safety
+            presets add ``"y_velocity"`` for Ant and Humanoid).
         **gym_kwargs: the env's Gymnasium keyword arguments (validated as by
             :func:`~torchtasks.envs.locomotion.locomotion_task`, e.g. ``reset_noise_scale`` must be a
             finite, non-negative number). Rendering is not supported.
@@ -178,6 +195,7 @@ class BatchedMujocoEnv(EnvBase):
         seed: int | None = None,
         device: torch.device | str | None = None,
         num_threads: int | None = None,
+        task_state_keys: Sequence[str] | None = None,
         _checked: tuple[dict[str, Any], ModelFacts] | None = None,
         **gym_kwargs: Any,
     ) -> None:
@@ -198,6 +216,10 @@ class BatchedMujocoEnv(EnvBase):
         self.num_envs = num_envs
         self.num_threads = num_threads
         self.gym_kwargs = dict(gym_kwargs)
+        #: the task-state entries written at every reset and step, in order
+        self.task_state_keys = _check_state_keys(
+            record.state_keys if task_state_keys is None else task_state_keys, record
+        )
         #: whether some env of the last step was broken (a host fact; ZeroBrokenStepReward skips its work without)
         self.last_step_broken = False
         self._record = record
@@ -210,7 +232,7 @@ class BatchedMujocoEnv(EnvBase):
         self.init_qpos = facts.init_qpos.copy()
         self.init_qvel = facts.init_qvel.copy()
         self.datas = [mujoco.MjData(self.model) for _ in range(num_envs)]
-        self.state_layout = record.state_layout(facts)
+        self.state_layout = record.state_layout(facts, self.task_state_keys)
         self.reset_noise_scale = float(config["reset_noise_scale"])
         self._setup_buffers()
         if self._observation_size != facts.observation_size:  # a Gymnasium version that observes differently
@@ -251,12 +273,12 @@ class BatchedMujocoEnv(EnvBase):
                 arrays[attribute] = reader(attribute)
             return arrays[attribute]
 
-        # the task-state entries, as views of the gather buffers (x_velocity is computed)
+        # the task-state entries, as views of the gather buffers (the velocities are computed)
         self._entry_sources: dict[str, np.ndarray | None] = {
-            key: None if key == "x_velocity" else array(key).reshape(n, -1) for key in record.state_keys
+            key: None if key in record.velocity_keys else array(key).reshape(n, -1) for key in self.task_state_keys
         }
-        # the forward position that Gymnasium finite-differences into x_velocity: qpos[0], the main body's
-        # xpos[:2] or the centre of mass (from xipos, weighted by the body masses)
+        # the forward position that Gymnasium finite-differences into x_velocity (and y_velocity): qpos[0] (Swimmer:
+        # qpos[0:2]), the main body's xpos[:2] or the centre of mass (from xipos, weighted by the body masses)
         self._mass_weights: np.ndarray | None = None
         if record.forward_position == "main_body":
             self._position: np.ndarray = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
@@ -264,7 +286,7 @@ class BatchedMujocoEnv(EnvBase):
             self._position = reader("xipos")
             self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
         else:
-            self._position = arrays["qpos"][:, :1]
+            self._position = arrays["qpos"][:, : len(record.velocity_keys)]
         self._previous_position = np.zeros_like(self._forward_position())
 
         #: (columns, source view, clip bounds or None): the observation is their concatenation
@@ -364,8 +386,10 @@ class BatchedMujocoEnv(EnvBase):
         self._gather(i, data)
 
     # ------------------------------------------------------------------ outputs
-    def _outputs(self, x_velocity: np.ndarray | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
+    def _outputs(self, velocity: np.ndarray | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
         """Fresh tensors on ``self.device``: the observation, the task-state entries, the flags (and a zero reward).
+
+        ``velocity`` (``[num_envs, len(velocity_keys)]``, or None after a reset: zeros) holds the velocities.
 
         ``broken`` (the envs of a broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
         """
@@ -386,9 +410,11 @@ class BatchedMujocoEnv(EnvBase):
                 return torch.from_numpy(array).to(device, non_blocking=True)
 
         out: dict[str, torch.Tensor] = {"observation": to_torch(observation)}
+        velocity_keys = self._record.velocity_keys
         for key in self.state_layout:
-            if key == "x_velocity":
-                value = np.zeros((n, 1)) if x_velocity is None else x_velocity
+            if key in velocity_keys:
+                column = velocity_keys.index(key)
+                value = np.zeros((n, 1)) if velocity is None else velocity[:, column : column + 1]
             else:
                 value = self._entry_sources[key].copy()
             out[key] = to_torch(value)
@@ -402,7 +428,7 @@ class BatchedMujocoEnv(EnvBase):
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
 
     def _forward_position(self) -> np.ndarray:
-        """The position Gymnasium finite-differences: ``qpos[:1]``, Ant's body ``xpos[:2]``, Humanoid's mass centre."""
+        """What Gymnasium finite-differences: ``qpos[:1]`` (Swimmer ``[:2]``), Ant's ``xpos[:2]``, the mass centre."""
         if self._mass_weights is None:
             return self._position.copy()
         weights = self._mass_weights
@@ -451,11 +477,11 @@ class BatchedMujocoEnv(EnvBase):
         if skipped is not None:
             broken |= skipped
         position = self._forward_position()
-        x_velocity = ((position - self._previous_position) / self.dt)[:, :1]
+        velocity = (position - self._previous_position) / self.dt
         self._previous_position = position
         self.last_step_broken = bool(broken.any())
         if not self.last_step_broken:
-            return self._outputs(x_velocity, None, reward=True)
+            return self._outputs(velocity, None, reward=True)
         invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
         diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
         warnings.warn(
@@ -464,8 +490,8 @@ class BatchedMujocoEnv(EnvBase):
             RuntimeWarning,
             stacklevel=2,
         )
-        x_velocity[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
-        return self._outputs(x_velocity, broken, reward=True)
+        velocity[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
+        return self._outputs(velocity, broken, reward=True)
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         self._check_open()

@@ -4,10 +4,13 @@
 ``Swimmer-v5``, ``Ant-v5``, ``Humanoid-v5``) to a :class:`LocomotionEnvRecord`: the task state it
 is scored on, how its observation is put together, how its resets draw velocities, how its forward
 velocity is measured and which reward terms it has, with the rules (contact cost, health) that
-differ from env to env. Everything that reads these facts reads them here:
+differ from env to env, and Safety-Gymnasium's velocity constraint of the env
+(:class:`SafetyVelocityRecord`: its v1 threshold and which velocity it bounds). Everything that reads
+these facts reads them here:
 :class:`~torchtasks.envs.batched_mujoco.BatchedMujocoEnv` (observation, reset noise, forward
-position), the task factory and the env builders of :mod:`torchtasks.envs.locomotion` (state layout,
-reward terms) and :mod:`torchtasks.parity` (keyword checks). A new env is one more record; a reader
+position, the velocities it writes), the task factories and the env builders of
+:mod:`torchtasks.envs.locomotion` (state layout, reward terms, the safety velocity cost) and
+:mod:`torchtasks.parity` (keyword checks). A new env is one more record; a reader
 never branches on the id.
 
 Two more things are read for an env and its Gymnasium keyword arguments:
@@ -53,6 +56,7 @@ __all__ = [
     "LocomotionEnvRecord",
     "ModelFacts",
     "ObservationPart",
+    "SafetyVelocityRecord",
     "gymnasium_config",
     "locomotion_record",
     "make_v5_env",
@@ -106,6 +110,74 @@ def _no_extras(config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
     return ()
 
 
+#: where Safety-Gymnasium's velocity tasks live (github.com/PKU-Alignment/safety-gymnasium)
+SAFETY_VELOCITY_SOURCE = "safety_gymnasium/tasks/safe_velocity"
+
+
+@dataclass(frozen=True)
+class SafetyVelocityRecord:
+    """Safety-Gymnasium's velocity constraint of one env: ``cost = float(velocity > threshold)`` per step.
+
+    Safety-Gymnasium's ``Safety<Env>Velocity-v1`` (github.com/PKU-Alignment/safety-gymnasium,
+    ``safety_gymnasium/tasks/safe_velocity/safety_<env>_velocity_v1.py``) subclasses its ``_v0``
+    class, which subclasses Gymnasium's **v4** env and returns ``(observation, reward, cost,
+    terminated, truncated, info)`` from ``step``; v1 changes only ``self._velocity_threshold`` (and,
+    for Swimmer, the quantity: v1's own ``step`` compares ``x_velocity``, v0 the planar speed). The
+    velocity is finite-differenced over the step exactly as Gymnasium v5 computes its
+    ``info["x_velocity"]``/``info["y_velocity"]``:
+
+    ============  =========  ======================================================================
+    env           threshold  velocity (``before``/``after`` the ``frame_skip`` substeps, ``/ dt``)
+    ============  =========  ======================================================================
+    HalfCheetah   3.2096     ``x_velocity``: ``qpos[0]``, signed
+    Hopper        0.7402     ``x_velocity``: ``qpos[0]``, signed
+    Walker2d      2.3415     ``x_velocity``: ``qpos[0]``, signed
+    Swimmer       0.2282     ``x_velocity``: ``qpos[0]`` (of ``qpos[0:2]``), signed
+    Ant           2.6222     ``sqrt(x_velocity² + y_velocity²)``: the torso's ``xpos[:2]``
+                             (``get_body_com("torso")``; v5's ``main_body``, default the torso)
+    Humanoid      1.4149     ``sqrt(x_velocity² + y_velocity²)``: the centre of mass
+                             ``Σ body_mass · xipos / Σ body_mass``, ``[:2]`` (``mass_center``)
+    ============  =========  ======================================================================
+
+    ``dt = timestep · frame_skip`` is the same in v4 and v5 (0.05, 0.008, 0.008, 0.04, 0.05, 0.015).
+    The comparison is strict and signed for the x-only envs (running backwards never costs, although
+    Safety-Gymnasium's documentation writes ``abs(x_velocity)``; its code compares the signed value).
+    torchtasks measures this velocity on Gymnasium **v5**'s dynamics, reward and termination, which
+    differ from the v4 envs Safety-Gymnasium runs: Walker2d-v5's right foot has the left foot's
+    friction (1.9, v4: 0.9), so its dynamics differ; Hopper, Walker2d, Ant and Humanoid v5 pay
+    ``healthy_reward`` only while healthy (v4 also on the terminating step); Ant-v5 always has a
+    contact cost and observes the contact forces (v4 with Safety-Gymnasium's defaults does neither);
+    Humanoid-v5 has a contact cost again and leaves the world body out of its observation. The
+    thresholds were set by Safety-Gymnasium from v4 runs (half the top speed of PPO after 1e7 steps,
+    ``docs/environments/safe_velocity.rst``) and are used unchanged.
+
+    Attributes:
+        safety_id: Safety-Gymnasium's id (``"SafetyHopperVelocity-v1"``).
+        threshold: the v1 ``_velocity_threshold``.
+        velocity_keys: the velocity entries compared: ``("x_velocity",)`` (the signed entry) or
+            ``("x_velocity", "y_velocity")`` (their Euclidean norm).
+        source: the file in Safety-Gymnasium's repository that sets the threshold.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import locomotion_record
+        >>> safety = locomotion_record("Ant-v5").safety_velocity
+        >>> safety.threshold, safety.velocity_keys, safety.planar
+        (2.6222, ('x_velocity', 'y_velocity'), True)
+        >>> safety.source
+        'safety_gymnasium/tasks/safe_velocity/safety_ant_velocity_v1.py'
+    """
+
+    safety_id: str
+    threshold: float
+    velocity_keys: tuple[str, ...]
+    source: str
+
+    @property
+    def planar(self) -> bool:
+        """Whether the speed in the plane (the norm of x and y velocities) is bounded, not the signed x velocity."""
+        return len(self.velocity_keys) > 1
+
+
 @dataclass(frozen=True)
 class LocomotionEnvRecord:
     """The facts of one Gymnasium MuJoCo v5 locomotion env that differ from env to env.
@@ -124,6 +196,9 @@ class LocomotionEnvRecord:
         forward_position: what Gymnasium finite-differences into ``x_velocity``: ``"qpos"``
             (``qpos[0]``), ``"main_body"`` (the ``main_body`` keyword's body's ``xpos``) or
             ``"mass_centre"`` (the centre of mass of the bodies' ``xipos``).
+        velocity_keys: the velocities Gymnasium's ``info`` reports, the coordinates of the forward
+            position in order: ``("x_velocity",)``, or ``("x_velocity", "y_velocity")`` where it
+            finite-differences ``qpos[0:2]`` (Swimmer) or a position's ``[:2]`` (Ant, Humanoid).
         observation_extras: ``config -> parts`` of the observation after ``qpos`` and ``qvel``
             (e.g. the contact forces), as the keywords in ``config`` select them.
         contact_cost: ``(config, start) -> term``, the ``"contact"`` term on the contact forces
@@ -131,12 +206,15 @@ class LocomotionEnvRecord:
         health: ``(config, facts, start) -> term``, the ``"survive"`` term (a failure when unhealthy
             and ``terminate_when_unhealthy``) on the ``qpos`` (and ``qvel``) that start at
             ``start`` in the task state; None: the env is always healthy and pays no survival reward.
+        safety_velocity: Safety-Gymnasium's velocity constraint of the env (:class:`SafetyVelocityRecord`).
 
     Example:
         >>> from torchtasks.envs.gymnasium_v5 import locomotion_record
         >>> record = locomotion_record("Hopper-v5")
         >>> record.state_keys, record.velocity_clip, record.term_names
         (('x_velocity', 'qpos', 'qvel'), 10.0, ('forward', 'ctrl', 'survive'))
+        >>> locomotion_record("Humanoid-v5").safety_state_keys
+        ('x_velocity', 'y_velocity', 'qpos', 'cfrc_ext')
     """
 
     env_id: str
@@ -148,6 +226,21 @@ class LocomotionEnvRecord:
     observation_extras: Callable[[Mapping[str, Any]], tuple[ObservationPart, ...]] = _no_extras
     contact_cost: Callable[[Mapping[str, Any], int], RewardFunction] | None = None
     health: Callable[[Mapping[str, Any], ModelFacts, int], RewardFunction] | None = None
+    velocity_keys: tuple[str, ...] = ("x_velocity",)
+    safety_velocity: SafetyVelocityRecord | None = None
+
+    @property
+    def safety_state_keys(self) -> tuple[str, ...]:
+        """The state of the safety velocity task: :attr:`state_keys` with the bounded velocities after ``x_velocity``.
+
+        The velocities the constraint reads that the reward's state lacks (``y_velocity`` of Ant and
+        Humanoid) come right after ``x_velocity``, so the reward terms read the same entries by name.
+        """
+        if self.safety_velocity is None:
+            raise ValueError(f"{self.env_id} has no Safety-Gymnasium velocity constraint")
+        added = tuple(key for key in self.safety_velocity.velocity_keys if key not in self.state_keys)
+        position = self.state_keys.index("x_velocity") + 1
+        return (*self.state_keys[:position], *added, *self.state_keys[position:])
 
     @property
     def term_names(self) -> tuple[str, ...]:
@@ -159,10 +252,19 @@ class LocomotionEnvRecord:
             *(("survive",) if self.health is not None else ()),
         )
 
-    def state_layout(self, facts: ModelFacts) -> dict[str, int]:
-        """The task's state for this model: ``{key: size}`` in concatenation order."""
-        sizes = {"x_velocity": 1, "qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
-        return {key: sizes[key] for key in self.state_keys}
+    def state_layout(self, facts: ModelFacts, keys: tuple[str, ...] | None = None) -> dict[str, int]:
+        """The task's state for this model: ``{key: size}`` in concatenation order.
+
+        ``keys``: the entries (default :attr:`state_keys`; e.g. :attr:`safety_state_keys`), among
+        ``x_velocity``, the other :attr:`velocity_keys`, ``qpos``, ``qvel`` and ``cfrc_ext``.
+        """
+        sizes = {"qpos": facts.nq, "qvel": facts.nv, "cfrc_ext": facts.n_contact_forces}
+        sizes.update(dict.fromkeys(self.velocity_keys, 1))
+        keys = self.state_keys if keys is None else tuple(keys)
+        unknown = [key for key in keys if key not in sizes]
+        if unknown:
+            raise ValueError(f"{self.env_id}: state entries must be among {sorted(sizes)}, got {unknown}")
+        return {key: sizes[key] for key in keys}
 
     def observation_parts(self, config: Mapping[str, Any]) -> tuple[ObservationPart, ...]:
         """Gymnasium's observation for the keywords ``config`` (of :func:`gymnasium_config`): its parts in order."""
@@ -335,6 +437,12 @@ LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
                 state_keys=("x_velocity",),
                 skipped_positions=1,
                 velocity_noise="normal",
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetyHalfCheetahVelocity-v1",
+                    threshold=3.2096,
+                    velocity_keys=("x_velocity",),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_half_cheetah_velocity_v1.py",
+                ),
             ),
             LocomotionEnvRecord(
                 "Hopper-v5",
@@ -342,6 +450,12 @@ LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
                 skipped_positions=1,
                 velocity_clip=10.0,
                 health=_hopper_health,
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetyHopperVelocity-v1",
+                    threshold=0.7402,
+                    velocity_keys=("x_velocity",),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_hopper_velocity_v1.py",
+                ),
             ),
             LocomotionEnvRecord(
                 "Walker2d-v5",
@@ -349,11 +463,25 @@ LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
                 skipped_positions=1,
                 velocity_clip=10.0,
                 health=_walker2d_health,
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetyWalker2dVelocity-v1",
+                    threshold=2.3415,
+                    velocity_keys=("x_velocity",),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_walker2d_velocity_v1.py",
+                ),
             ),
             LocomotionEnvRecord(
                 "Swimmer-v5",
                 state_keys=("x_velocity",),
                 skipped_positions=2,
+                velocity_keys=("x_velocity", "y_velocity"),  # qpos[0:2]
+                # v1's own step compares x_velocity only (v0: the planar speed)
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetySwimmerVelocity-v1",
+                    threshold=0.2282,
+                    velocity_keys=("x_velocity",),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_swimmer_velocity_v1.py",
+                ),
             ),
             LocomotionEnvRecord(
                 "Ant-v5",
@@ -364,6 +492,13 @@ LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
                 observation_extras=_ant_observation_extras,
                 contact_cost=_ant_contact_cost,
                 health=_ant_health,
+                velocity_keys=("x_velocity", "y_velocity"),
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetyAntVelocity-v1",
+                    threshold=2.6222,
+                    velocity_keys=("x_velocity", "y_velocity"),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_ant_velocity_v1.py",
+                ),
             ),
             LocomotionEnvRecord(
                 "Humanoid-v5",
@@ -373,6 +508,13 @@ LOCOMOTION_ENVS: Mapping[str, LocomotionEnvRecord] = types.MappingProxyType(
                 observation_extras=_humanoid_observation_extras,
                 contact_cost=_humanoid_contact_cost,
                 health=_humanoid_health,
+                velocity_keys=("x_velocity", "y_velocity"),
+                safety_velocity=SafetyVelocityRecord(
+                    "SafetyHumanoidVelocity-v1",
+                    threshold=1.4149,
+                    velocity_keys=("x_velocity", "y_velocity"),
+                    source=f"{SAFETY_VELOCITY_SOURCE}/safety_humanoid_velocity_v1.py",
+                ),
             ),
         )
     }

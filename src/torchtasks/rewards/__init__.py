@@ -19,11 +19,18 @@ from torchtasks.rewards.locomotion import AntForwardReward, ForwardVelocityRewar
 from torchtasks.rewards.product import AffineReward, ProductReward, hamacher_product
 from torchtasks.rewards.state_function import StateFunctionReward
 from torchtasks.rewards.swing_up import CartPoleSwingUpReward, SwingUpReward
-from torchtasks.rewards.terms import ContactCostReward, ControlCostReward, HealthyReward, VelocityReward
+from torchtasks.rewards.terms import (
+    AboveThresholdIndicator,
+    ContactCostReward,
+    ControlCostReward,
+    HealthyReward,
+    VelocityReward,
+)
 from torchtasks.rewards.tolerance import SIGMOIDS, ToleranceReward, tolerance
 
 __all__ = [
     "SIGMOIDS",
+    "AboveThresholdIndicator",
     "AbsoluteErrorReward",
     "AffineReward",
     "AntForwardReward",

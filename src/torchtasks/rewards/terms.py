@@ -1,10 +1,13 @@
-"""Small, general reward terms: velocity, control cost, healthy reward and contact cost.
+"""Small, general reward terms: velocity, control cost, healthy reward, contact cost, and a threshold indicator.
 
 Each term is one :class:`~torchtasks.rewards.RewardFunction` with one job, meant to be a named term
 of a :class:`~torchtasks.rewards.CompoundReward` (as Gymnasium's MuJoCo locomotion envs log
-``info["reward_forward" | "reward_ctrl" | "reward_contact" | "reward_survive"]``). Costs are
-returned as negative rewards. All terms are stateless, batched over any leading dims, follow the
-dtype and device of their inputs and contain no Python branching on tensor values.
+``info["reward_forward" | "reward_ctrl" | "reward_contact" | "reward_survive"]``). Costs inside a
+reward are returned as negative rewards. :class:`AboveThresholdIndicator` is the exception: it is a
+constraint cost (Safety-Gymnasium's ``float(velocity > threshold)``), 1.0 where a state quantity
+exceeds a threshold and 0.0 elsewhere, meant for a task's cost channel rather than its reward. All
+terms are stateless, batched over any leading dims, follow the dtype and device of their inputs and
+contain no Python branching on tensor values.
 """
 
 from __future__ import annotations
@@ -26,7 +29,7 @@ from torchtasks._checks import (
 )
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
 
-__all__ = ["ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
+__all__ = ["AboveThresholdIndicator", "ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
 
 def _check_state_entry(state: torch.Tensor, index: int, owner: str, name: str) -> None:
@@ -328,3 +331,101 @@ class ContactCostReward(RewardFunction):
             f"force_range=({float(self.force_low)}, {float(self.force_high)}), "
             f"cost_range=({float(self.cost_low)}, {float(self.cost_high)})"
         )
+
+
+class AboveThresholdIndicator(RewardFunction):
+    """1.0 where a state quantity is above a threshold, else 0.0: ``float(v(state) > threshold)``.
+
+    The quantity ``v`` is one signed state entry, ``state[..., index]`` (``norm=False``, the
+    default), or the Euclidean norm of several entries, ``sqrt(Σ_k state[..., index[k]]²)``
+    (``norm=True``). This is Safety-Gymnasium's velocity cost ``cost = float(velocity >
+    threshold)``: the signed x velocity for Hopper, HalfCheetah, Walker2d and Swimmer, the planar
+    speed ``sqrt(x_velocity² + y_velocity²)`` for Ant and Humanoid
+    (``safety_gymnasium/tasks/safe_velocity/safety_*_velocity_v0.py``; the ``_v1`` files change the
+    thresholds and, for Swimmer, the quantity). The comparison is strict (a value equal to the
+    threshold costs 0) and a NaN value costs 0, as in Python's ``float(nan > threshold)``.
+
+    It is a cost, not a reward: the value is non-negative, meant for a constraint of a task's cost
+    channel (not to be added to a reward with a positive weight). The output has the state's
+    floating dtype and is piecewise constant: its gradient is zero (it is built from a comparison,
+    so it carries no autograd graph). Ignores the action.
+
+    Args:
+        threshold: the finite threshold the quantity must exceed to cost 1.
+        index: the entry read (an int, negative counts from the end), or with ``norm=True`` an int or
+            a non-empty sequence of distinct non-negative ints: the entries whose norm is taken.
+        norm: take the Euclidean norm of the selected entries instead of one signed entry (with a
+            single index that is its absolute value).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import AboveThresholdIndicator
+        >>> state = torch.tensor([[1.0, 0.0], [3.0, 0.0], [-3.0, 0.0], [1.5, 2.0]])
+        >>> AboveThresholdIndicator(2.0, index=0)(state, None)
+        tensor([0., 1., 0., 0.])
+        >>> AboveThresholdIndicator(2.0, index=[0, 1], norm=True)(state, None)
+        tensor([0., 1., 1., 1.])
+    """
+
+    uses_action = False
+
+    def __init__(self, threshold: float, index: int | Sequence[int] = 0, *, norm: bool = False) -> None:
+        super().__init__()
+        if not isinstance(norm, bool):
+            raise TypeError(f"norm must be a bool, got {norm!r}")
+        self._register_scalar("threshold", check_finite_scalar(threshold, "threshold"))
+        self.norm = norm
+        if isinstance(index, (str, bytes)) or not isinstance(index, Sequence):
+            self.index: int | list[int] = check_int(index, "index")
+            if norm and self.index < 0:
+                raise ValueError(f"index must be non-negative with norm=True, got {index!r}")
+            indices = [self.index]
+        else:
+            if not norm:
+                raise TypeError(
+                    f"index must be one int without norm=True (the signed entry compared), got the sequence {index!r}"
+                )
+            indices = [check_non_negative_int(i, f"index[{n}]") for n, i in enumerate(index)]
+            if not indices:
+                raise ValueError("index must select at least one state entry, got an empty sequence")
+            if len(set(indices)) != len(indices):
+                raise ValueError(f"index must not contain duplicates, got {indices}")
+            self.index = indices
+        self.register_buffer("_indices", torch.tensor(indices, dtype=torch.long), persistent=False)
+
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        if isinstance(self.index, int):
+            return index_problem(who, "index", self.index, state_size)
+        if max(self.index) < state_size:
+            return None
+        return f"{who} reads state entries index={self.index}, but the task's state has {entries(state_size)}"
+
+    def _check_state(self, state: torch.Tensor, name: str) -> None:
+        check_input(state, name)
+        if self._size_problem(state.shape[-1], None, "") is not None:
+            raise ValueError(
+                f"AboveThresholdIndicator: index {self.index} is out of range for {name} of shape {tuple(state.shape)}"
+            )
+
+    def value(self, state: torch.Tensor) -> torch.Tensor:
+        """Return the compared quantity ``v(state)`` (``[*B]``): the signed entry or the norm of the entries."""
+        self._check_state(state, "state")
+        return self._quantity(state)
+
+    def _quantity(self, state: torch.Tensor) -> torch.Tensor:
+        if not self.norm:
+            return state[..., self.index]
+        indices = self._indices if self._indices.device == state.device else self._indices.to(state.device)
+        return squared_sum(state.index_select(-1, indices)).sqrt()
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        self._check_state(error_state, "error_state")
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        quantity = self._quantity(error_state)
+        return (quantity > cast_like(self.threshold, quantity)).to(error_state.dtype)
+
+    def extra_repr(self) -> str:
+        return f"threshold={float(self.threshold)}, index={self.index}, norm={self.norm}"
