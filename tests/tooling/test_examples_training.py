@@ -130,3 +130,40 @@ def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "locomotion_ppo_curve.png").stat().st_size > 0
         assert "locomotion_ppo_curve.png (1 seed(s))" in result.stdout
+
+
+def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    result = run_example("train_safety_ppo_lagrangian.py", tmp_path, "--seeds", "3")
+    output = tmp_path / "runs" / "train_safety_ppo_lagrangian"  # the default --output
+    for variant, method in (("lagrangian", "PPO-Lagrangian"), ("ppo", "PPO (λ = 0)")):
+        record = json.loads((output / f"{variant}_seed3.json").read_text())
+        assert record["seed"] == 3 and record["variant"] == variant and record["method"] == method
+        assert record["config"]["cost_limit"] == 25.0
+        first, last = record["curve"]
+        assert [first["frames"], last["frames"]] == [2000, 4000] == [2000, record["total_frames"]]
+        # 4 envs x 500 steps per batch: the episodes end (at step 1000) in the second batch only, and λ moves then
+        assert first["train_cost"] is None and first["train_return"] is None
+        assert last["train_cost"] >= 0 and 0 <= last["train_violation_rate"] <= 1
+        assert last["train_return"] == pytest.approx(last["train_return/forward"] + last["train_return/ctrl"])
+        assert last["loss_cost_critic"] >= 0 and last["loss_critic"] >= last["loss_cost_critic"]
+        if variant == "lagrangian":
+            assert first["lambda"] == pytest.approx(0.001)  # the initial value: no episode had ended
+            assert record["multiplier_state"]["steps"] == 1  # one Adam step, at the second batch
+            # one Adam step of lr 0.25 against sign(J_c - 25), projected on λ >= 0
+            expected = 0.001 + 0.25 if last["train_cost"] > 25 else 0.0
+            assert last["lambda"] == pytest.approx(expected, abs=1e-6)
+        else:
+            assert first["lambda"] == last["lambda"] == record["final_lambda"] == 0.0
+            assert record["multiplier_state"]["steps"] == 0
+        (evaluation,) = record["eval_curve"]  # one deterministic 1000-step episode per eval env, at the end
+        assert evaluation["complete_episodes"] == 2 and evaluation["episode_length_mean"] == 1000
+        assert 0 <= evaluation["cost_mean/velocity"] <= 1000
+        assert 0 <= evaluation["cost_violation_rate/velocity"] <= 1
+        assert record["final_eval_cost"] == evaluation["cost_mean/velocity"]
+        assert f"{method} seed 3: 4000 frames in" in result.stdout
+    assert "Warning" not in result.stderr
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "safety_ppo_lagrangian_curve.png").stat().st_size > 0
+        assert "safety_ppo_lagrangian_curve.png (2 run(s))" in result.stdout
