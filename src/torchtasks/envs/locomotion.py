@@ -35,15 +35,27 @@ main body's ``xpos`` (Ant) or of the centre of mass from ``xipos`` (Humanoid; bo
 MuJoCo substep, so they cannot be recomputed from ``qpos``). The tasks therefore keep no memory: a
 step's reward and failure depend on the state after the step alone.
 
+Safety velocity presets: :func:`safety_velocity_task` and :func:`safety_velocity_env` keep Gymnasium
+v5's reward and termination and add Safety-Gymnasium's velocity cost, ``cost = float(velocity >
+threshold)`` per step with the thresholds of its ``Safety<Env>Velocity-v1`` tasks
+(``safety_gymnasium/tasks/safe_velocity/safety_*_velocity_v1.py``), as a constraint named
+``"velocity"`` of a :class:`~torchtasks.tasks.ConstrainedTask`. The velocity is measured as
+Safety-Gymnasium measures it (the signed ``x_velocity`` of HalfCheetah, Hopper, Walker2d and Swimmer,
+the planar speed ``sqrt(x_velocity² + y_velocity²)`` of Ant's torso and Humanoid's centre of mass),
+but on v5's dynamics: Safety-Gymnasium runs Gymnasium's v4 envs (see
+:class:`~torchtasks.envs.gymnasium_v5.SafetyVelocityRecord` for the thresholds and the differences).
+The task state of Ant and Humanoid gains ``y_velocity`` after ``x_velocity`` (Gymnasium's
+``info["y_velocity"]``, written by the batched env too); the others' state is unchanged.
+
 What differs from env to env (the state layout above, the reward terms, the health and contact
-rules) is read from the env's record in :mod:`torchtasks.envs.gymnasium_v5`; nothing here branches
-on the id.
+rules, the velocity constraint) is read from the env's record in :mod:`torchtasks.envs.gymnasium_v5`;
+nothing here branches on the id.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import numpy as np
@@ -53,12 +65,14 @@ from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.gym_like import default_info_dict_reader
 
-from torchtasks._checks import check_positive_int
+from torchtasks._checks import check_positive_int, check_weight
 from torchtasks._optional import missing_extra
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
-from torchtasks.rewards.terms import ControlCostReward, VelocityReward
+from torchtasks.rewards.terms import AboveThresholdIndicator, ControlCostReward, VelocityReward
 from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks.base import Task
+from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.goalless import GoallessTask
 from torchtasks.transforms import TaskTransform
 
@@ -87,6 +101,8 @@ __all__ = [
     "locomotion_task",
     "make_base_env",
     "make_gymnasium_env",
+    "safety_velocity_env",
+    "safety_velocity_task",
 ]
 
 # written out rather than tuple(LOCOMOTION_ENVS), so that `torchtasks list` reads it from this file without
@@ -104,6 +120,13 @@ SUPPORTED_ENV_IDS: tuple[str, ...] = (
 #: Gymnasium's time limit of the v5 locomotion envs (their registered ``max_episode_steps``)
 MAX_EPISODE_STEPS = 1000
 
+#: the name of the safety presets' constraint (``TaskOutput.costs["velocity"]``, ``("task_cost", "velocity")``)
+SAFETY_COST_NAME = "velocity"
+
+#: the safety presets' default limit of the expected episode cost: OmniSafe's ``cost_limit: 25.0``
+#: (``omnisafe/configs/on-policy/PPOLag.yaml``), the usual budget of Safety-Gymnasium benchmarks
+SAFETY_COST_LIMIT = 25.0
+
 #: info keys that only :class:`MujocoStateInfo` provides (Gymnasium's info lacks them)
 _ADDED_INFO_KEYS = ("qpos", "qvel", "cfrc_ext")
 
@@ -116,13 +139,21 @@ def _labels(layout: Mapping[str, int]) -> list[str]:
     return labels
 
 
-def _terms(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts) -> dict[str, RewardFunction]:
-    """The named reward terms of the env on its task state (order: forward, ctrl, contact, survive)."""
-    starts: dict[str, int] = {}  # where each entry of the task state starts
+def _starts(layout: Mapping[str, int]) -> dict[str, int]:
+    """Where each entry of a task state ``{key: size}`` starts."""
+    starts: dict[str, int] = {}
     position = 0
-    for key, size in record.state_layout(facts).items():
+    for key, size in layout.items():
         starts[key] = position
         position += size
+    return starts
+
+
+def _terms(
+    record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, keys: tuple[str, ...]
+) -> dict[str, RewardFunction]:
+    """The named reward terms of the env on the task state of ``keys`` (order: forward, ctrl, contact, survive)."""
+    starts = _starts(record.state_layout(facts, keys))
     # Gymnasium's forward_reward_weight * x_velocity, with x_velocity as Gymnasium computes it
     terms: dict[str, RewardFunction] = {
         "forward": VelocityReward(config["forward_reward_weight"], index=starts["x_velocity"]),
@@ -135,29 +166,56 @@ def _terms(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelF
     return terms
 
 
-def _build_task(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts) -> GoallessTask:
-    layout = record.state_layout(facts)
+def _build_task(
+    record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, keys: tuple[str, ...] | None = None
+) -> GoallessTask:
+    keys = record.state_keys if keys is None else keys
+    layout = record.state_layout(facts, keys)
     state_space = Box.unbounded(sum(layout.values()), labels=_labels(layout))
     spec = EnvSpec(state_space, Box(facts.action_low, facts.action_high))
-    return GoallessTask(spec, CompoundReward(_terms(record, config, facts)))
+    return GoallessTask(spec, CompoundReward(_terms(record, config, facts, keys)))
 
 
-def _with_state_info(record: LocomotionEnvRecord, gym_env: gymnasium.Env) -> gymnasium.Env:
+def _velocity_cost(record: LocomotionEnvRecord, facts: ModelFacts) -> AboveThresholdIndicator:
+    """Safety-Gymnasium's ``float(velocity > threshold)`` on the safety task's state (:attr:`safety_state_keys`)."""
+    safety = record.safety_velocity
+    if safety is None:
+        raise ValueError(f"{record.env_id} has no Safety-Gymnasium velocity constraint")
+    starts = _starts(record.state_layout(facts, record.safety_state_keys))
+    if safety.planar:  # sqrt(x_velocity² + y_velocity²) > threshold
+        return AboveThresholdIndicator(safety.threshold, index=[starts[key] for key in safety.velocity_keys], norm=True)
+    return AboveThresholdIndicator(safety.threshold, index=starts[safety.velocity_keys[0]])  # signed x_velocity
+
+
+def _build_safety_task(
+    record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, cost_limit: float | None
+) -> ConstrainedTask:
+    task = _build_task(record, config, facts, record.safety_state_keys)
+    return ConstrainedTask(task, {SAFETY_COST_NAME: Constraint(_velocity_cost(record, facts), limit=cost_limit)})
+
+
+def _with_state_info(
+    record: LocomotionEnvRecord, gym_env: gymnasium.Env, keys: tuple[str, ...] | None = None
+) -> gymnasium.Env:
     """``gym_env`` in the :class:`MujocoStateInfo` that adds the state entries Gymnasium's info lacks (if any)."""
-    fields = tuple(key for key in record.state_keys if key in _ADDED_INFO_KEYS)
+    fields = tuple(key for key in (record.state_keys if keys is None else keys) if key in _ADDED_INFO_KEYS)
     return MujocoStateInfo(gym_env, fields) if fields else gym_env
 
 
 def _gymnasium_base_env(
-    record: LocomotionEnvRecord, gym_kwargs: Mapping[str, Any], device: torch.device | str | None
+    record: LocomotionEnvRecord,
+    gym_kwargs: Mapping[str, Any],
+    device: torch.device | str | None,
+    keys: tuple[str, ...] | None = None,
 ) -> tuple[EnvBase, ModelFacts]:
     """:func:`make_base_env` without the keyword checks, and the facts of its one Gymnasium env."""
     from torchrl.envs.libs.gym import GymWrapper
 
-    gym_env = _with_state_info(record, make_v5_env(record.env_id, **gym_kwargs))
+    keys = record.state_keys if keys is None else keys
+    gym_env = _with_state_info(record, make_v5_env(record.env_id, **gym_kwargs), keys)
     facts = ModelFacts.of(gym_env)
     env = GymWrapper(gym_env, device=device)
-    env.set_info_dict_reader(Float64InfoReader(record.state_layout(facts)))
+    env.set_info_dict_reader(Float64InfoReader(record.state_layout(facts, keys)))
     return env, facts
 
 
@@ -333,13 +391,17 @@ def make_gymnasium_env(env_id: str, **gym_kwargs: Any) -> gymnasium.Env:
 
 
 def make_base_env(
-    env_id: str, gym_kwargs: Mapping[str, Any] | None = None, device: torch.device | str | None = None
+    env_id: str,
+    gym_kwargs: Mapping[str, Any] | None = None,
+    device: torch.device | str | None = None,
+    task_state_keys: Sequence[str] | None = None,
 ) -> EnvBase:
     """Return the TorchRL ``GymWrapper`` of :func:`make_gymnasium_env` with the task's info entries registered.
 
     A module-level constructor, so ``functools.partial(make_base_env, env_id, gym_kwargs)`` can be
     sent to spawned ``ParallelEnv`` workers. The observation is Gymnasium's; the entries of
-    :func:`locomotion_state_layout` are read from info by a :class:`Float64InfoReader`.
+    :func:`locomotion_state_layout` (or those ``task_state_keys`` names, e.g. the record's
+    ``safety_state_keys``) are read from info by a :class:`Float64InfoReader`.
 
     Example:
         >>> from torchtasks.envs.locomotion import make_base_env
@@ -349,7 +411,19 @@ def make_base_env(
     """
     gym_kwargs = {} if gym_kwargs is None else dict(gym_kwargs)
     gymnasium_config(env_id, gym_kwargs)
-    return _gymnasium_base_env(locomotion_record(env_id), gym_kwargs, device)[0]
+    record = locomotion_record(env_id)
+    keys = None if task_state_keys is None else _check_task_state_keys(task_state_keys, record)
+    return _gymnasium_base_env(record, gym_kwargs, device, keys)[0]
+
+
+def _check_task_state_keys(task_state_keys: object, record: LocomotionEnvRecord) -> tuple[str, ...]:
+    if isinstance(task_state_keys, (str, bytes)) or not isinstance(task_state_keys, Sequence):
+        raise TypeError(f"task_state_keys must be a sequence of info keys, got {task_state_keys!r}")
+    keys = tuple(task_state_keys)
+    known = (*record.velocity_keys, *_ADDED_INFO_KEYS)
+    if not keys or len(set(keys)) != len(keys) or not all(isinstance(key, str) and key in known for key in keys):
+        raise ValueError(f"task_state_keys must be distinct names among {list(known)} ({record.env_id}), got {keys!r}")
+    return keys
 
 
 def gymnasium_env(
@@ -409,6 +483,127 @@ def gymnasium_env(
     """
     record = locomotion_record(env_id)
     config = gymnasium_config(env_id, gym_kwargs)
+
+    def build_task(facts: ModelFacts) -> Task:
+        return _build_task(record, config, facts)
+
+    keys = record.state_keys
+    return _preset_env(record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task)
+
+
+def safety_velocity_task(
+    env_id: str, *, cost_limit: float | None = SAFETY_COST_LIMIT, **gym_kwargs: Any
+) -> ConstrainedTask:
+    """Return Gymnasium v5's locomotion task with Safety-Gymnasium's velocity cost as the constraint ``"velocity"``.
+
+    A :class:`~torchtasks.tasks.ConstrainedTask` around the task of :func:`locomotion_task` (the
+    same reward terms and failure, so the same reward and termination) whose state is the record's
+    ``safety_state_keys``: the locomotion state, plus ``y_velocity`` right after ``x_velocity`` for
+    Ant and Humanoid. Its one cost, ``"velocity"``, is an
+    :class:`~torchtasks.rewards.AboveThresholdIndicator` of Safety-Gymnasium v1's velocity:
+    ``float(x_velocity > threshold)`` for HalfCheetah (3.2096), Hopper (0.7402), Walker2d (2.3415) and
+    Swimmer (0.2282); ``float(sqrt(x_velocity² + y_velocity²) > threshold)`` for Ant (2.6222, its
+    torso) and Humanoid (1.4149, its centre of mass), each from
+    ``safety_gymnasium/tasks/safe_velocity/safety_<env>_velocity_v1.py``, evaluated on the state after
+    the step (the state the reward sees). The velocity is measured as Safety-Gymnasium measures it
+    but on Gymnasium v5's dynamics, reward and termination, not on the v4 envs Safety-Gymnasium
+    subclasses (Walker2d-v5 has other foot friction; see
+    :class:`~torchtasks.envs.gymnasium_v5.SafetyVelocityRecord`).
+
+    Args:
+        env_id: one of :data:`SUPPORTED_ENV_IDS`.
+        cost_limit: the constraint's limit on the expected episode cost (``task.cost_limits``;
+            default 25, OmniSafe's); ``None``: no limit.
+        **gym_kwargs: the env's Gymnasium keyword arguments (see :func:`locomotion_task`).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.envs.locomotion import safety_velocity_task
+        >>> task = safety_velocity_task("Ant-v5")
+        >>> task.cost_names, task.cost_limits, task.spec.state_space.labels[:3]
+        (('velocity',), {'velocity': 25.0}, ('x_velocity', 'y_velocity', 'qpos[0]'))
+        >>> state = torch.zeros(3, task.state_size, dtype=torch.float64)
+        >>> state[:, :2] = torch.tensor([[2.0, 0.0], [2.0, 1.8], [0.0, -2.7]])  # x_velocity, y_velocity
+        >>> state[:, 4] = 0.75  # qpos[2]: the torso at z = 0.75 m (healthy)
+        >>> out = task.transition(state, torch.zeros(3, 8, dtype=torch.float64), state, task.reset(state))
+        >>> out.costs["velocity"], out.reward
+        (tensor([0., 1., 1.], dtype=torch.float64), tensor([3., 3., 1.], dtype=torch.float64))
+    """
+    config = gymnasium_config(env_id, gym_kwargs)
+    cost_limit = _check_cost_limit(cost_limit)
+    return _build_safety_task(locomotion_record(env_id), config, ModelFacts.make(env_id, gym_kwargs), cost_limit)
+
+
+def safety_velocity_env(
+    env_id: str,
+    *,
+    num_envs: int = 1,
+    seed: int | None = None,
+    device: torch.device | str | None = None,
+    backend: Literal["batched", "gymnasium"] | None = None,
+    num_threads: int | None = None,
+    cost_limit: float | None = SAFETY_COST_LIMIT,
+    **gym_kwargs: Any,
+) -> TransformedEnv:
+    """Return :func:`gymnasium_env` with the task of :func:`safety_velocity_task`: v5's reward plus the velocity cost.
+
+    The same stack as :func:`gymnasium_env` (``StepCounter(1000)``, the ``TaskTransform``, on the
+    batched backend :class:`~torchtasks.envs.batched_mujoco.ZeroBrokenStepReward`, ``RewardSum``),
+    the same observation, reward, terms and termination, plus the cost: the ``TaskTransform``
+    writes ``("next", "cost")`` (``[*B, 1]``) and ``("next", "task_cost", "velocity")``, 1.0 on the
+    steps where Safety-Gymnasium v1's velocity exceeds its threshold (see :func:`safety_velocity_task`),
+    0.0 elsewhere (and on a broken step of the batched backend). The task state gains
+    ``"y_velocity"`` for Ant and Humanoid (Gymnasium's ``info["y_velocity"]``; the batched env writes it
+    too, bit-identical).
+
+    Args:
+        env_id, num_envs, seed, device, backend, num_threads: as for :func:`gymnasium_env`.
+        cost_limit: the constraint's limit on the expected episode cost (default 25); ``None``: none.
+        **gym_kwargs: the env's Gymnasium keyword arguments.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.envs.locomotion import safety_velocity_env
+        >>> env = safety_velocity_env("Hopper-v5", num_envs=2, seed=0)
+        >>> rollout = env.rollout(5, break_when_any_done=False)
+        >>> rollout["next", "cost"].shape, rollout["next", "task_cost", "velocity"].shape
+        (torch.Size([2, 5, 1]), torch.Size([2, 5, 1]))
+        >>> speeding = (rollout["next", "x_velocity"] > 0.7402).to(torch.float64)
+        >>> bool((rollout["next", "cost"] == speeding).all())
+        True
+        >>> env.close()
+    """
+    record = locomotion_record(env_id)
+    config = gymnasium_config(env_id, gym_kwargs)
+    cost_limit = _check_cost_limit(cost_limit)
+
+    def build_task(facts: ModelFacts) -> Task:
+        return _build_safety_task(record, config, facts, cost_limit)
+
+    keys = record.safety_state_keys
+    return _preset_env(record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task)
+
+
+def _check_cost_limit(cost_limit: object) -> float | None:
+    if cost_limit is None:
+        return None
+    return check_weight(cost_limit, "cost_limit")
+
+
+def _preset_env(
+    record: LocomotionEnvRecord,
+    config: Mapping[str, Any],
+    gym_kwargs: Mapping[str, Any],
+    num_envs: int,
+    seed: int | None,
+    device: torch.device | str | None,
+    backend: str | None,
+    num_threads: int | None,
+    keys: tuple[str, ...],
+    build_task: Callable[[ModelFacts], Task],
+) -> TransformedEnv:
+    """The preset stack on the task state ``keys`` for the task ``build_task(facts)`` (of the one env made here)."""
+    env_id = record.env_id
     num_envs = check_positive_int(num_envs, "num_envs")
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
         raise TypeError(f"seed must be an int or None, got {seed!r}")
@@ -421,7 +616,7 @@ def gymnasium_env(
     # one Gymnasium env is made here: its facts shape the task and, on the batched backend, the batched env
     base: EnvBase
     if backend == "gymnasium" and num_envs == 1:
-        base, facts = _gymnasium_base_env(record, gym_kwargs, device)
+        base, facts = _gymnasium_base_env(record, gym_kwargs, device, keys)
     else:
         facts = ModelFacts.make(env_id, gym_kwargs)
         if backend == "batched":
@@ -431,18 +626,19 @@ def gymnasium_env(
                 seed=seed,
                 device=device,
                 num_threads=num_threads,
+                task_state_keys=keys,
                 _checked=(config, facts),
                 **gym_kwargs,
             )
         else:  # the workers make their own envs when the ParallelEnv starts
-            create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device)
+            create_env = functools.partial(make_base_env, env_id, dict(gym_kwargs), device, keys)
             base = ParallelEnv(num_envs, create_env, device=device)
-    task = _build_task(record, config, facts)
+    task = build_task(facts)
     if device is not None:
         task = task.to(device)
     transforms: list[Transform] = [
         StepCounter(MAX_EPISODE_STEPS),
-        TaskTransform(task, state_key=list(record.state_keys)),
+        TaskTransform(task, state_key=list(keys)),
     ]
     if backend == "batched":
         transforms.append(ZeroBrokenStepReward())  # a broken step (marked "broken") pays 0, not a NaN control cost
