@@ -144,6 +144,7 @@ def episode_statistics(
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = "curriculum",
     cost_terms_key: NestedKey | None = "task_cost",
+    ended_by_key: NestedKey | None = "ended_by",
     cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
 ) -> dict[str, float]:
@@ -206,6 +207,11 @@ def episode_statistics(
       ``time_dim`` (flat layout: the frames with the largest frame count); the values are means over
       those frames, i.e. over the envs, which hold the same values when they share one Curriculum.
       Data without the entries give none of these keys.
+    - ``ended_by/<name>`` (when the data holds a task's named end conditions ``("next", ended_by_key, name)``,
+      as a :class:`~torchtasks.transforms.TaskTransform` writes them for a tree that names its failures,
+      e.g. ``out_of_bounds`` and ``unhealthy``): the fraction of the ended episodes whose last frame has
+      that condition. Conditions may hold together; an episode ended by the time limit or by the env
+      has none (see ``timeout_rate`` and ``env_termination_rate``).
     - ``cost_mean/<name>`` (when the data holds a task's costs ``("next", cost_terms_key, name)``, as a
       :class:`~torchtasks.transforms.TaskTransform` of a :class:`~torchtasks.tasks.ConstrainedTask` writes
       them): the mean over the complete episodes of the episode's summed cost, per constraint; with
@@ -227,6 +233,8 @@ def episode_statistics(
             the root holds the previous step's goal when a ``goal_key`` feeds the task).
         cost_terms_key: the TaskTransform's ``cost_terms_key`` (per-constraint costs under ``"next"``); data
             without it report no costs; ``None`` skips them.
+        ended_by_key: the TaskTransform's ``ended_by_key`` (named end conditions under ``"next"``); data
+            without it report none; ``None`` skips them.
         cost_limits: ``{cost name: limit}`` for the violation rates (e.g. ``task.cost_limits`` without the
             ``None`` ones); a name that is not a cost of the data is a ``KeyError``.
         curriculum_key: the Curriculum's ``curriculum_key`` (its entries are read under ``"next"``);
@@ -267,6 +275,7 @@ def episode_statistics(
             ("achieved_goal_key", achieved_goal_key),
             ("curriculum_key", curriculum_key),
             ("cost_terms_key", cost_terms_key),
+            ("ended_by_key", ended_by_key),
         )
     }
     limits = _cost_limits(cost_limits)
@@ -308,6 +317,10 @@ def _statistics(
     if keys["terms_key"] is not None:
         for name in _term_names(batch, keys["terms_key"]):
             returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
+    end_flags: dict[str, torch.Tensor] = {}  # per named end condition: its flag at every frame
+    if keys["ended_by_key"] is not None and batch.get(("next", *keys["ended_by_key"]), None) is not None:
+        for name in _term_names(batch, keys["ended_by_key"]):
+            end_flags["/".join(name)] = _required(frames, (*keys["ended_by_key"], *name), "ended_by_key", flag=True)
     costs: dict[str, torch.Tensor] = {}  # per constraint: the cost of every frame
     if keys["cost_terms_key"] is not None and batch.get(("next", *keys["cost_terms_key"]), None) is not None:
         for name in _term_names(batch, keys["cost_terms_key"]):
@@ -381,6 +394,8 @@ def _statistics(
     results: dict[str, torch.Tensor] = {}
     for name, flag in flags.items():
         results[f"{name}_rate"] = _mean(flag[ends])
+    for name, flag in end_flags.items():
+        results[f"ended_by/{name}"] = _mean(flag[ends])
     if terminated is not None or truncated is not None:
         if terminated is None:
             terminated = done & ~truncated

@@ -162,6 +162,11 @@ class TaskTransform(EnvDerivedTransform):
             with) of ``s_{t+1}`` under ``"next"`` (and of the initial state at reset).
         goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has
             several.
+        ended_by_key: where a tree that names its end conditions (:attr:`Task.termination_names
+            <torchtasks.tasks.Task.termination_names>`, e.g. ``"out_of_bounds"`` and ``"unhealthy"``)
+            writes one flag per condition, ``(ended_by_key, name)`` (bool, the shape of ``done``), set
+            in the step where that condition holds (and so ends the episode); with ``log_terms``. A
+            tree whose conditions are its success and failure writes none (those flags say it).
         cost_key, cost_terms_key: where a tree with costs (:class:`~torchtasks.tasks.ConstrainedTask`)
             writes them under ``"next"``: all costs as ``cost_key`` (``[*B, k]``, in
             :attr:`cost_names` order) and each one as ``(cost_terms_key, name)`` (``[*B, 1]``, for a
@@ -206,6 +211,7 @@ class TaskTransform(EnvDerivedTransform):
         goal_name: str | None = None,
         cost_key: NestedKey = "cost",
         cost_terms_key: NestedKey = "task_cost",
+        ended_by_key: NestedKey = "ended_by",
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -229,6 +235,11 @@ class TaskTransform(EnvDerivedTransform):
         self.cost_terms_key = nested_key(cost_terms_key, "TaskTransform: cost_terms_key")
         self.cost_names = tuple(task.cost_names)
         self._cost_keys = [unravel_key((*key_parts(self.cost_terms_key), name)) for name in self.cost_names]
+        self.ended_by_key = nested_key(ended_by_key, "TaskTransform: ended_by_key")
+        # the named end conditions, written when the tree names more than its success and failure (and log_terms)
+        names = task.termination_names
+        self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
+        self._ended_by_keys = [unravel_key((*key_parts(self.ended_by_key), n)) for n in self.termination_names]
         self.reward_on = reward_on
         self.log_terms = log_terms
         self.goal_key = None if goal_key is None else nested_key(goal_key, "TaskTransform: goal_key")
@@ -265,6 +276,7 @@ class TaskTransform(EnvDerivedTransform):
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
         names = ["reward_key", "memory_key", "success_key", "failure_key", *(["terms_key"] if self.log_terms else [])]
         names += ["cost_key", "cost_terms_key"] if self.cost_names else []
+        names += ["ended_by_key"] if self.termination_names else []
         outputs = [(f"{name}={getattr(self, name)!r}", getattr(self, name)) for name in names]
         others = [(f"the env's {flag!r} flag", flag) for flag in ("done", "terminated", "truncated")]
         others += [(f"the state key {key!r}", key) for key in self.state_keys]
@@ -447,6 +459,8 @@ class TaskTransform(EnvDerivedTransform):
         done_shape = self.parent.full_done_spec["done"].shape if self.parent is not None else (*batch, 1)
         observation_spec[self.success_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
         observation_spec[self.failure_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
+        for key in self._ended_by_keys:
+            observation_spec[key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
         if self._has_memory:
             observation_spec[self.memory_key] = self._memory_spec(batch, dtype, device)
         if self.achieved_goal_key is not None:
@@ -657,8 +671,10 @@ class TaskTransform(EnvDerivedTransform):
             next_tensordict, state.shape[:-1], offline
         )
         remaining = self._remaining(next_tensordict, state, offline)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs = self._evaluator()(
-            state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
+        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = (
+            self._evaluator()(
+                state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
+            )
         )
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
@@ -680,6 +696,8 @@ class TaskTransform(EnvDerivedTransform):
             values += [terms[name] for name in self._term_names]
             for key, value in zip(self._term_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
+        for name, key in zip(self.termination_names, self._ended_by_keys, strict=True):
+            td_set(next_tensordict, key, ends[name].reshape(shape))
         if self.cost_names:
             values = [costs[name] for name in self.cost_names]
             td_set(next_tensordict, self.cost_key, torch.stack(values, -1).to(reward_dtype))
@@ -715,6 +733,8 @@ class TaskTransform(EnvDerivedTransform):
             )
         td_set(tensordict_reset, self.success_key, flags)
         td_set(tensordict_reset, self.failure_key, flags.clone())
+        for key in self._ended_by_keys:
+            td_set(tensordict_reset, key, flags.clone())
         if self.achieved_goal_key is not None:
             tensordict_reset.set(self.achieved_goal_key, self._goal_slot.achieved(init_state))
         return tensordict_reset
@@ -835,7 +855,7 @@ class TaskTransform(EnvDerivedTransform):
         memory_keys = [self.memory_key] if self._has_memory else []
         flags = [self.success_key, self.failure_key, "terminated", "done"]
         costs = [self.cost_key, *self._cost_keys] if self.cost_names else []
-        return [self.reward_key, *flags, *self._term_keys, *costs, *memory_keys]
+        return [self.reward_key, *flags, *self._ended_by_keys, *self._term_keys, *costs, *memory_keys]
 
     def __repr__(self) -> str:
         name = type(self.task).__name__

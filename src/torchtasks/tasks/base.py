@@ -55,7 +55,11 @@ TransitionTuple = tuple[
     TensorDictBase,  # memory
     dict[str, torch.Tensor],  # terms
     dict[str, torch.Tensor],  # costs
+    dict[str, torch.Tensor],  # ended_by: the named end conditions (empty unless the tree names more than two)
 ]
+
+#: the end conditions of a tree that names none beyond its success and its failure
+DEFAULT_TERMINATIONS = {"success": "success", "failure": "failure"}
 
 
 def _without_terminated(method: Callable[..., Any]) -> Callable[..., Any]:
@@ -303,6 +307,24 @@ class Task(nn.Module):
             costs.update(child._step_costs(state, action))
         return costs
 
+    @property
+    def termination_names(self) -> dict[str, str]:
+        """The tree's named end conditions: ``{name: "success" | "failure"}``.
+
+        By default the task's success and failure themselves (``{"success": "success", "failure": "failure"}``);
+        a leaf task with a reward names its failures (``"out_of_bounds"``: the state left the box or is NaN;
+        ``"unhealthy"``: the reward's own failure, e.g. a fallen robot); wrappers and masks keep their
+        task's names; composites report their own success and failure.
+        """
+        return dict(DEFAULT_TERMINATIONS)
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """``{name: flag [*B]}`` of :attr:`termination_names` on ``state``, given the task's ``success`` and
+        ``failure`` there: the OR of the success conditions is ``success``, that of the failure ones ``failure``."""
+        return {"success": success, "failure": failure}
+
     # ------------------------------------------------------------------------- validation
     def _check_state(self, state: torch.Tensor, name: str = "state") -> None:
         check_input(state, name, self.state_size)
@@ -358,11 +380,19 @@ class Task(nn.Module):
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
-    def _static_facts(self) -> tuple[bool, bool, bool, bool]:
-        """``(has named terms, reads remaining steps, pays a final reward, has costs)`` of this task tree: cached."""
+    def _static_facts(self) -> tuple[bool, bool, bool, bool, bool]:
+        """``(has named terms, reads remaining steps, pays a final reward, has costs, names its end conditions)``
+        of this task tree: cached."""
         facts = self.__dict__.get("_facts")
         if facts is None:
-            facts = (bool(self.term_names), self.uses_remaining_steps, self.pays_final_reward, bool(self.cost_names))
+            named_ends = self.termination_names != DEFAULT_TERMINATIONS
+            facts = (
+                bool(self.term_names),
+                self.uses_remaining_steps,
+                self.pays_final_reward,
+                bool(self.cost_names),
+                named_ends,
+            )
             self.__dict__["_facts"] = facts
         return facts
 
@@ -627,11 +657,18 @@ class Task(nn.Module):
         if terminated is not None:
             ended = ended | terminated
         done = ended if truncated is None else ended | truncated
+        # which named condition ended the episode: from the flags just computed (read before the final reward
+        # updates the memory, as success and failure were)
+        ends = (
+            self._termination_terms(next_state, memory, success, failure)
+            if with_terms and self._static_facts()[4]
+            else {}
+        )
         if not self._static_facts()[2]:  # no task of the tree pays a final reward: it is 0
             final = torch.zeros_like(step_reward)
-            return step_reward, step_reward, final, success, failure, ended, done, memory, terms, costs
+            return step_reward, step_reward, final, success, failure, ended, done, memory, terms, costs, ends
         final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
-        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms, costs
+        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms, costs, ends
 
     # ------------------------------------------------------------------- implementation
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
@@ -780,6 +817,22 @@ class TaskWrapper(Task):
             state, action, read(memory, "wrapped"), remaining_steps, terminated
         )
         return terms, reward, self._after_step(reward, memory, inner)
+
+    def _forwards_flags(self) -> bool:
+        """Whether this wrapper's success and failure are its wrapped task's (no override of either)."""
+        cls = type(self)
+        return cls._has_succeeded is TaskWrapper._has_succeeded and cls._has_failed is TaskWrapper._has_failed
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        return self.wrapped_task.termination_names if self._forwards_flags() else dict(DEFAULT_TERMINATIONS)
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        if not self._forwards_flags():
+            return super()._termination_terms(state, memory, success, failure)
+        return self.wrapped_task._termination_terms(state, read(memory, "wrapped"), success, failure)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._has_succeeded(state, read(memory, "wrapped"))

@@ -151,6 +151,15 @@ class ConstrainedTask(Task):
         limits.update((name, constraint.limit) for name, constraint in self.constraints.items())
         return limits
 
+    @property
+    def termination_names(self) -> dict[str, str]:
+        return self.wrapped_task.termination_names
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._termination_terms(state, memory, success, failure)
+
     # ------------------------------------------------------------------ evaluation
     def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
         costs = self.wrapped_task._step_costs(state, action)

@@ -115,3 +115,26 @@ class RewardTask(Task):
         if self.reward.can_fail and self.reward_sees_state:
             failed = failed | self.reward.has_failed(state)
         return failed
+
+    def _names_failures(self) -> bool:
+        """Whether this task's failure is :meth:`RewardTask._has_failed` (its parts can be named)."""
+        return type(self)._has_failed is RewardTask._has_failed
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        if not self._names_failures():
+            return super().termination_names
+        names = {"success": "success", "out_of_bounds": "failure"}
+        if self.reward.can_fail and self.reward_sees_state:
+            names["unhealthy"] = "failure"
+        return names
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        if not self._names_failures():
+            return super()._termination_terms(state, memory, success, failure)
+        terms = {"success": success, "out_of_bounds": Task._has_failed(self, state, memory)}
+        if self.reward.can_fail and self.reward_sees_state:
+            terms["unhealthy"] = self.reward.has_failed(state)
+        return terms

@@ -128,6 +128,15 @@ class MaskedTask(Task):
         action = self._action(action)
         return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps, terminated)
 
+    @property
+    def termination_names(self) -> dict[str, str]:
+        return self.wrapped_task.termination_names
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._termination_terms(self._state(state), memory, success, failure)
+
     def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
         return self.wrapped_task._step_costs(self._state(state), self._action(action))
 

@@ -30,6 +30,10 @@ class TaskOutput:
             ``step_reward``.
         costs: ``{name: cost[*B]}``, the named costs of the tree's constraints on the state the step
             reward sees (empty when the task has none, see :class:`~torchtasks.tasks.ConstrainedTask`).
+        ended_by: ``{name: flag[*B]}``, the tree's named end conditions on ``next_state``
+            (:attr:`Task.termination_names <torchtasks.tasks.Task.termination_names>`; the conditions
+            of each kind OR to ``success`` and ``failure``); empty when the tree names none beyond its
+            success and failure.
 
     Example:
         >>> import torch
@@ -53,3 +57,4 @@ class TaskOutput:
     memory: TensorDictBase
     terms: dict[str, torch.Tensor]
     costs: dict[str, torch.Tensor] = field(default_factory=dict)
+    ended_by: dict[str, torch.Tensor] = field(default_factory=dict)
