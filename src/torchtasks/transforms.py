@@ -166,7 +166,7 @@ class TaskTransform(EnvDerivedTransform):
             <torchtasks.tasks.Task.termination_names>`, e.g. ``"out_of_bounds"`` and ``"unhealthy"``)
             writes one flag per condition, ``(ended_by_key, name)`` (bool, the shape of ``done``), set
             in the step where that condition holds (and so ends the episode); with ``log_terms``. A
-            tree whose conditions are its success and failure writes none (those flags say it).
+            tree with at most one condition of each kind writes none (``success`` and ``failure`` say it).
         cost_key, cost_terms_key: where a tree with costs (:class:`~torchtasks.tasks.ConstrainedTask`)
             writes them under ``"next"``: all costs as ``cost_key`` (``[*B, k]``, in
             :attr:`cost_names` order) and each one as ``(cost_terms_key, name)`` (``[*B, 1]``, for a
@@ -236,7 +236,7 @@ class TaskTransform(EnvDerivedTransform):
         self.cost_names = tuple(task.cost_names)
         self._cost_keys = [unravel_key((*key_parts(self.cost_terms_key), name)) for name in self.cost_names]
         self.ended_by_key = nested_key(ended_by_key, "TaskTransform: ended_by_key")
-        # the named end conditions, written when the tree names more than its success and failure (and log_terms)
+        # the named end conditions, written when a kind has two or more (else success and failure say it)
         names = task.termination_names
         self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
         self._ended_by_keys = [unravel_key((*key_parts(self.ended_by_key), n)) for n in self.termination_names]

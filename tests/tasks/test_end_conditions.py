@@ -15,9 +15,17 @@ from torchrl.envs import Compose, StepCounter, TransformedEnv
 from task_trees import all_task_cases, random_transitions
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import QuadraticErrorReward
+from torchtasks.rewards.terms import HealthyReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
-from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, ParallelTasks, proximity_succeeded
+from torchtasks.tasks import (
+    DesiredStateTask,
+    FinalRewardTask,
+    GoallessTask,
+    MaskedTask,
+    ParallelTasks,
+    proximity_succeeded,
+)
 from torchtasks.transforms import TaskTransform
 
 CASES = all_task_cases()
@@ -34,8 +42,8 @@ def test_named_conditions_or_to_the_success_and_failure_flags(name: str):
         out = task.transition(
             data["states"][t], data["actions"][t], data["states"][t + 1], memory, data["remaining"][t], goal=goal
         )
-        if kinds == {"success": "success", "failure": "failure"}:
-            assert out.ended_by == {}  # a tree naming nothing more writes nothing more
+        if list(kinds.values()).count("failure") < 2 and list(kinds.values()).count("success") < 2:
+            assert out.ended_by == {}  # the flags say which condition held: nothing more is written
         else:
             assert list(out.ended_by) == list(kinds)
             for kind, flag in (("success", out.success), ("failure", out.failure)):
@@ -55,36 +63,46 @@ def test_leaf_tasks_name_their_failures_and_wrappers_keep_the_names():
     assert ParallelTasks([leaf, leaf]).termination_names == {"success": "success", "failure": "failure"}
 
 
-def _reach_env(batch: int = 6) -> TransformedEnv:
-    spec = EnvSpec(Box([-0.9] * 4, [0.9] * 4, labels=["x", "y", "vx", "vy"]), 2)
-    near = functools.partial(proximity_succeeded, threshold=0.15)
-    reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.5, 0.5], QuadraticErrorReward([1.0, 1.0]), near)
-    task = MaskedTask(spec, reach, ["x", "y"])
-    return TransformedEnv(
-        PointMassEnv(batch_size=[batch], seed=0, max_force=2.0), Compose(StepCounter(25), TaskTransform(task))
-    )
+def _walk_env(batch: int = 8) -> TransformedEnv:
+    """Point masses that fail by leaving the box (|x|, |y| > 0.9) or by running too fast (|vx| > 0.8)."""
+    spec = EnvSpec(Box([-0.9, -0.9, -10.0, -10.0], [0.9, 0.9, 10.0, 10.0], labels=["x", "y", "vx", "vy"]), 2)
+    alive = HealthyReward(1.0, index=[2], low=-0.8, high=0.8, terminate_when_unhealthy=True)
+    task = GoallessTask(spec, alive)
+    env = PointMassEnv(batch_size=[batch], seed=0, max_force=2.0)
+    return TransformedEnv(env, Compose(StepCounter(25), TaskTransform(task)))
 
 
 def _policy(td):
-    state = td["observation"]
-    td["action"] = (6.0 * (torch.tensor([0.5, 0.5]) - state[..., :2]) - state[..., 2:]).clamp(-2, 2)
-    td["action"][::2] = 2.0  # every other mass runs into the wall: out of bounds
+    action = torch.zeros_like(td["observation"][..., :2])
+    action[0::3, 0] = 2.0  # fast along x: unhealthy, or out of the box first when starting near the wall
+    action[1::3, 1] = 0.6  # slowly along y: out of the box
+    td["action"] = action  # the rest stand still: the time limit
     return td
 
 
 def test_the_transform_writes_which_condition_ended_the_episode_and_statistics_count_it():
-    data = _reach_env().rollout(60, _policy, break_when_any_done=False)
+    data = _walk_env().rollout(80, _policy, break_when_any_done=False)
     nxt = data["next"]
-    reached, left = nxt["ended_by", "success"], nxt["ended_by", "out_of_bounds"]
-    assert torch.equal(reached, nxt["success"]) and torch.equal(left, nxt["failure"])
-    assert reached.any() and left.any()
-    stats = episode_statistics(data, terms_key=None)
+    left, fast = nxt["ended_by", "out_of_bounds"][..., 0], nxt["ended_by", "unhealthy"][..., 0]
+    assert torch.equal(left | fast, nxt["failure"][..., 0]) and not nxt["ended_by", "success"].any()
     done = nxt["done"][..., 0]
+    assert (left & done).any() and (fast & done).any() and (done & ~left & ~fast).any()
+    stats = episode_statistics(data, terms_key=None)
     ended = done.sum().item()
-    assert stats["ended_by/success"] == pytest.approx((reached[..., 0] & done).sum().item() / ended)
-    assert stats["ended_by/out_of_bounds"] == pytest.approx((left[..., 0] & done).sum().item() / ended)
-    timeouts = (done & ~reached[..., 0] & ~left[..., 0]).sum().item() / ended
-    assert stats["timeout_rate"] == pytest.approx(timeouts)
-    assert stats["ended_by/success"] + stats["ended_by/out_of_bounds"] + stats["timeout_rate"] == pytest.approx(1.0)
-    # the root carries the flags of the reset (all False), as for success and failure
-    assert not data["ended_by", "success"][:, 0].any()
+    assert stats["ended_by/out_of_bounds"] == pytest.approx((left & done).sum().item() / ended)
+    assert stats["ended_by/unhealthy"] == pytest.approx((fast & done).sum().item() / ended)
+    assert stats["ended_by/success"] == 0.0
+    assert stats["timeout_rate"] == pytest.approx((done & ~left & ~fast).sum().item() / ended)
+    assert not data["ended_by", "unhealthy"][:, 0].any()  # the root of the first step: the reset's flags
+
+
+def test_one_condition_per_kind_writes_no_extra_entry():
+    spec = EnvSpec(Box([-0.9] * 4, [0.9] * 4, labels=["x", "y", "vx", "vy"]), 2)
+    near = functools.partial(proximity_succeeded, threshold=0.15)
+    reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.5, 0.5], QuadraticErrorReward([1.0, 1.0]), near)
+    task = MaskedTask(spec, reach, ["x", "y"])
+    assert set(task.termination_names) == {"success", "out_of_bounds"}
+    transform = TaskTransform(task)
+    env = TransformedEnv(PointMassEnv(batch_size=[2], seed=0), Compose(StepCounter(5), transform))
+    data = env.rollout(3)
+    assert transform.termination_names == () and "ended_by" not in data["next"].keys()

@@ -49,7 +49,6 @@ TERMS = ("step", "final", *NAMED_TERMS)
 REWRITTEN = {
     *(("next", key) for key in ("reward", "success", "failure", "terminated", "done")),
     *(("next", "task_reward", term) for term in TERMS),
-    *(("next", "ended_by", name) for name in ("success", "out_of_bounds")),  # the named end conditions
 }
 
 

@@ -55,7 +55,7 @@ TransitionTuple = tuple[
     TensorDictBase,  # memory
     dict[str, torch.Tensor],  # terms
     dict[str, torch.Tensor],  # costs
-    dict[str, torch.Tensor],  # ended_by: the named end conditions (empty unless the tree names more than two)
+    dict[str, torch.Tensor],  # ended_by: the named end conditions (empty unless a kind has two or more)
 ]
 
 #: the end conditions of a tree that names none beyond its success and its failure
@@ -385,7 +385,9 @@ class Task(nn.Module):
         of this task tree: cached."""
         facts = self.__dict__.get("_facts")
         if facts is None:
-            named_ends = self.termination_names != DEFAULT_TERMINATIONS
+            # named flags say more than success and failure only where a kind has two or more conditions
+            kinds = list(self.termination_names.values())
+            named_ends = kinds.count("success") > 1 or kinds.count("failure") > 1
             facts = (
                 bool(self.term_names),
                 self.uses_remaining_steps,

@@ -32,8 +32,8 @@ class TaskOutput:
             reward sees (empty when the task has none, see :class:`~torchtasks.tasks.ConstrainedTask`).
         ended_by: ``{name: flag[*B]}``, the tree's named end conditions on ``next_state``
             (:attr:`Task.termination_names <torchtasks.tasks.Task.termination_names>`; the conditions
-            of each kind OR to ``success`` and ``failure``); empty when the tree names none beyond its
-            success and failure.
+            of each kind OR to ``success`` and ``failure``); empty when no kind has two or more
+            conditions (then ``success`` and ``failure`` say which one held).
 
     Example:
         >>> import torch
