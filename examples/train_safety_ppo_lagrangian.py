@@ -375,7 +375,11 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     axes[1].axhline(limit, color="black", linewidth=1.2, label=f"cost limit {limit:g}")
     axes[0].set_ylabel("mean return of the training episodes")
     axes[1].set_ylabel("mean episode cost of the training episodes")
-    axes[1].set_yscale("symlog", linthresh=limit)
+    axes[1].set_yscale("symlog", linthresh=10.0)  # linear up to 10, logarithmic above: the limit and PPO's costs
+    top = max(max(p["train_cost"] for p in r["curve"] if p["train_cost"] is not None) for r in records)
+    axes[1].set_ylim(0.0, 1.5 * max(top, 2 * limit))
+    ticks = [tick for tick in (0, 5, 10, 25, 50, 100, 250, 500, 1000) if tick <= 1.5 * max(top, 2 * limit)]
+    axes[1].set_yticks(ticks, [str(tick) for tick in ticks])
     axes[2].set_ylabel("Lagrange multiplier λ")
     for axis in axes:
         axis.set_xlabel("env frames")
