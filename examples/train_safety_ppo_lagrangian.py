@@ -38,8 +38,9 @@ per run and ``safety_ppo_lagrangian_curve.png`` (return, episode cost with the l
 against frames, every run's JSON in the directory; needs matplotlib).
 
 Run: ``python examples/train_safety_ppo_lagrangian.py [--variants lagrangian ppo] [--seeds 0 1 2]
-[--total-frames N] [--quick]`` (runs one after the other; ``--quick``: a few seconds, every code
-path, for the tests). Measured results: ``docs/constraints_results.md``.
+[--total-frames N] [--quick] [--plot-only]`` (runs one after the other; ``--quick``: a few seconds,
+every code path, for the tests; ``--plot-only``: re-plot the JSONs already in ``--output``).
+Measured results: ``docs/constraints_results.md``.
 """
 
 from __future__ import annotations
@@ -403,11 +404,16 @@ def file_name(variant: str, seed: int | str) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__.split("\n\n")[0],  # the set-up: the module docstring and docs/constraints_results.md
+        epilog="Outputs: <output>/<variant>_seed<N>.json and safety_ppo_lagrangian_curve.png. "
+        "Results: docs/constraints_results.md.",
+    )
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory (default {DEFAULT_OUTPUT})")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds (default 0)")
     parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS), help="default: both")
+    parser.add_argument("--plot-only", action="store_true", help="train nothing: re-plot the JSONs in --output")
     defaults = SafetyPPOConfig()
     for name, value in asdict(defaults).items():
         kind = type(value)
@@ -420,7 +426,7 @@ def main() -> None:
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
     args.output.mkdir(parents=True, exist_ok=True)
-    for variant in args.variants:
+    for variant in () if args.plot_only else args.variants:
         for seed in args.seeds:
             record = train(config, variant, seed, quiet=args.quick)
             json_path = args.output / file_name(variant, seed)
@@ -435,6 +441,9 @@ def main() -> None:
             )
             print(f"wrote {json_path}")
     records = [json.loads(path.read_text()) for path in sorted(args.output.glob("*_seed*.json"))]
+    if not records:
+        print(f"no run in {args.output}: nothing to plot")
+        return
     png = plot(records, args.output / PLOT_NAME)
     if png is not None:
         print(f"wrote {png} ({len(records)} run(s))")
