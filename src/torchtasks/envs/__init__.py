@@ -16,6 +16,8 @@ _LOCOMOTION = (
     "locomotion_task",
     "make_base_env",
     "make_gymnasium_env",
+    "safety_velocity_env",
+    "safety_velocity_task",
 )
 
 #: the batched MuJoCo env and its broken-step transform (torchtasks.envs.batched_mujoco), imported on first
