@@ -1,6 +1,6 @@
 """Tasks: batched, functional evaluation of transitions with per-environment memory in a TensorDict."""
 
-from torchtasks.tasks.base import Task, TaskWrapper, all_tasks
+from torchtasks.tasks.base import ForwardingTask, Task, TaskWrapper, all_tasks
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDesiredStateTask
@@ -26,6 +26,7 @@ __all__ = [
     "FinalRewardMode",
     "FinalRewardTask",
     "FlippingTask",
+    "ForwardingTask",
     "GoallessTask",
     "MaskedTask",
     "OptimizationTask",

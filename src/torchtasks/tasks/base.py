@@ -39,7 +39,7 @@ from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
 
-__all__ = ["Task", "TaskOutput", "TaskWrapper", "all_tasks"]
+__all__ = ["ForwardingTask", "Task", "TaskOutput", "TaskWrapper", "all_tasks"]
 
 RewardOn = Literal["next", "state"]
 
@@ -859,6 +859,111 @@ class TaskWrapper(Task):
             state, read(memory, "wrapped"), remaining_steps, done, flags
         )
         return own + inner_reward, self._with_inner(memory, inner)
+
+
+class ForwardingTask(Task):
+    """A task that forwards every call to one wrapped task, whose memory is its own (no extra level).
+
+    Subclasses change what the wrapped task sees (:meth:`_state`, :meth:`_action`: identity here) or add
+    to what the tree reports (costs); the reward, flags, final rewards, terms, goals and end conditions
+    are the wrapped task's.
+
+    Args:
+        spec: this task's state and action boxes.
+        task: the wrapped task.
+
+    Example:
+        >>> from torchtasks.rewards import ConstantReward
+        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.tasks import ForwardingTask, GoallessTask
+        >>> task = ForwardingTask(EnvSpec(2, 1), GoallessTask(EnvSpec(2, 1), ConstantReward(1.0)))
+        >>> task.term_names, task.termination_names == task.wrapped_task.termination_names
+        ((), True)
+    """
+
+    def __init__(self, spec: EnvSpec, task: Task) -> None:
+        super().__init__(spec)
+        if not isinstance(task, Task):
+            raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
+        self.wrapped_task = task
+
+    def _state(self, state: torch.Tensor) -> torch.Tensor:
+        """What the wrapped task sees of a state (all of it here)."""
+        return state
+
+    def _action(self, action: torch.Tensor) -> torch.Tensor:
+        """What the wrapped task sees of an action (all of it here)."""
+        return action
+
+    def children_tasks(self) -> tuple[Task, ...]:
+        return (self.wrapped_task,)
+
+    def _child_memory_keys(self) -> tuple[str | None, ...]:
+        return (None,)  # the wrapped task's memory is this task's memory
+
+    @property
+    def term_names(self) -> tuple[str, ...]:
+        return self.wrapped_task.term_names
+
+    @property
+    def pays_final_reward(self) -> bool:
+        return self.wrapped_task.pays_final_reward
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        return self.wrapped_task.termination_names
+
+    def _termination_terms(
+        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._termination_terms(self._state(state), memory, success, failure)
+
+    def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._step_costs(self._state(state), self._action(action))
+
+    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
+        return self.wrapped_task._reset(self._state(init_state), overrides)
+
+    def _step_reward(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        action = self._action(action)
+        return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps, terminated)
+
+    def _step_terms(
+        self,
+        state: torch.Tensor,
+        action: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        terminated: torch.Tensor | None = None,
+    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
+        action = self._action(action)
+        return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps, terminated)
+
+    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_succeeded(self._state(state), memory)
+
+    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._has_failed(self._state(state), memory)
+
+    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
+        return self.wrapped_task._is_done(self._state(state), memory)
+
+    def _final_reward(
+        self,
+        state: torch.Tensor,
+        memory: TensorDictBase,
+        remaining_steps: torch.Tensor,
+        done: torch.Tensor,
+        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done, flags)
 
 
 def all_tasks(task: Task) -> Iterator[Task]:

@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from typing import Any
 
 import torch
-from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
 from torchtasks.rewards.base import RewardFunction
-from torchtasks.tasks.base import Task
+from torchtasks.tasks.base import ForwardingTask, Task
 
 __all__ = ["ConstrainedTask", "Constraint"]
 
@@ -64,7 +62,7 @@ class Constraint(nn.Module):
         return f"limit={self.limit}"
 
 
-class ConstrainedTask(Task):
+class ConstrainedTask(ForwardingTask):
     """A task with named costs beside its reward: ``transition`` returns them in ``TaskOutput.costs``.
 
     The wrapped task's reward, flags, final rewards, memory and goals are unchanged: the constrained
@@ -99,7 +97,7 @@ class ConstrainedTask(Task):
     def __init__(self, task: Task, constraints: Mapping[str, Constraint | RewardFunction]) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"ConstrainedTask: task must be a torchtasks Task, got {type(task).__name__}")
-        super().__init__(task.spec)
+        super().__init__(task.spec, task)
         if not isinstance(constraints, Mapping) or not constraints:
             raise TypeError(
                 f"ConstrainedTask: constraints must be a non-empty mapping {{name: Constraint}}, got {constraints!r}"
@@ -123,23 +121,7 @@ class ConstrainedTask(Task):
                 f"ConstrainedTask: cost names must be unique in the tree; {sorted(taken)} already name costs of the "
                 f"wrapped task (its costs: {list(task.cost_names)})"
             )
-        self.wrapped_task = task
         self.constraints = nn.ModuleDict(built)
-
-    # ------------------------------------------------------------------ tree facts
-    def children_tasks(self) -> tuple[Task, ...]:
-        return (self.wrapped_task,)
-
-    def _child_memory_keys(self) -> tuple[str | None, ...]:
-        return (None,)  # the wrapped task's memory is this task's memory
-
-    @property
-    def term_names(self) -> tuple[str, ...]:
-        return self.wrapped_task.term_names
-
-    @property
-    def pays_final_reward(self) -> bool:
-        return self.wrapped_task.pays_final_reward
 
     @property
     def cost_names(self) -> tuple[str, ...]:
@@ -151,60 +133,9 @@ class ConstrainedTask(Task):
         limits.update((name, constraint.limit) for name, constraint in self.constraints.items())
         return limits
 
-    @property
-    def termination_names(self) -> dict[str, str]:
-        return self.wrapped_task.termination_names
-
-    def _termination_terms(
-        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
-    ) -> dict[str, torch.Tensor]:
-        return self.wrapped_task._termination_terms(state, memory, success, failure)
-
     # ------------------------------------------------------------------ evaluation
     def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
         costs = self.wrapped_task._step_costs(state, action)
         for name, constraint in self.constraints.items():
             costs[name] = constraint.cost._value(state, action)
         return costs
-
-    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
-        return self.wrapped_task._reset(init_state, overrides)
-
-    def _step_reward(
-        self,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        terminated: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        return self.wrapped_task._step_reward(state, action, memory, remaining_steps, terminated)
-
-    def _step_terms(
-        self,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        terminated: torch.Tensor | None = None,
-    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        return self.wrapped_task._step_terms(state, action, memory, remaining_steps, terminated)
-
-    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_succeeded(state, memory)
-
-    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_failed(state, memory)
-
-    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._is_done(state, memory)
-
-    def _final_reward(
-        self,
-        state: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        done: torch.Tensor,
-        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        return self.wrapped_task._final_reward(state, memory, remaining_steps, done, flags)

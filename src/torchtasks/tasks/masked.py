@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from typing import Any
 
 import torch
-from tensordict import TensorDict, TensorDictBase
 
 from torchtasks.spaces import EnvSpec
-from torchtasks.tasks.base import Task
+from torchtasks.tasks.base import ForwardingTask, Task
 
 __all__ = ["MaskedTask"]
 
@@ -19,7 +17,7 @@ def _on_device(index: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     return index if index.device == x.device else index.to(x.device)
 
 
-class MaskedTask(Task):
+class MaskedTask(ForwardingTask):
     """Evaluate a task on selected state (and action) entries, in the order given.
 
     The wrapped task is built for the sub-spec (e.g. ``spec.select_state(indices)``) and sees
@@ -56,9 +54,7 @@ class MaskedTask(Task):
         state_indices: Iterable[int | str] | int | str | None,
         action_indices: Iterable[int | str] | int | str | None = None,
     ) -> None:
-        super().__init__(spec)
-        if not isinstance(task, Task):
-            raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
+        super().__init__(spec, task)
         state_positions = (
             list(range(spec.state_size)) if state_indices is None else spec.state_space.indices(state_indices)
         )
@@ -73,88 +69,17 @@ class MaskedTask(Task):
             raise ValueError(
                 f"the wrapped task reads {task.action_size} action entries but {len(action_positions)} are selected"
             )
-        self.wrapped_task = task
         self.state_indices = state_positions
         self.action_indices = action_positions
         self.register_buffer("state_index", torch.tensor(state_positions, dtype=torch.long))
         self.register_buffer("action_index", torch.tensor(action_positions, dtype=torch.long))
 
-    def children_tasks(self) -> tuple[Task, ...]:
-        return (self.wrapped_task,)
-
-    def _child_memory_keys(self) -> tuple[str | None, ...]:
-        return (None,)  # the wrapped task's memory is this task's memory
-
     def _goal_slots(self, prefix: tuple[str, ...], indices: tuple[int, ...] | None) -> list:
         selected = tuple(self.state_indices) if indices is None else tuple(indices[i] for i in self.state_indices)
         return self.wrapped_task._goal_slots(prefix, selected)
-
-    @property
-    def term_names(self) -> tuple[str, ...]:
-        return self.wrapped_task.term_names
-
-    @property
-    def pays_final_reward(self) -> bool:
-        return self.wrapped_task.pays_final_reward
 
     def _state(self, state: torch.Tensor) -> torch.Tensor:
         return state.index_select(-1, _on_device(self.state_index, state))
 
     def _action(self, action: torch.Tensor) -> torch.Tensor:
         return action.index_select(-1, _on_device(self.action_index, action))
-
-    def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
-        return self.wrapped_task._reset(self._state(init_state), overrides)
-
-    def _step_reward(
-        self,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        terminated: torch.Tensor | None = None,
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        action = self._action(action)
-        return self.wrapped_task._step_reward(self._state(state), action, memory, remaining_steps, terminated)
-
-    def _step_terms(
-        self,
-        state: torch.Tensor,
-        action: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        terminated: torch.Tensor | None = None,
-    ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
-        action = self._action(action)
-        return self.wrapped_task._step_terms(self._state(state), action, memory, remaining_steps, terminated)
-
-    @property
-    def termination_names(self) -> dict[str, str]:
-        return self.wrapped_task.termination_names
-
-    def _termination_terms(
-        self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
-    ) -> dict[str, torch.Tensor]:
-        return self.wrapped_task._termination_terms(self._state(state), memory, success, failure)
-
-    def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
-        return self.wrapped_task._step_costs(self._state(state), self._action(action))
-
-    def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_succeeded(self._state(state), memory)
-
-    def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._has_failed(self._state(state), memory)
-
-    def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        return self.wrapped_task._is_done(self._state(state), memory)
-
-    def _compute_final_reward(
-        self,
-        state: torch.Tensor,
-        memory: TensorDictBase,
-        remaining_steps: torch.Tensor,
-        done: torch.Tensor,
-        flags: tuple[torch.Tensor, torch.Tensor] | None = None,
-    ) -> tuple[torch.Tensor, TensorDictBase]:
-        return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done, flags)
