@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import functools
 import io
-import multiprocessing as mp
 
 import pytest
 import torch
@@ -175,15 +174,6 @@ def test_outside_an_env_and_wrong_states_are_refused():
         env.transform[-1].load_state_dict({"_extra_state": 3})
     with pytest.raises(ValueError, match="uint8 tensor 'generator_state'"):  # the base env's own check
         env.transform[-1].load_state_dict({"_extra_state": {"_extra_state": {"seed": 0}}})
-
-
-@pytest.fixture
-def fork_start_method():
-    """MultiSyncCollector starts its workers with the default start method: fork is seconds faster than spawn."""
-    previous = mp.get_start_method(allow_none=True)
-    mp.set_start_method("fork", force=True)
-    yield
-    mp.set_start_method(previous, force=True)
 
 
 @pytest.mark.multiprocess

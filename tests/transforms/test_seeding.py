@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import copy
 import functools
-import multiprocessing as mp
 import pickle
 
 import pytest
@@ -131,15 +130,6 @@ def test_collector_set_seed_seeds_the_commands():
     # what env.set_seed(3) and a rollout give; not what the command's own seed=0 gives
     assert_equal(batch, goals_of(make_env(), 3).select(*batch.keys(True, True)))
     assert (goals_of(make_env(), None)["goal"] != batch["goal"]).all()
-
-
-@pytest.fixture
-def fork_start_method():
-    """MultiSyncCollector starts its workers with the default start method: fork is seconds faster than spawn."""
-    previous = mp.get_start_method(allow_none=True)
-    mp.set_start_method("fork", force=True)
-    yield
-    mp.set_start_method(previous, force=True)
 
 
 @pytest.mark.multiprocess

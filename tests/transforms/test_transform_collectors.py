@@ -18,7 +18,6 @@ functions of ``replay_env``).
 from __future__ import annotations
 
 import functools
-import multiprocessing as mp
 import os
 
 import pytest
@@ -178,18 +177,6 @@ def test_checks_can_fail() -> None:
 # --------------------------------------------------------------------------------------------------
 # Multi-process
 # --------------------------------------------------------------------------------------------------
-
-
-@pytest.fixture
-def fork_start_method():
-    """Start worker processes by fork (seconds instead of tens of seconds per worker on this machine).
-
-    ``test_parallel_env_spawn`` checks that the constructors are spawn-safe.
-    """
-    previous = mp.get_start_method(allow_none=True)
-    mp.set_start_method("fork", force=True)
-    yield
-    mp.set_start_method(previous, force=True)
 
 
 @pytest.mark.multiprocess
