@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
@@ -9,7 +10,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.data import Categorical, Composite, Unbounded
-from torchrl.envs.transforms import StepCounter, TransformedEnv
+from torchrl.envs.transforms import RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_positive_int
@@ -123,7 +124,10 @@ class TaskTransform(EnvDerivedTransform):
     as in Pyrado). A task that reads them (``task.uses_remaining_steps``) in an env that counts steps
     with a limit the transform cannot see (e.g. StepCounters inside the workers of a batched env) is
     an error, not "no limit"; offline, such a task needs ``max_steps`` for data holding
-    ``("next", "step_count")``.
+    ``("next", "step_count")``. In an env with no limit in sight it gets 0 and a ``UserWarning`` at
+    set-up (once per env). A ``RewardSum`` that runs before this transform (in its Compose or in a
+    TransformedEnv it wraps) and sums an entry it overwrites (:attr:`reward_key`, :attr:`term_keys`,
+    :attr:`cost_keys`) is refused with a ``ValueError``: put ``RewardSum`` after it.
 
     Every time the env's specs are built the transform sets itself up for the env it is in now
     (state and action sizes, dtype, time limit, transform order): a transform moved, cloned or
@@ -364,9 +368,100 @@ class TaskTransform(EnvDerivedTransform):
             )
         return max_steps, step_count_key, counter is not None
 
+    def _preceding_transforms(self) -> list[tuple[Transform, bool]]:
+        """The transforms that run before this one in its env, each with whether it sits in a wrapped env.
+
+        Those of the TransformedEnvs the container wraps (``auto_unwrap=False``) come first, then the ones
+        before this transform in its (flattened) Compose. Empty outside an env.
+        """
+        container = self._container_env()
+        if container is None or getattr(container, "transform", None) is None:
+            return []
+        transforms = flat_transforms(container.transform)
+        position = next((i for i, t in enumerate(transforms) if t is self), len(transforms))
+        preceding = [(t, False) for t in transforms[:position]]
+        inner = container.base_env
+        while isinstance(inner, TransformedEnv):
+            preceding[:0] = [(t, True) for t in flat_transforms(inner.transform)]
+            inner = inner.base_env
+        return preceding
+
+    def _overwritten_keys(self) -> list[tuple[NestedKey, str]]:
+        """The reward-spec entries this transform writes, each with the argument that names it."""
+        keys = [(self.reward_key, "reward_key")]
+        keys += [(key, f"a reward term of terms_key={self.terms_key!r}") for key in self._term_keys]
+        if self.cost_names:
+            keys.append((self.cost_key, "cost_key"))
+            keys += [(key, f"a cost of cost_terms_key={self.cost_terms_key!r}") for key in self._cost_keys]
+        return keys
+
+    def _check_reward_sums(self) -> None:
+        """Refuse a ``RewardSum`` before this transform that sums an entry this transform overwrites.
+
+        Transforms run in order: such a RewardSum adds up the env's value of the entry (e.g. a reward
+        that is always 0), and the task's value written afterwards never reaches the episode sum.
+        A RewardSum of other entries (an env reward the task does not write) may precede the task.
+        """
+        written = self._overwritten_keys()
+        for transform, wrapped in self._preceding_transforms():
+            if not isinstance(transform, RewardSum):
+                continue
+            in_keys = list(transform.in_keys)
+            for key, argument in written:
+                index = next((i for i, in_key in enumerate(in_keys) if _overlap(in_key, key)), None)
+                if index is None:
+                    continue
+                where = (
+                    "in a TransformedEnv that TaskTransform wraps (its transforms run first)"
+                    if wrapped
+                    else "before TaskTransform in the Compose"
+                )
+                fix = (
+                    "Remove it from the wrapped env and put RewardSum after TaskTransform"
+                    if wrapped
+                    else "Put RewardSum after TaskTransform in the Compose"
+                )
+                raise ValueError(
+                    f"TaskTransform: a RewardSum(in_keys={in_keys!r}) is placed {where}; it sums {key!r} "
+                    f"({argument}), which TaskTransform overwrites afterwards, so its episode sum "
+                    f"{transform.out_keys[index]!r} would add up the env's values, not the task's (e.g. stay 0). "
+                    f"{fix}, e.g. Compose(StepCounter(max_steps), TaskTransform(task), RewardSum())."
+                )
+
+    def _warn_no_time_limit(self, max_steps: int | None) -> None:
+        """Warn (once per env) that a time-dependent task gets no time limit: its remaining steps are 0."""
+        if not self._uses_remaining or max_steps is not None or self.__dict__.get("_warned_no_limit"):
+            return
+        original = self.__dict__.get("_original")
+        source = None if original is None else original()
+        if source is not None and source is not self:
+            env, home = self._container_env(), source._container_env()
+            if home is not None and getattr(env, "base_env", None) is getattr(home, "base_env", self):
+                return  # TorchRL's clone in a later transform's view of the same env: the transform itself warns
+        self.__dict__["_warned_no_limit"] = True
+        counters = [t for t, _ in self._preceding_transforms() if isinstance(t, StepCounter)]
+        seen = "a StepCounter without max_steps" if counters else "no StepCounter"
+        warnings.warn(
+            f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final reward), "
+            f"but no time limit reaches the transform: max_steps is not given and {seen} precedes it, so the "
+            "remaining steps are 0 (Pyrado's 'no limit') and the final reward does not depend on time. Put "
+            "StepCounter(max_steps) before TaskTransform in the Compose, or pass TaskTransform(..., max_steps=...).",
+            UserWarning,
+            stacklevel=2,
+        )
+
     def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
-        """Derive the time limit for the current container and store what the step reads (at spec building)."""
+        """Derive the time limit for the current container and store what the step reads (at spec building).
+
+        Given the observation spec (spec building), also check the transforms before this one: a
+        ``RewardSum`` of an entry the task overwrites is refused, a missing limit for a time-dependent
+        task is warned about.
+        """
         max_steps, step_count_key, enforced = self._time_limit(observation_spec)
+        if observation_spec is not None:
+            self._check_reward_sums()
+            if self._container_env() is not None:
+                self._warn_no_time_limit(max_steps)
         # the step computes the remaining steps only for a task tree that reads them and a known limit;
         # a limit no StepCounter enforces (given as max_steps) is checked against the step counts it meets
         limit = (max_steps if self._uses_remaining else None, step_count_key, enforced)
@@ -376,6 +471,7 @@ class TaskTransform(EnvDerivedTransform):
     def _forget_setup(self) -> None:
         """Drop what was derived for the previous env (the next spec building or step derives it again)."""
         self.__dict__.pop("_limit", None)
+        self.__dict__.pop("_warned_no_limit", None)
 
     @property
     def max_steps(self) -> int | None:

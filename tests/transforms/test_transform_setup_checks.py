@@ -6,7 +6,9 @@
 - tasks without memory tensors run in ``SerialEnv``/``ParallelEnv``, inside the workers and outside;
 - missing entries (action, memory, step count) and bad keys get errors naming the key;
 - a time limit that exists but does not reach the transform is an error, not "no limit";
-- offline re-judging keeps the env's termination and the truncation (truth table).
+- offline re-judging keeps the env's termination and the truncation (truth table);
+- transform orders that silently lost data: a ``RewardSum`` before the task of an entry the task
+  overwrites is refused, a time-dependent task without a time limit is warned about (issue 26, item 1).
 
 Expected rewards are written out by hand: the time-dependent task below succeeds in the first step
 and pays ``+remaining = max_steps - 1`` there; the goalless tasks pay a constant or a closed form of
@@ -18,11 +20,21 @@ from __future__ import annotations
 import copy
 import functools
 import itertools
+import re
+import warnings
 
 import pytest
 import torch
 from tensordict import TensorDict, TensorDictBase
-from torchrl.envs import Compose, ParallelEnv, RewardSum, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import (
+    Compose,
+    ParallelEnv,
+    RenameTransform,
+    RewardSum,
+    SerialEnv,
+    StepCounter,
+    TransformedEnv,
+)
 from torchrl.envs.utils import check_env_specs
 
 from replay_env import ReplayEnv
@@ -32,6 +44,7 @@ from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
     BestStateFinalRewardTask,
     ConditionTask,
+    ConstrainedTask,
     DesiredSpaceTask,
     DesiredStateTask,
     FinalRewardMode,
@@ -201,11 +214,11 @@ class TestMovedClonedOrCopiedTransformSetsItselfUp:
         """TorchRL clones the transforms of a wrapped env and appends the new ones: the StepCounter comes last."""
         env, _ = self._used(50)
         with pytest.raises(ValueError, match=r"Put StepCounter\(max_steps\) before TaskTransform"):
-            TransformedEnv(env, StepCounter(5)).reset()
+            TransformedEnv(env, StepCounter(5), auto_unwrap=True).reset()
 
     def test_wrapping_a_used_env_with_other_transforms_keeps_the_limit(self) -> None:
         env, _ = self._used(50)
-        assert _first_reward(TransformedEnv(env, RewardSum())) == [49.0]
+        assert _first_reward(TransformedEnv(env, RewardSum(), auto_unwrap=True)) == [49.0]
 
     def test_moved_into_an_env_with_another_state_size(self) -> None:
         env = _pendulum_with(StepCounter(5), TaskTransform(_memory_task()))
@@ -244,6 +257,11 @@ class TestMovedClonedOrCopiedTransformSetsItselfUp:
 # --------------------------------------------------------------------------------------------------
 
 LIMIT_NOT_SEEN = r"no time limit reaches the transform.*max_steps=.*StepCounter\(max_steps\) before TaskTransform"
+NO_LIMIT = (
+    r"FinalRewardTask reads the remaining steps .* no time limit reaches the transform: max_steps is not given .* "
+    r"the remaining steps are 0 .* Put StepCounter\(max_steps\) before TaskTransform in the Compose, or pass "
+    r"TaskTransform\(\.\.\., max_steps=\.\.\.\)"
+)
 
 
 def test_step_counter_inside_the_workers_of_a_batched_env_is_an_error() -> None:
@@ -264,14 +282,16 @@ def test_step_counter_of_a_wrapped_env_is_found() -> None:
 
 
 def test_time_dependent_task_without_any_step_count_has_no_limit() -> None:
-    """No StepCounter anywhere: no time limit, remaining steps 0 (Pyrado's max_steps = inf)."""
+    """No StepCounter anywhere: no time limit, remaining steps 0 (Pyrado's max_steps = inf), with a warning."""
     transform = TaskTransform(_time_task())
-    assert _first_reward(_pendulum_with(transform)) == [0.0]
+    with pytest.warns(UserWarning, match=NO_LIMIT):
+        assert _first_reward(_pendulum_with(transform)) == [0.0]
     assert transform.max_steps is None
 
 
 def test_step_counter_without_max_steps_says_no_limit() -> None:
-    assert _first_reward(_pendulum_with(StepCounter(), TaskTransform(_time_task()))) == [0.0]
+    with pytest.warns(UserWarning, match=r"a StepCounter without max_steps precedes it"):
+        assert _first_reward(_pendulum_with(StepCounter(), TaskTransform(_time_task()))) == [0.0]
 
 
 def test_tasks_that_do_not_read_remaining_steps_ignore_the_inner_step_counter() -> None:
@@ -578,3 +598,243 @@ def test_offline_rejudging_without_a_terminated_entry() -> None:
     out = TaskTransform(_judge_task())(data.clone())["next"]
     assert out["done"].tolist() == [[True], [True]] and "terminated" not in out.keys()
     assert out["reward"].tolist() == [[-1.0 - FINAL_FACTOR], [-1.0 - FINAL_FACTOR]]
+
+
+# --------------------------------------------------------------------------------------------------
+# Issue 26, item 1: transform orders that silently lost data
+# --------------------------------------------------------------------------------------------------
+
+SUM_BEFORE = (
+    r"is placed before TaskTransform in the Compose; it sums {key} \({argument}\).*Put RewardSum after TaskTransform"
+)
+SUM_WRAPPED = (
+    r"is placed in a TransformedEnv that TaskTransform wraps .* it sums {key} \({argument}\).*"
+    r"Remove it from the wrapped env and put RewardSum after TaskTransform"
+)
+
+
+def _costly_task() -> ConstrainedTask:
+    return ConstrainedTask(_goalless(), {"effort": ConstantReward(2.0)})
+
+
+def _inner_task_env(task_factory, sums, auto_unwrap: bool) -> TransformedEnv:
+    """A task env with a RewardSum over the first task's entries, wrapped by a second TaskTransform of the same keys."""
+    inner_transform = TaskTransform(task_factory())
+    inner = _pendulum_with(StepCounter(5), inner_transform, RewardSum(in_keys=sums(inner_transform)))
+    return TransformedEnv(inner, TaskTransform(task_factory()), auto_unwrap=auto_unwrap)
+
+
+def _renamed(*transforms) -> TransformedEnv:
+    """PendulumEnv whose reward is renamed to ``"r"``."""
+    return _pendulum_with(RenameTransform(["reward"], ["r"]), *transforms)
+
+
+def _with_env_reward(*transforms) -> TransformedEnv:
+    """PendulumEnv with a copy of its own reward under ``"env_reward"`` (an entry the task does not write)."""
+    return _pendulum_with(RenameTransform(["reward"], ["env_reward"], create_copy=True), *transforms)
+
+
+#: (env factory, pattern of the ValueError): each order here ran before this check without an error,
+#: and its episode sum added up the env's value of the entry (PendulumEnv's reward is 0, the task's
+#: costs and rewards are not): ``episode_reward`` stayed 0 while the task paid 1 per step
+REFUSED_SUMS = {
+    "default_in_keys": (
+        lambda: _pendulum_with(StepCounter(5), RewardSum(), TaskTransform(_goalless())),
+        SUM_BEFORE.format(key="'reward'", argument="reward_key"),
+    ),
+    "explicit_reward_key": (
+        lambda: _pendulum_with(StepCounter(5), RewardSum(in_keys=["reward"]), TaskTransform(_goalless())),
+        SUM_BEFORE.format(key="'reward'", argument="reward_key"),
+    ),
+    "custom_out_key": (
+        lambda: _pendulum_with(RewardSum(in_keys=["reward"], out_keys=["ret"]), TaskTransform(_goalless())),
+        r"its episode sum 'ret' would add up the env's values, not the task's",
+    ),
+    "custom_reward_key_default_sum": (
+        lambda: _renamed(RewardSum(), TaskTransform(_goalless(), reward_key="r")),
+        SUM_BEFORE.format(key="'r'", argument="reward_key"),
+    ),
+    "custom_reward_key": (
+        lambda: _renamed(StepCounter(5), RewardSum(in_keys=["r"]), TaskTransform(_goalless(), reward_key="r")),
+        SUM_BEFORE.format(key="'r'", argument="reward_key"),
+    ),
+    "nested_compose": (
+        lambda: _pendulum_with(StepCounter(5), Compose(RewardSum(), TaskTransform(_goalless()))),
+        SUM_BEFORE.format(key="'reward'", argument="reward_key"),
+    ),
+    "wrapped_env_auto_unwrap": (
+        lambda: TransformedEnv(_pendulum_with(RewardSum()), TaskTransform(_goalless()), auto_unwrap=True),
+        SUM_BEFORE.format(key="'reward'", argument="reward_key"),
+    ),
+    "wrapped_env_kept": (
+        lambda: TransformedEnv(_pendulum_with(RewardSum()), TaskTransform(_goalless()), auto_unwrap=False),
+        SUM_WRAPPED.format(key="'reward'", argument="reward_key"),
+    ),
+    "wrapped_env_twice": (
+        lambda: TransformedEnv(
+            TransformedEnv(_pendulum_with(RewardSum()), StepCounter(5), auto_unwrap=False),
+            TaskTransform(_goalless()),
+            auto_unwrap=False,
+        ),
+        SUM_WRAPPED.format(key="'reward'", argument="reward_key"),
+    ),
+    "term_keys_of_a_wrapped_task": (
+        lambda: _inner_task_env(_time_task, lambda t: t.term_keys, auto_unwrap=False),
+        SUM_WRAPPED.format(key=r"\('task_reward', 'step'\)", argument="a reward term of terms_key='task_reward'"),
+    ),
+    "term_keys_of_an_earlier_task_in_the_compose": (
+        lambda: _inner_task_env(_time_task, lambda t: t.term_keys, auto_unwrap=True),
+        SUM_BEFORE.format(key=r"\('task_reward', 'step'\)", argument="a reward term of terms_key='task_reward'"),
+    ),
+    "cost_keys_of_a_wrapped_task": (
+        lambda: _inner_task_env(_costly_task, lambda t: t.cost_keys, auto_unwrap=False),
+        SUM_WRAPPED.format(key=r"\('task_cost', 'effort'\)", argument="a cost of cost_terms_key='task_cost'"),
+    ),
+    "cost_vector_of_a_wrapped_task": (
+        lambda: _inner_task_env(_costly_task, lambda t: [t.cost_key], auto_unwrap=False),
+        SUM_WRAPPED.format(key="'cost'", argument="cost_key"),
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(REFUSED_SUMS))
+def test_reward_sum_of_an_entry_the_task_overwrites_is_refused(case: str) -> None:
+    make_env, pattern = REFUSED_SUMS[case]
+    env = make_env()
+    with pytest.raises(ValueError, match=r"TaskTransform: a RewardSum\(in_keys=.*" + pattern):
+        env.reset()
+    with pytest.raises(ValueError, match=pattern):
+        make_env().rollout(2)
+
+
+@pytest.mark.parametrize(
+    "key", [("task_reward", "step"), ("task_cost", "effort"), "cost"], ids=["term", "cost_term", "cost"]
+)
+def test_reward_sum_before_the_task_of_an_entry_not_yet_written_is_refused_by_torchrl(key) -> None:
+    """Not silent: the entry is not in the reward spec before the task, and TorchRL's RewardSum refuses that first."""
+    task = _time_task() if key[0] == "task_reward" else _costly_task()
+    env = _pendulum_with(StepCounter(5), RewardSum(in_keys=[key]), TaskTransform(task))
+    with pytest.raises(ValueError, match=r"is not present in the reward spec"):
+        env.reset()
+
+
+def _episode_sums(env: TransformedEnv, steps: int = 3) -> TensorDictBase:
+    with torch.no_grad():
+        return env.rollout(steps, break_when_any_done=False)["next"]
+
+
+def test_reward_sum_after_the_task_sums_the_task_reward() -> None:
+    data = _episode_sums(_pendulum_with(StepCounter(5), TaskTransform(_goalless()), RewardSum()))
+    assert data["episode_reward"].reshape(-1).tolist() == [1.0, 2.0, 3.0]
+
+
+def test_reward_sum_after_the_task_with_custom_keys_and_costs() -> None:
+    transform = TaskTransform(_costly_task(), reward_key="r")
+    sums = RewardSum(in_keys=["r", *transform.cost_keys])
+    data = _episode_sums(_renamed(StepCounter(5), transform, sums))
+    assert data["episode_r"].reshape(-1).tolist() == [1.0, 2.0, 3.0]
+    assert data["task_cost", "episode_effort"].reshape(-1).tolist() == [2.0, 4.0, 6.0]
+
+
+def test_reward_sum_of_an_entry_the_task_does_not_write_may_precede_it() -> None:
+    """A RewardSum of the env's own reward (kept under another key) before the task sums what it should."""
+    env = _with_env_reward(
+        StepCounter(5), RewardSum(in_keys=["env_reward"]), TaskTransform(_goalless()), RewardSum(in_keys=["reward"])
+    )
+    data = _episode_sums(env)
+    assert data["episode_env_reward"].reshape(-1).tolist() == [0.0, 0.0, 0.0]  # PendulumEnv pays 0
+    assert data["episode_reward"].reshape(-1).tolist() == [1.0, 2.0, 3.0]
+
+
+def test_reward_sum_of_another_tasks_entries_in_a_wrapped_env_is_allowed_with_other_keys() -> None:
+    """The wrapped task's breakdown is kept when the outer task writes its own under another terms_key."""
+    inner_transform = TaskTransform(_time_task())
+    inner = _pendulum_with(StepCounter(5), inner_transform, RewardSum(in_keys=inner_transform.term_keys))
+    env = TransformedEnv(inner, TaskTransform(_time_task(), terms_key="outer_terms"), auto_unwrap=False)
+    data = _episode_sums(env, 1)
+    assert data["task_reward", "episode_final"].reshape(-1).tolist() == [4.0]
+    assert data["outer_terms", "final"].reshape(-1).tolist() == [4.0]
+
+
+def _warnings_of(build) -> list[str]:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        build()
+    return [str(w.message) for w in caught if issubclass(w.category, UserWarning) and "TaskTransform" in str(w.message)]
+
+
+#: (env factory, whether the no-limit warning is expected, first reward): the time-dependent task pays
+#: ``+remaining`` in its first step, so 0 there is the remaining steps of "no limit"
+TIME_LIMIT_CASES = {
+    "time_task_no_step_counter": (lambda: _pendulum_with(TaskTransform(_time_task())), True, 0.0),
+    "time_task_no_step_counter_reward_sum_after": (
+        lambda: _pendulum_with(TaskTransform(_time_task()), RewardSum()),
+        True,
+        0.0,
+    ),
+    "time_task_step_counter_without_limit": (
+        lambda: _pendulum_with(StepCounter(), TaskTransform(_time_task())),
+        True,
+        0.0,
+    ),
+    "time_task_step_counter": (lambda: _pendulum_with(StepCounter(5), TaskTransform(_time_task())), False, 4.0),
+    "time_task_max_steps": (
+        lambda: _pendulum_with(StepCounter(), TaskTransform(_time_task(), max_steps=5)),
+        False,
+        4.0,
+    ),
+    "time_task_step_counter_of_a_wrapped_env": (
+        lambda: TransformedEnv(_counted_env(5), TaskTransform(_time_task()), auto_unwrap=False),
+        False,
+        4.0,
+    ),
+    "time_independent_task_no_step_counter": (
+        lambda: _pendulum_with(TaskTransform(_memory_task()), RewardSum()),
+        False,
+        None,
+    ),
+    "time_independent_final_reward_no_step_counter": (
+        lambda: _pendulum_with(TaskTransform(_judge_task().float())),
+        False,
+        None,
+    ),
+}
+
+
+@pytest.mark.parametrize("case", sorted(TIME_LIMIT_CASES))
+def test_time_dependent_task_without_a_time_limit_warns_once(case: str) -> None:
+    make_env, warns, first = TIME_LIMIT_CASES[case]
+    rewards = []
+    messages = _warnings_of(lambda: rewards.extend(_first_reward(make_env())))
+    if warns:
+        assert len(messages) == 1, messages  # once, not again for TorchRL's clones in later transforms' parents
+        assert re.search(NO_LIMIT, messages[0])
+    else:
+        assert messages == []
+    if first is not None:
+        assert rewards == [first]
+
+
+def test_no_limit_warning_follows_the_env_the_transform_is_in() -> None:
+    """Once per env: not again when the same env's specs are rebuilt, again when moved to another env without limit."""
+    transform = TaskTransform(_time_task())
+    env = _pendulum_with(transform)
+    assert len(_warnings_of(lambda: env.rollout(2))) == 1
+    assert _warnings_of(lambda: (env.rollout(2), check_env_specs(env, seed=None))) == []
+    assert len(_warnings_of(lambda: _first_reward(_pendulum_with(transform.clone())))) == 1
+    assert _warnings_of(lambda: _first_reward(_pendulum_with(StepCounter(5), transform.clone()))) == []
+
+
+def test_offline_time_dependent_task_without_step_count_does_not_warn() -> None:
+    """Offline, without a step count in the data, there is no env to set up: no limit, no warning."""
+    transform = TaskTransform(_time_task().double())
+    data = TensorDict(
+        {
+            "observation": torch.zeros(1, 2, dtype=F64),
+            "action": torch.zeros(1, 1, dtype=F64),
+            "task": transform.task.reset(torch.zeros(1, 2, dtype=F64)),
+            "next": {"observation": torch.zeros(1, 2, dtype=F64), "done": torch.ones(1, 1, dtype=torch.bool)},
+        },
+        [1],
+    )
+    assert _warnings_of(lambda: transform.reward_fn(data)) == []
