@@ -1,17 +1,29 @@
-"""The ``torchtasks`` command: ``demo``, ``list``, ``check`` and ``bench``."""
+"""The ``torchtasks`` command: ``demo``, ``list``, ``check`` and ``bench``.
+
+Every mistake in the arguments is reported on one line naming the valid choices (exit status 2, no
+traceback); a bare ``torchtasks`` prints the help and exits with status 2 (nothing was run). The help,
+``list`` and ``check`` (on a terminal) fit ``WIDTH`` (100) columns.
+"""
 
 from __future__ import annotations
 
 import argparse
 import ast
+import difflib
 import importlib
 import importlib.util
 import inspect
+import json
+import re
+import shutil
 import sys
-from collections.abc import Sequence
+import textwrap
+import time
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any, NoReturn
 
-__all__ = ["DEMO_OUTPUT", "PARITY_TOLERANCE", "catalogue", "main"]
+__all__ = ["CHECK_OUTPUT", "DEMO_OUTPUT", "PARITY_TOLERANCE", "WIDTH", "catalogue", "main", "plain_text"]
 
 #: largest absolute reward difference to Gymnasium that ``torchtasks check`` accepts
 PARITY_TOLERANCE = 1e-5
@@ -19,98 +31,181 @@ PARITY_TOLERANCE = 1e-5
 #: where ``torchtasks demo`` writes its files unless ``--output`` says otherwise (relative to the current folder)
 DEMO_OUTPUT = "runs/demo"
 
+#: where ``torchtasks check`` writes its JSON details unless ``--output`` says otherwise
+CHECK_OUTPUT = "runs/check"
+
+#: the widest line the command prints (``list``, ``check`` and the help)
+WIDTH = 100
+
+#: the sections of ``torchtasks list``: ``(module, what it holds)``, in the order printed
 _SECTIONS = (
-    ("Reward functions", "torchtasks.rewards"),
-    ("Tasks", "torchtasks.tasks"),
-    ("Factories", "torchtasks.predefined"),
-    ("Environments and presets", "torchtasks.envs"),
+    ("torchtasks.rewards", "reward functions"),
+    ("torchtasks.tasks", "tasks"),
+    ("torchtasks.predefined", "task factories"),
+    ("torchtasks.spaces", "boxes and env specs"),
+    ("torchtasks.transforms", "a task as a TorchRL transform"),
+    ("torchtasks.commands", "goal commands"),
+    ("torchtasks.curriculum", "curricula and their schedules"),
+    ("torchtasks.levels", "difficulty levels"),
+    ("torchtasks.stats", "statistics of collected episodes"),
+    ("torchtasks.checkpoint", "checkpoints of env state"),
+    ("torchtasks.seeding", "seeds of transforms"),
+    ("torchtasks.envs", "environments"),
 )
 
+#: names a section's module imports only on first access, from submodules that need an extra:
+#: ``{module: (submodules, extra)}``; ``torchtasks list`` reads their descriptions from the source
+_LAZY = {"torchtasks.envs": (("torchtasks.envs.locomotion", "torchtasks.envs.batched_mujoco"), "mujoco")}
 
-#: names a section's module imports only on first access, from a submodule that needs an extra:
-#: ``{module: (submodule, extra)}``; ``torchtasks list`` reads their descriptions from the source
-_LAZY = {"torchtasks.envs": ("torchtasks.envs.locomotion", "mujoco")}
-
-
-def _summary(obj: object) -> str:
-    doc = inspect.getdoc(obj) or ""
-    return _first_line(doc)
+#: the module and name of the Gymnasium ids that ``torchtasks check`` accepts (read from the source)
+_ENV_IDS = ("torchtasks.envs.locomotion", "SUPPORTED_ENV_IDS")
 
 
-def _first_line(text: str) -> str:
-    return text.strip().splitlines()[0] if text.strip() else "(no description)"
+# ------------------------------------------------------------------------------------------- text
+def plain_text(text: str) -> str:
+    """``text`` without Sphinx roles, double backticks, Markdown code and emphasis; whitespace collapsed.
 
-
-def _source_summaries(module_name: str) -> dict[str, str]:
-    """One-line descriptions of the top-level names of ``module_name``, read from its source without importing it.
-
-    Functions and classes: the docstring's first line; a tuple of strings: its ``#:`` comment and its items.
+    Example:
+        >>> plain_text("Base of :class:`ParallelTasks`: ``nn.Module``\\\\ s, see :meth:`T.f <a.T.f>` and :func:`~a.b`.")
+        'Base of ParallelTasks: nn.Modules, see T.f and b.'
     """
+
+    def role(match: re.Match[str]) -> str:
+        target = match.group(1).strip()
+        if "<" in target and target.endswith(">"):
+            return target[: target.index("<")].strip()
+        return target[1:].rsplit(".", 1)[-1] if target.startswith("~") else target
+
+    text = text.replace("\\ ", "")  # reST's escaped space, as in ``nn.Module``\ s
+    text = re.sub(r":[a-z]+(?::[a-z]+)?:`([^`]*)`", role, text)
+    text = re.sub(r"``(.*?)``", r"\1", text)
+    text = re.sub(r"`([^`]*)`", r"\1", text)
+    text = re.sub(r"\*\*(.*?)\*\*", r"\1", text)
+    return " ".join(text.split())
+
+
+def _summary_of(doc: str | None) -> str:
+    """The first sentence of a docstring's first paragraph, as plain text (``""`` when there is none)."""
+    paragraph = plain_text(inspect.cleandoc(doc or "").split("\n\n")[0])
+    return re.split(r"(?<=[.!?])\s+(?=[A-Z])", paragraph)[0]
+
+
+# ------------------------------------------------------------------------------------------- list
+def _summary(obj: object) -> str:
+    # a class's own docstring: inspect.getdoc would inherit its base's (``tuple``'s "Built-in immutable sequence.")
+    return _summary_of(obj.__dict__.get("__doc__") if inspect.isclass(obj) else inspect.getdoc(obj))
+
+
+def _is_api(obj: object) -> bool:
+    """Classes and functions are listed; constants (tuples, numbers, strings) are not."""
+    return inspect.isclass(obj) or inspect.isroutine(obj)
+
+
+def _parse(module_name: str) -> ast.Module | None:
     try:
         spec = importlib.util.find_spec(module_name)
-        source = Path(spec.origin).read_text(encoding="utf-8")  # type: ignore[union-attr, arg-type]
-        tree = ast.parse(source)
+        return ast.parse(Path(spec.origin).read_text(encoding="utf-8"))  # type: ignore[union-attr, arg-type]
     except (ImportError, AttributeError, OSError, SyntaxError, TypeError, ValueError):
+        return None
+
+
+def _source_summaries(module_name: str, _seen: frozenset[str] = frozenset()) -> dict[str, str]:
+    """Summaries of the classes and functions of ``module_name`` (and of the torchtasks names it imports),
+    read from the source without importing it."""
+    tree = _parse(module_name)
+    if tree is None or module_name in _seen:
         return {}
-    lines = source.splitlines()
     summaries: dict[str, str] = {}
+    imported: dict[str, list[str]] = {}
     for node in tree.body:
-        if isinstance(node, (ast.FunctionDef, ast.ClassDef)):
-            summaries[node.name] = _first_line(ast.get_docstring(node) or "")
-        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) and node.value is not None:
-            comment = lines[node.lineno - 2].strip() if node.lineno >= 2 else ""
-            comment = comment[2:].strip() if comment.startswith("#:") else ""
-            try:
-                value = ast.literal_eval(node.value)
-            except ValueError:
-                continue
-            if isinstance(value, tuple) and all(isinstance(item, str) for item in value):
-                summaries[node.target.id] = f"{comment}: {', '.join(value)}" if comment else ", ".join(value)
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            summaries[node.name] = _summary_of(ast.get_docstring(node, clean=False))
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("torchtasks"):
+            for alias in node.names:
+                imported.setdefault(node.module or "", []).append(alias.name)
+    for source, names in imported.items():
+        found = _source_summaries(source, _seen | {module_name})
+        summaries.update({name: found[name] for name in names if name in found and name not in summaries})
     return summaries
 
 
-def catalogue() -> list[tuple[str, list[tuple[str, str]]]]:
-    """Return ``[(section, [(name, one-line description), ...]), ...]`` of the public API.
-
-    Names that need an extra (the Gymnasium MuJoCo presets of :mod:`torchtasks.envs`) are listed without
-    importing it; their description ends with ``[needs the 'mujoco' extra]`` when it is not installed.
-
-    Example:
-        >>> sections = dict(catalogue())
-        >>> any(name == "QuadraticErrorReward" for name, _ in sections["Reward functions"])
-        True
-    """
-    from torchtasks._optional import has_extra
-
-    result = []
-    for title, module_name in _SECTIONS:
-        module = importlib.import_module(module_name)
-        lazy_module, extra = _LAZY.get(module_name, (None, ""))
-        lazy = _source_summaries(lazy_module) if lazy_module else {}
-        note = "" if not lazy_module or has_extra(extra) else f" {_needs(extra)}"
-        entries = []
-        for name in module.__all__:
-            if name in vars(module):
-                entries.append((name, _summary(vars(module)[name])))
-            else:  # imported on first access: describe it from the source, do not import the extra
-                entries.append((name, lazy.get(name, "(no description)") + note))
-        result.append((title, entries))
-    return result
+def _source_constant(module_name: str, name: str) -> Any:
+    """The literal value of the top-level assignment ``name`` in ``module_name``'s source (``None`` if none)."""
+    tree = _parse(module_name)
+    for node in tree.body if tree is not None else ():
+        target = node.target if isinstance(node, ast.AnnAssign) else None
+        if isinstance(node, ast.Assign) and len(node.targets) == 1:
+            target = node.targets[0]
+        if isinstance(target, ast.Name) and target.id == name and node.value is not None:  # type: ignore[union-attr]
+            try:
+                return ast.literal_eval(node.value)  # type: ignore[union-attr]
+            except ValueError:
+                return None
+    return None
 
 
 def _needs(extra: str) -> str:
     return f"[needs the '{extra}' extra]"
 
 
+def catalogue() -> list[tuple[str, list[tuple[str, str]]]]:
+    """Return ``[(module, [(name, one-line summary), ...]), ...]`` of the public classes and functions.
+
+    Summaries are plain text (no Sphinx markup). Names that need an extra (the Gymnasium MuJoCo presets and
+    the batched MuJoCo env of :mod:`torchtasks.envs`) are described from the source without importing the
+    extra; their summary ends with ``[needs the 'mujoco' extra]`` when it is not installed.
+
+    Example:
+        >>> sections = dict(catalogue())
+        >>> any(name == "QuadraticErrorReward" for name, _ in sections["torchtasks.rewards"])
+        True
+    """
+    from torchtasks._optional import has_extra
+
+    result = []
+    for module_name, _ in _SECTIONS:
+        module = importlib.import_module(module_name)
+        lazy_modules, extra = _LAZY.get(module_name, ((), ""))
+        lazy: dict[str, str] = {}
+        for lazy_module in lazy_modules:
+            lazy.update(_source_summaries(lazy_module))
+        note = f" {_needs(extra)}" if lazy_modules and not has_extra(extra) else ""
+        entries = []
+        for name in module.__all__:
+            if name in vars(module):
+                if _is_api(vars(module)[name]):
+                    entries.append((name, _summary(vars(module)[name])))
+            elif name in lazy:  # imported on first access: described from the source, the extra is not imported
+                entries.append((name, lazy[name] + note))
+        result.append((module_name, entries))
+    return result
+
+
 def _cmd_list(args: argparse.Namespace) -> int:
     from torchtasks._optional import install_hint
 
+    titles = dict(_SECTIONS)
+    marks = [_needs(extra) for extra in sorted({extra for _, extra in _LAZY.values()})]
     sections = catalogue()
-    for title, entries in sections:
-        print(f"\n{title}")
-        width = max(len(name) for name, _ in entries)
+    lines = []
+    for module_name, entries in sections:
+        lines += ["", f"{module_name}: {titles[module_name]}"]
+        width = min(max(len(name) for name, _ in entries), 30)
         for name, summary in entries:
-            print(f"  {name:<{width}}  {summary}")
+            for mark in marks:  # the mark first, so that the summary can wrap
+                if summary.endswith(" " + mark):
+                    summary = f"{mark} {summary[: -len(mark) - 1]}"
+            wrapped = textwrap.wrap(summary, WIDTH - 4 - width) or [""]
+            if len(name) > width:  # a long name: the summary starts on the next line
+                lines += [f"  {name}", " " * (width + 4) + wrapped[0]]
+            else:
+                lines.append(f"  {name:<{width}}  {wrapped[0]}")
+            lines += [" " * (width + 4) + line for line in wrapped[1:]]
+        if module_name == _ENV_IDS[0].rsplit(".", 1)[0]:
+            env_ids = ", ".join(_source_constant(*_ENV_IDS) or ())
+            text = f"(the Gymnasium ids of the MuJoCo presets: {env_ids})"
+            lines += textwrap.wrap(text, WIDTH, initial_indent="  ", subsequent_indent="   ")
+    print("\n".join(lines))
     summaries = [summary for _, entries in sections for _, summary in entries]
     for extra in sorted({extra for _, extra in _LAZY.values()}):
         if any(summary.endswith(_needs(extra)) for summary in summaries):
@@ -118,6 +213,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------------- demo
 def _cmd_demo(args: argparse.Namespace) -> int:
     from torchtasks.demo import format_result, run_demo
 
@@ -141,10 +237,135 @@ def _cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+# ------------------------------------------------------------------------------------------ check
+def _usage_error(command: str, message: str) -> int:
+    print(f"torchtasks {command}: {message}", file=sys.stderr)
+    return 2
+
+
+def _unknown_env(env_id: str, env_ids: Sequence[str]) -> str:
+    by_lower = {name.lower(): name for name in env_ids}
+    close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=1, cutoff=0.6)
+    hint = f" (did you mean {by_lower[close[0]]}?)" if close else ""
+    return f"unknown env {env_id!r}; choose one of {', '.join(sorted(env_ids))}{hint}"
+
+
+def _merge_gymnasium(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """One :func:`~torchtasks.parity.check_parity` result of several one-seed results (as with all seeds at once)."""
+    row = dict(parts[0])
+    row["seeds"] = [seed for part in parts for seed in part["seeds"]]
+    for key in ("steps", "episodes", "termination_mismatches", "observation_mismatches", "seconds"):
+        row[key] = sum(part[key] for part in parts)
+    row["max_abs_reward_diff"] = max(part["max_abs_reward_diff"] for part in parts)
+    row["max_abs_term_diff"] = {
+        name: max(part["max_abs_term_diff"][name] for part in parts) for name in parts[0]["max_abs_term_diff"]
+    }
+    return row
+
+
+def _merge_batched(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """One :func:`~torchtasks.parity.check_batched_parity` result of several one-seed results (the same merge)."""
+    row = dict(parts[0])
+    row["seeds"] = [seed for part in parts for seed in part["seeds"]]
+    for key in ("steps", "transitions", "episodes", "terminated", "truncated", "forced_resets"):
+        if key in row:
+            row[key] = sum(part[key] for part in parts)
+    row["partial_reset_problems"] = sum(part.get("partial_reset_problems", 0) for part in parts)
+    row["seconds"] = sum(part["seconds"] for part in parts)
+    for key in ("max_abs_diff", "max_abs_term_diff"):
+        row[key] = {name: max(part[key][name] for part in parts) for name in parts[0][key]}
+    row["first_mismatch"] = next((part["first_mismatch"] for part in parts if part.get("first_mismatch")), None)
+    row["passed"] = all(part.get("passed", True) for part in parts)
+    return row
+
+
+def _number(value: float) -> str:
+    return "0" if value == 0 else f"{value:.1e}"
+
+
+def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def _gymnasium_table(rows: Sequence[dict[str, Any]]) -> str:
+    header = ("env", "seeds", "steps", "episodes", "reward diff", "term diff", "flag mism.", "obs mism.", "result", "s")
+    cells = [
+        (
+            row["env"],
+            str(len(row["seeds"])),
+            str(row["steps"]),
+            str(row["episodes"]),
+            _number(row["max_abs_reward_diff"]),
+            _number(max(row["max_abs_term_diff"].values(), default=0.0)),
+            str(row["termination_mismatches"]),
+            str(row["observation_mismatches"]),
+            "PASS" if _gymnasium_passed(row) else "FAIL",
+            f"{row['seconds']:.1f}",
+        )
+        for row in rows
+    ]
+    legend = (
+        f"diff: largest |torchtasks - Gymnasium| (reward within {PARITY_TOLERANCE}; term: worst reward term);\n"
+        "mism.: steps whose termination flags differ (flag) or whose observations are not bit-identical (obs)"
+    )
+    return _table(header, cells) + "\n" + legend
+
+
+def _gymnasium_passed(row: dict[str, Any]) -> bool:
+    return (
+        row["max_abs_reward_diff"] <= PARITY_TOLERANCE
+        and not row["termination_mismatches"]
+        and not row["observation_mismatches"]
+    )
+
+
+def _batched_table(rows: Sequence[dict[str, Any]], passed: Callable[[dict[str, Any]], bool], tolerance: float) -> str:
+    header = ("env", "envs", "seeds", "steps", "episodes", "resets", "obs", "reward", "term", "flag", "result", "s")
+    cells = []
+    for row in rows:
+        differences, terms = row["max_abs_diff"], row["max_abs_term_diff"]
+        flags = max(differences.get(key, 0.0) for key in ("terminated", "truncated"))
+        cells.append(
+            (
+                row["env"],
+                str(row.get("num_envs", "")),
+                str(len(row["seeds"])),
+                str(row["steps"]),
+                str(row.get("episodes", "")),
+                str(row.get("forced_resets", "")),
+                _number(differences["observation"]),
+                _number(differences["reward"]),
+                _number(max(terms.values(), default=0.0)),
+                _number(flags),
+                "PASS" if passed(row) else "FAIL",
+                f"{row['seconds']:.1f}",
+            )
+        )
+    legend = (
+        f"obs, reward, term (worst reward term), flag (terminated, truncated): largest |batched - Gymnasium|,\n"
+        f"each within {tolerance}; resets: partial resets forced mid-episode"
+    )
+    return _table(header, cells) + "\n" + legend
+
+
+def _write_details(folder: Path, backend: str, rows: list[dict[str, Any]], markdown: str) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"check_{backend}_{time.strftime('%Y%m%d-%H%M%S')}.json"
+    details = {"backend": backend, "rows": rows, "table": markdown.splitlines()}
+    path.write_text(json.dumps(details, indent=2, default=str) + "\n", encoding="utf-8")
+    return path
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     if args.envs is not None and args.backend != "batched":
-        print("torchtasks check: --envs applies to --backend batched only", file=sys.stderr)
-        return 2
+        return _usage_error("check", "--envs applies to --backend batched only")
+    known = _source_constant(*_ENV_IDS)
+    if known:
+        for env_id in args.env_ids:
+            if env_id not in known:
+                return _usage_error("check", _unknown_env(env_id, known))
     try:
         from torchtasks import parity
     except ImportError as error:  # pragma: no cover - depends on the optional mujoco extra
@@ -152,35 +373,56 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
         print(f"{missing_extra('mujoco', 'torchtasks check')} (cannot import {error.name or error})", file=sys.stderr)
         return 2
-    env_ids = args.env_ids
-    seeds = tuple(range(args.seeds))
-    if args.backend == "batched":
-        num_envs = 3 if args.envs is None else args.envs
-        rows = [
-            parity.check_batched_parity(env_id, seeds=seeds, steps=args.steps, num_envs=num_envs) for env_id in env_ids
-        ]
-        print(parity.format_batched_parity_table(rows))
-        failed = [row for row in rows if not parity.batched_parity_passed(row)]
-        for row in failed:
-            print(f"{row['env']}: FAIL, first difference above the tolerance: {row['first_mismatch']}", file=sys.stderr)
+    from tqdm import tqdm
+
+    env_ids = list(dict.fromkeys(args.env_ids))
+    seeds = range(args.seeds)
+    batched = args.backend == "batched"
+    rows = []
+    with tqdm(
+        total=len(env_ids) * len(seeds) * args.steps,
+        desc="torchtasks check",
+        unit="step",
+        file=sys.stderr,
+        disable=True if args.no_progress else None,  # None: shown on a terminal only
+    ) as progress:
+        for env_id in env_ids:
+            parts = []
+            for seed in seeds:
+                progress.set_postfix_str(f"{env_id}, seed {seed}")
+                if batched:
+                    num_envs = 3 if args.envs is None else args.envs
+                    part = parity.check_batched_parity(env_id, seeds=[seed], steps=args.steps, num_envs=num_envs)
+                else:
+                    part = parity.check_parity(env_id, seeds=[seed], steps=args.steps)
+                parts.append(part)
+                progress.update(args.steps)
+            rows.append(_merge_batched(parts) if batched else _merge_gymnasium(parts))
+    compact = args.table == "compact" or (args.table == "auto" and sys.stdout.isatty())
+    if batched:
+        tolerance = parity.BATCHED_PARITY_TOLERANCE
+        markdown = parity.format_batched_parity_table(rows)
+        print(_batched_table(rows, parity.batched_parity_passed, tolerance) if compact else markdown)
+        failed = [row["env"] for row in rows if not parity.batched_parity_passed(row)]
+    else:
+        markdown = parity.format_parity_table(rows)
+        print(_gymnasium_table(rows) if compact else markdown)
+        failed = [row["env"] for row in rows if not _gymnasium_passed(row)]
+    path = _write_details(Path(args.output), args.backend, rows, markdown)
+    print(f"wrote {path} (the details: every term, flag and count)")
+    if batched:
+        for row in rows:
+            if row["env"] in failed:
+                mismatch = row.get("first_mismatch") or "a partial reset disturbed another env"
+                print(f"{row['env']}: FAIL, first difference above the tolerance: {mismatch}", file=sys.stderr)
         if failed:
-            names = ", ".join(row["env"] for row in failed)
-            print(f"batched parity NOT met (tolerance {parity.BATCHED_PARITY_TOLERANCE}) for: {names}", file=sys.stderr)
-        return 1 if failed else 0
-    rows = [parity.check_parity(env_id, seeds=seeds, steps=args.steps) for env_id in env_ids]
-    print(parity.format_parity_table(rows))
-    mismatched = [
-        row["env"]
-        for row in rows
-        if row["max_abs_reward_diff"] > PARITY_TOLERANCE
-        or row["termination_mismatches"]
-        or row["observation_mismatches"]
-    ]
-    if mismatched:
-        print(f"parity NOT met (reward tolerance {PARITY_TOLERANCE}) for: {', '.join(mismatched)}", file=sys.stderr)
-    return 1 if mismatched else 0
+            print(f"batched parity NOT met (tolerance {tolerance}) for: {', '.join(failed)}", file=sys.stderr)
+    elif failed:
+        print(f"parity NOT met (reward tolerance {PARITY_TOLERANCE}) for: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
 
 
+# ------------------------------------------------------------------------------------------ bench
 def _cmd_bench(args: argparse.Namespace) -> int:
     from torchtasks.bench import run_benchmarks
 
@@ -188,56 +430,150 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="torchtasks", description="Batched, differentiable tasks for TorchRL.")
-    commands = parser.add_subparsers(dest="command", required=True)
+# ----------------------------------------------------------------------------------------- parser
+class _Parser(argparse.ArgumentParser):
+    """An argument parser whose errors are one line: ``torchtasks check: argument --seeds: ...``."""
 
-    demo = commands.add_parser("demo", help="run a task chain inside a TorchRL Collector and summarise it")
-    demo.add_argument("--quick", action="store_true", help="a short run (a few seconds)")
-    demo.add_argument(
-        "--output", default=DEMO_OUTPUT, help=f"folder of the JSON curves and the PNG plot (default: {DEMO_OUTPUT}/)"
+    def error(self, message: str) -> NoReturn:
+        line = f"{self.prog}: {message.replace('argument COMMAND: ', '')}"
+        hint = f" (see '{self.prog} --help')"
+        self.exit(2, line + (hint if len(line + hint) <= WIDTH else "") + "\n")
+
+
+def _formatter(prog: str) -> argparse.HelpFormatter:
+    return argparse.HelpFormatter(prog, width=min(shutil.get_terminal_size().columns, WIDTH), max_help_position=24)
+
+
+def _count(minimum: int) -> Callable[[str], int]:
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = minimum - 1
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {text!r}")
+        return value
+
+    return parse
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="torchtasks",
+        description="Batched, differentiable tasks for TorchRL.",
+        epilog="'torchtasks COMMAND --help' describes a command's options.",
+        formatter_class=_formatter,
     )
-    demo.add_argument("--seed", type=int, default=0, help="random seed")
+    commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    def command(name: str, help: str, description: str) -> argparse.ArgumentParser:
+        return commands.add_parser(name, help=help, description=description, formatter_class=_formatter)
+
+    demo = command(
+        "demo",
+        "run a task chain inside a TorchRL Collector and summarise it",
+        "A swing-up task on 64 batched torch pendulums inside a TorchRL Collector; prints its rewards, "
+        "successes and frames per second and writes the curves (JSON) and a plot (PNG).",
+    )
+    demo.add_argument("--quick", action="store_true", help="a short run: 64 000 frames instead of 320 000")
+    demo.add_argument(
+        "--output", default=DEMO_OUTPUT, metavar="DIR", help="folder of the JSON and PNG (default: %(default)s)"
+    )
+    demo.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default: %(default)s)")
     demo.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     demo.set_defaults(run=_cmd_demo)
 
-    listing = commands.add_parser("list", help="list reward functions, tasks, factories and presets")
+    listing = command(
+        "list",
+        "list the classes and functions of torchtasks, by module",
+        "Every public class and function of torchtasks, by module, with its one-line summary.",
+    )
     listing.set_defaults(run=_cmd_list)
 
-    check = commands.add_parser("check", help="compare a Gymnasium MuJoCo preset with Gymnasium, step by step")
-    check.add_argument("env_ids", nargs="+", metavar="ENV_ID", help="e.g. HalfCheetah-v5 Ant-v5")
-    check.add_argument("--seeds", type=int, default=3, help="number of seeds (0, 1, ...)")
-    check.add_argument("--steps", type=int, default=1000, help="steps compared per seed")
+    check = command(
+        "check",
+        "compare a Gymnasium MuJoCo preset with Gymnasium, step by step",
+        "Compare Gymnasium MuJoCo v5 presets with plain Gymnasium for --seeds seeds of --steps random steps; "
+        "exit status 1 when they differ. Needs the 'mujoco' extra.",
+    )
+    env_ids = ", ".join(_source_constant(*_ENV_IDS) or ("HalfCheetah-v5", "Ant-v5"))
+    check.add_argument("env_ids", nargs="+", metavar="ENV_ID", help=f"one or more of {env_ids}")
+    check.add_argument(
+        "--seeds", type=_count(1), default=3, metavar="N", help="seeds 0, ..., N-1 (default: %(default)s)"
+    )
+    check.add_argument(
+        "--steps", type=_count(1), default=1000, metavar="N", help="steps per seed (default: %(default)s)"
+    )
     check.add_argument(
         "--backend",
         choices=("gymnasium", "batched"),
         default="gymnasium",
-        help="the preset's backend (default: %(default)s): 'gymnasium' (one Gymnasium env in TorchRL; reward "
-        f"within {PARITY_TOLERANCE}) or 'batched' (BatchedMujocoEnv against one Gymnasium env per batch entry, "
-        "states synchronised after every reset, partial resets forced mid-episode; observation, reward, terms "
-        "and flags within 1e-9)",
+        help=f"gymnasium: one Gymnasium env in TorchRL, reward within {PARITY_TOLERANCE}; batched: "
+        "BatchedMujocoEnv against one Gymnasium env per entry, partial resets forced (observation, reward, "
+        "terms and flags within 1e-9) (default: %(default)s)",
     )
     check.add_argument(
-        "--envs", type=int, default=None, help="envs of the batched env (--backend batched only; default 3)"
+        "--envs",
+        type=_count(1),
+        default=None,
+        metavar="N",
+        help="envs of the batched env (--backend batched; default: 3)",
     )
+    check.add_argument(
+        "--output", default=CHECK_OUTPUT, metavar="DIR", help="folder of the JSON details (default: %(default)s)"
+    )
+    check.add_argument(
+        "--table",
+        choices=("auto", "compact", "full"),
+        default="auto",
+        help="compact (100 columns) or full (every term); auto: compact on a terminal (default: %(default)s)",
+    )
+    check.add_argument("--no-progress", action="store_true", help="hide the progress bar (shown on a terminal)")
     check.set_defaults(run=_cmd_check)
 
-    bench = commands.add_parser("bench", help="run the benchmark suite (Markdown table and JSON)")
-    bench.add_argument("--output", default="runs/bench", help="folder of the Markdown and JSON results")
-    bench.add_argument("--tiny", action="store_true", help="a smoke run with tiny sizes (no meaningful timings)")
-    bench.add_argument(
-        "--sections", nargs="*", default=None, help="subset of sections: tasks, collector, memory (default: all)"
+    bench = command(
+        "bench",
+        "run the benchmark suite (Markdown table and JSON)",
+        "Time task evaluation, a Collector run and task memory; write benchmarks.md and benchmarks.json.",
     )
     bench.add_argument(
-        "--threads", type=int, default=1, help="torch intra-op threads for the run (0: torch's default; default 1)"
+        "--output", default="runs/bench", metavar="DIR", help="folder of the Markdown and JSON (default: %(default)s)"
+    )
+    bench.add_argument("--tiny", action="store_true", help="a smoke run with tiny sizes (no meaningful timings)")
+    bench.add_argument(
+        "--sections",
+        nargs="*",
+        choices=("tasks", "collector", "memory"),
+        default=None,
+        metavar="SECTION",
+        help="any of tasks, collector, memory (default: all)",
+    )
+    bench.add_argument(
+        "--threads",
+        type=_count(0),
+        default=1,
+        metavar="N",
+        help="torch threads, 0: torch's default (default: %(default)s)",
     )
     bench.set_defaults(run=_cmd_bench)
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the ``torchtasks`` command with ``argv`` (default: ``sys.argv[1:]``); return the exit code."""
-    args = _parser().parse_args(argv)
+    """Run the ``torchtasks`` command with ``argv`` (default: ``sys.argv[1:]``); return the exit code.
+
+    A bare ``torchtasks`` prints the help and returns 2; a mistake in the arguments exits with status 2
+    after one line on stderr.
+    """
+    parser = _parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # reported by the subcommand's parser, whose options the user meant
+        commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
+        command = commands.choices.get(args.command, parser)
+        command.error(f"unrecognized arguments: {' '.join(unknown)}")
+    if args.command is None:
+        parser.print_help()
+        return 2
     return args.run(args)
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import importlib.util
+import inspect
 import json
 import re
 import subprocess
@@ -31,6 +32,34 @@ def keep_threads():
     threads = torch.get_num_threads()
     yield
     torch.set_num_threads(threads)
+
+
+SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":data:", ":attr:")
+
+
+def _check_text(text: str, width: int = 100) -> None:
+    """No traceback, no Sphinx markup, every line at most ``width`` columns."""
+    assert "Traceback" not in text
+    for markup in SPHINX_MARKUP:
+        assert markup not in text, markup
+    long = [line for line in text.splitlines() if len(line) > width]
+    assert not long, long
+
+
+def _listed(out: str) -> dict[str, dict[str, str]]:
+    """``{module: {name: summary}}`` of ``torchtasks list``'s output (wrapped summaries joined)."""
+    sections: dict[str, dict[str, str]] = {}
+    entries: dict[str, str] = {}
+    name = ""
+    for line in out.splitlines():
+        if re.match(r"^torchtasks[.\w]*: ", line):
+            entries = sections.setdefault(line.split(":")[0], {})
+        elif match := re.match(r"^  (\w+)(?:  +(.*))?$", line):
+            name = match.group(1)
+            entries[name] = match.group(2) or ""
+        elif line.startswith("    ") and name:
+            entries[name] = (entries[name] + " " + line.strip()).strip()
+    return sections
 
 
 def _markdown_rows(text: str) -> list[list[str]]:
@@ -76,12 +105,89 @@ def test_subcommand_options_in_help(capsys: pytest.CaptureFixture[str]) -> None:
             assert option in out, (command, option)
 
 
-def test_missing_or_unknown_subcommand_is_an_error(capsys: pytest.CaptureFixture[str]) -> None:
-    for argv in ([], ["frobnicate"]):
+@pytest.mark.parametrize("command", ("", *SUBCOMMANDS))
+def test_help_fits_a_screen(command: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every help fits 100 columns and, in an 80-column terminal, 30 lines; options show their defaults."""
+    for columns in ("200", "80"):
+        monkeypatch.setenv("COLUMNS", columns)
         with pytest.raises(SystemExit) as exit_info:
-            main(argv)
-        assert exit_info.value.code == 2
-        assert "usage: torchtasks" in capsys.readouterr().err
+            main([command, "--help"] if command else ["--help"])
+        assert exit_info.value.code == 0
+        out = capsys.readouterr().out
+        _check_text(out)
+        assert len(out.splitlines()) <= 30, out
+    if command == "check":
+        for default in ("(default: 3)", "(default: 1000)", "(default: gymnasium)", "(default: runs/check)"):
+            assert default in " ".join(out.split()), default
+
+
+def test_bare_command_prints_the_help(capsys: pytest.CaptureFixture[str]) -> None:
+    """A bare ``torchtasks`` prints the help on stdout and returns 2 (nothing was run)."""
+    assert main([]) == 2
+    out = capsys.readouterr().out
+    assert out.startswith("usage: torchtasks")
+    for command in SUBCOMMANDS:
+        assert f"    {command}  " in out, command
+
+
+USER_MISTAKES = {
+    "unknown command": (["frobnicate"], ("invalid choice: 'frobnicate'", "'demo', 'list', 'check', 'bench'")),
+    "check without env": (["check"], ("required: ENV_ID",)),
+    "lower-case env id": (
+        ["check", "hopper-v5"],
+        ("unknown env 'hopper-v5'", "HalfCheetah-v5", "did you mean Hopper-v5?"),
+    ),
+    "not a MuJoCo preset": (["check", "Pendulum-v1"], ("unknown env 'Pendulum-v1'; choose one of Ant-v5,",)),
+    "second env unknown": (["check", "Hopper-v5", "Hoper-v5"], ("unknown env 'Hoper-v5'", "did you mean Hopper-v5?")),
+    "zero seeds": (["check", "Hopper-v5", "--seeds", "0"], ("--seeds: expected an integer >= 1, got '0'",)),
+    "steps not a number": (["check", "Hopper-v5", "--steps", "many"], ("--steps: expected an integer >= 1",)),
+    "negative envs": (["check", "Hopper-v5", "--backend", "batched", "--envs", "-1"], ("--envs: expected",)),
+    "unknown backend": (["check", "Hopper-v5", "--backend", "jax"], ("'gymnasium', 'batched'",)),
+    "--envs without batched": (["check", "Hopper-v5", "--envs", "2"], ("--envs applies to --backend batched",)),
+    "unknown bench section": (["bench", "--sections", "speed"], ("'tasks', 'collector', 'memory'",)),
+    "seed not a number": (["demo", "--seed", "x"], ("--seed: invalid int value: 'x'",)),
+    "unknown option": (["list", "--all"], ("unrecognized arguments: --all",)),
+}
+
+
+@pytest.mark.parametrize("case", USER_MISTAKES)
+def test_user_mistakes_are_one_line(case: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """A mistake in the arguments: one line on stderr naming the valid choices, exit status 2, no traceback,
+    nothing run (no import of the mujoco extra is needed to reject an env id)."""
+    argv, expected = USER_MISTAKES[case]
+    try:
+        code = main(argv)
+    except SystemExit as exit_info:
+        code = exit_info.code
+    assert code == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.splitlines()
+    assert len(lines) == 1, captured.err
+    assert lines[0].startswith(f"torchtasks {argv[0]}: " if argv[0] in SUBCOMMANDS else "torchtasks: ")
+    for text in expected:
+        assert text in lines[0], (text, lines[0])
+
+
+def test_unknown_env_in_a_subprocess() -> None:
+    """``torchtasks check hopper-v5`` as a user runs it: one line, status 2, no traceback."""
+    result = subprocess.run(
+        [sys.executable, "-m", "torchtasks.cli", "check", "hopper-v5"], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 2
+    assert result.stdout == ""
+    assert result.stderr.splitlines() == [
+        "torchtasks check: unknown env 'hopper-v5'; choose one of Ant-v5, HalfCheetah-v5, Hopper-v5, Humanoid-v5, "
+        "Swimmer-v5, Walker2d-v5 (did you mean Hopper-v5?)"
+    ]
+
+
+def test_plain_text() -> None:
+    from torchtasks.cli import plain_text
+
+    assert plain_text("Base of :class:`ParallelTasks`:  ``nn.Module``\\ s") == "Base of ParallelTasks: nn.Modules"
+    assert plain_text(":meth:`Task.transition <torchtasks.tasks.Task.transition>`") == "Task.transition"
+    assert plain_text(":func:`~torchtasks.envs.locomotion.gymnasium_env` and `x`, **y**") == "gymnasium_env and x, y"
 
 
 def test_module_entry_point() -> None:
@@ -94,16 +200,55 @@ def test_module_entry_point() -> None:
 
 
 # ------------------------------------------------------------------------------------------- list
-def test_list_mentions_every_public_name(capsys: pytest.CaptureFixture[str]) -> None:
+LIST_MODULES = (
+    "torchtasks.rewards",
+    "torchtasks.tasks",
+    "torchtasks.predefined",
+    "torchtasks.spaces",
+    "torchtasks.transforms",
+    "torchtasks.commands",
+    "torchtasks.curriculum",
+    "torchtasks.levels",
+    "torchtasks.stats",
+    "torchtasks.checkpoint",
+    "torchtasks.seeding",
+    "torchtasks.envs",
+)
+
+
+def test_list_shows_every_public_class_and_function(capsys: pytest.CaptureFixture[str]) -> None:
+    """Grouped by module; every public class and function with a plain-text summary; no constants."""
     assert main(["list"]) == 0
     out = capsys.readouterr().out
-    listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ")}
-    for module_name in ("torchtasks.rewards", "torchtasks.tasks", "torchtasks.predefined"):
+    _check_text(out)
+    sections = _listed(out)
+    assert list(sections) == list(LIST_MODULES)
+    for module_name in LIST_MODULES:
         module = importlib.import_module(module_name)
-        missing = sorted(set(module.__all__) - listed)
-        assert not missing, f"{module_name}: {missing} not listed"
-    for title in ("Reward functions", "Tasks", "Factories", "Environments and presets"):
-        assert f"\n{title}\n" in out, title
+        expected = {  # classes and functions; not constants (SIGMOIDS) or type aliases (LevelRule)
+            name
+            for name in module.__all__
+            if name in vars(module) and (inspect.isclass(vars(module)[name]) or inspect.isroutine(vars(module)[name]))
+        } | {name for name in module.__all__ if name not in vars(module)}  # lazy: the MuJoCo envs
+        expected -= {"SUPPORTED_ENV_IDS"}
+        assert set(sections[module_name]) == expected, module_name
+    for module_name, name in (
+        ("torchtasks.transforms", "TaskTransform"),
+        ("torchtasks.commands", "GoalCommand"),
+        ("torchtasks.stats", "episode_statistics"),
+        ("torchtasks.curriculum", "Curriculum"),
+        ("torchtasks.levels", "DifficultyLevels"),
+        ("torchtasks.tasks", "ConstrainedTask"),
+        ("torchtasks.checkpoint", "BaseEnvState"),
+        ("torchtasks.envs", "BatchedMujocoEnv"),
+    ):
+        assert sections[module_name][name], name
+    summaries = {name: summary for entries in sections.values() for name, summary in entries.items()}
+    empty = sorted(name for name, summary in summaries.items() if len(summary) < 10 or "no description" in summary)
+    assert not empty, empty
+    assert summaries["RewardFunction"].startswith("Base class of reward functions: nn.Modules mapping")
+    assert summaries["TaskOutput"] == "The result of Task.transition for a batch of transitions."
+    assert "HalfCheetah-v5, Hopper-v5" in out  # the Gymnasium ids of the MuJoCo presets
 
 
 # ------------------------------------------------------------------------------------------- demo
@@ -235,12 +380,16 @@ print("CHECK", main(["check", "HalfCheetah-v5"]))
 """
     result = _python(code, tmp_path)
     out = result.stdout
-    listed = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ")}
-    for name in ("PendulumEnv", "swing_up_task", "SUPPORTED_ENV_IDS", "gymnasium_env", "locomotion_task"):
-        assert name in listed, name
-    assert "[needs the 'mujoco' extra]" in listed["gymnasium_env"]
-    assert "[needs the 'mujoco' extra]" not in listed["PendulumEnv"]
-    assert "HalfCheetah-v5" in listed["SUPPORTED_ENV_IDS"]
+    envs = _listed(out)["torchtasks.envs"]
+    for name in ("PendulumEnv", "swing_up_task", "gymnasium_env", "locomotion_task", "BatchedMujocoEnv"):
+        assert name in envs, name
+    for name in ("gymnasium_env", "BatchedMujocoEnv", "ZeroBrokenStepReward"):
+        assert envs[name].startswith("[needs the 'mujoco' extra] "), name
+    assert envs["BatchedMujocoEnv"].endswith("locomotion envs in one process with native threads.")
+    assert "[needs the 'mujoco' extra]" not in envs["PendulumEnv"]
+    assert re.search(r"^  gymnasium_env .*\[needs the 'mujoco' extra\]", out, flags=re.MULTILINE)  # the CI's grep
+    assert "HalfCheetah-v5" in out
+    _check_text(out[: out.index("ERROR")])
     assert "[needs the 'mujoco' extra]: pip install 'torchtasks[mujoco]'" in out
     errors = [line for line in out.splitlines() if line.startswith("ERROR")]
     assert len(errors) == 2
@@ -253,17 +402,49 @@ print("CHECK", main(["check", "HalfCheetah-v5"]))
 # ------------------------------------------------------------------------------------------ check
 @pytest.mark.mujoco
 @needs_mujoco
-def test_check_halfcheetah(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["check", "HalfCheetah-v5", "--seeds", "1", "--steps", "50"]) == 0
-    rows = _markdown_rows(capsys.readouterr().out)
+def test_check_halfcheetah(tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """A short check as on a terminal: a table of 100 columns, progress on stderr with its total, the details
+    in a JSON file. (Piped, ``--table auto`` prints parity's full table: see test_batched_parity_check.py.)"""
+    monkeypatch.setattr(sys.stdout, "isatty", lambda: True)
+    monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+    assert main(["check", "HalfCheetah-v5", "--seeds", "2", "--steps", "25", "--output", str(tmp_path)]) == 0
+    captured = capsys.readouterr()
+    (path,) = tmp_path.glob("check_gymnasium_*.json")
+    _check_text(captured.out.replace(str(path), "PATH"))
+    rows = _markdown_rows(captured.out)
     header, body = rows[0], rows[2:]
     assert len(body) == 1
     row = dict(zip(header, body[0], strict=True))
     assert row["env"] == "HalfCheetah-v5"
-    assert row["steps"] == "50"
-    assert row["termination mismatches"] == "0"
-    assert row["observation mismatches"] == "0"
-    assert float(row["max abs reward diff"]) <= 1e-5
+    assert (row["seeds"], row["steps"], row["flag mism."], row["obs mism."], row["result"]) == (
+        "2",
+        "50",
+        "0",
+        "0",
+        "PASS",
+    )
+    assert float(row["reward diff"]) <= 1e-5
+    assert "50/50" in captured.err and "Traceback" not in captured.err  # tqdm: steps done / total
+    assert f"wrote {path} " in captured.out
+    details = json.loads(path.read_text())
+    assert details["rows"][0]["seeds"] == [0, 1] and details["rows"][0]["steps"] == 50
+    assert set(details["rows"][0]["max_abs_term_diff"]) == {"forward", "ctrl"}
+    assert details["table"][0].startswith("| env | seeds | steps |")  # parity's full table
+
+
+@pytest.mark.mujoco
+@needs_mujoco
+def test_check_batched(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["check", "Swimmer-v5", "--backend", "batched", "--envs", "2", "--seeds", "1", "--steps", "12"]
+    assert main([*argv, "--output", str(tmp_path), "--no-progress", "--table", "compact"]) == 0
+    captured = capsys.readouterr()
+    (path,) = tmp_path.glob("check_batched_*.json")
+    _check_text(captured.out.replace(str(path), "PATH"))
+    assert captured.err == ""
+    rows = _markdown_rows(captured.out)
+    row = dict(zip(rows[0], rows[2], strict=True))
+    assert (row["env"], row["envs"], row["steps"], row["result"]) == ("Swimmer-v5", "2", "12", "PASS")
+    assert json.loads(path.read_text())["rows"][0]["passed"] is True
 
 
 # ------------------------------------------------------------------------------------------ bench
