@@ -182,6 +182,17 @@ def test_unknown_env_in_a_subprocess() -> None:
     ]
 
 
+def test_list_into_a_closed_pipe() -> None:
+    """``torchtasks list | head``, with head gone before the list is written: no BrokenPipeError traceback."""
+    process = subprocess.Popen(
+        [sys.executable, "-m", "torchtasks.cli", "list"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    process.stdout.close()  # type: ignore[union-attr]  # the reader is gone before the first write
+    stderr = process.stderr.read()  # type: ignore[union-attr]
+    assert process.wait(timeout=300) == 141
+    assert "Traceback" not in stderr and "BrokenPipe" not in stderr, stderr
+
+
 def test_plain_text() -> None:
     from torchtasks.cli import plain_text
 
