@@ -55,6 +55,12 @@ def _value(cell: str) -> float:
     return 0.0 if cell == "–" else float(cell)
 
 
+@pytest.fixture(autouse=True)
+def _run_in_a_temporary_directory(tmp_path, monkeypatch) -> None:
+    """``check`` writes its details under ``runs/check/`` of the working directory: keep the checkout clean."""
+    monkeypatch.chdir(tmp_path)
+
+
 def _check(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, dict[str, dict[str, str]], str]:
     code = main(["check", *argv, "--backend", "batched"])
     captured = capsys.readouterr()
