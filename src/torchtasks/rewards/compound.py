@@ -8,7 +8,7 @@ import torch
 from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
-from torchtasks._checks import check_input, check_same_batch
+from torchtasks._checks import cast_like, check_finite_scalar, check_input, check_same_batch
 from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction, empty_memory
 
@@ -27,17 +27,42 @@ class _TermModules(nn.ModuleDict):
         self._modules[key] = module
 
 
+class _TermWeights(nn.Module):
+    """The per-term weights of a :class:`CompoundReward`: one 0-d float64 buffer per weighted term.
+
+    Buffers are put in ``_buffers`` directly, so a term may be named like an ``nn.Module`` attribute
+    (``forward``); they are only read by item. ``named_buffers()`` names them ``weights.<term>``.
+    """
+
+    def __init__(self, weights: dict[str, float]) -> None:
+        super().__init__()
+        for name, weight in weights.items():
+            self._buffers[name] = torch.tensor(weight, dtype=torch.float64)
+
+
 class CompoundReward(RewardFunction):
-    """Sum of named reward terms, ``Σ_k term_k(e_s, e_a)``, with the per-term values available.
+    """Sum of named reward terms, ``Σ_k w_k · term_k(e_s, e_a)``, with the per-term values available.
 
     Args:
         rewards: a mapping ``name -> reward function`` or a sequence of reward functions (named
             ``term0``, ``term1``, ...). Terms may be stateful (forward velocity): their memory is
             kept under their name.
+        weights: optional per-term weights ``{name: weight}`` (finite real numbers; negative ones allowed,
+            as IsaacLab's ``RewardTermCfg(weight=...)``), like mjlab's and IsaacLab's reward terms. A term
+            without a weight is added as it is (``w = 1``, no multiplication): without ``weights`` the
+            reward is the plain sum it always was.
 
     :meth:`terms` returns the per-term values (stateless terms only); :meth:`step_terms` returns
     them with memory. :class:`~torchtasks.transforms.TaskTransform` logs them. A task checks every
     term against its state and action sizes at construction (:meth:`check_sizes`).
+
+    The breakdown reports **weighted** terms (``w_k · term_k``), as IsaacLab's reward manager logs
+    them, so the logged terms still add up to the reward. Each weight is a registered float64 buffer
+    named ``weights.<term>`` in the compound (``reward.weights.effort`` for the reward of a
+    :class:`~torchtasks.tasks.DesiredStateTask`, as ``task.named_buffers()`` names it): a
+    :class:`~torchtasks.curriculum.Curriculum` schedules it by that name, IsaacLab's
+    ``modify_reward_weight``. To schedule a term that should start at its plain value, give it the
+    weight ``1.0``.
 
     Pyrado name: ``CompoundRewFcn``.
 
@@ -49,9 +74,19 @@ class CompoundReward(RewardFunction):
         tensor([-3.])
         >>> reward.terms(torch.tensor([[2.0]]), None)
         {'track': tensor([-4.]), 'alive': tensor([1.])}
+        >>> weighted = CompoundReward({"track": QuadraticErrorReward([1.0], None), "alive": ConstantReward(1.0)},
+        ...                           weights={"track": 0.5})
+        >>> weighted.terms(torch.tensor([[2.0]]), None)
+        {'track': tensor([-2.]), 'alive': tensor([1.])}
+        >>> [name for name, _ in weighted.named_buffers() if name.startswith("weights.")]
+        ['weights.track']
     """
 
-    def __init__(self, rewards: Mapping[str, RewardFunction] | Sequence[RewardFunction]) -> None:
+    def __init__(
+        self,
+        rewards: Mapping[str, RewardFunction] | Sequence[RewardFunction],
+        weights: Mapping[str, float] | None = None,
+    ) -> None:
         super().__init__()
         if isinstance(rewards, Mapping):
             items = list(rewards.items())
@@ -72,6 +107,28 @@ class CompoundReward(RewardFunction):
         self.uses_action = any(reward.uses_action for reward in self.rewards.values())
         self._stateful_names = tuple(name for name, reward in self.rewards.items() if reward.stateful)
         self.term_names = tuple(self.rewards.keys())
+        self.weights = _TermWeights(self._check_weights(weights))
+
+    def _check_weights(self, weights: object) -> dict[str, float]:
+        """Validate ``weights``: ``None`` or a mapping of term names to finite real numbers."""
+        if weights is None:
+            return {}
+        if not isinstance(weights, Mapping):
+            raise TypeError(
+                f"weights must be a mapping {{term name: weight}} (e.g. {{'effort': 0.1}}) or None, "
+                f"got {type(weights).__name__}"
+            )
+        unknown = [name for name in weights if name not in self.term_names]
+        if unknown:
+            raise ValueError(f"weights names unknown terms {unknown}; the terms are {list(self.term_names)}")
+        return {name: check_finite_scalar(weight, f"weights[{name!r}]") for name, weight in weights.items()}
+
+    def _weighted(self, values: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """Multiply the values of the weighted terms by their weights (in place of the dict; tensor-only)."""
+        for name, weight in self.weights._buffers.items():
+            value = values[name]
+            values[name] = value * cast_like(weight, value)
+        return values
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         for name, reward in self.rewards.items():
@@ -84,7 +141,7 @@ class CompoundReward(RewardFunction):
         """Return ``{name: value[*B]}`` for every term (stateless compounds only)."""
         if self.stateful:
             raise TypeError("this CompoundReward has stateful terms: use step_terms(state, action, memory)")
-        return {name: reward(error_state, error_action) for name, reward in self.rewards.items()}
+        return self._weighted({name: reward(error_state, error_action) for name, reward in self.rewards.items()})
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return self.combine_terms(self.terms(error_state, error_action))
@@ -93,7 +150,7 @@ class CompoundReward(RewardFunction):
         if self.stateful:
             raise TypeError("this CompoundReward has stateful terms: use step(state, action, memory)")
         return self.combine_terms(
-            {name: reward._value(error_state, error_action) for name, reward in self.rewards.items()}
+            self._weighted({name: reward._value(error_state, error_action) for name, reward in self.rewards.items()})
         )
 
     def reset(self, init_state: torch.Tensor) -> TensorDict:
@@ -121,7 +178,7 @@ class CompoundReward(RewardFunction):
                 memory.set(name, sub_memory)
             else:
                 values[name] = reward(state, action)
-        return values, memory
+        return self._weighted(values), memory
 
     def _check_memory(self, memory: object, state: torch.Tensor) -> None:
         """Raise unless ``memory`` holds an entry for every stateful term (what :meth:`reset` returns)."""
@@ -145,14 +202,14 @@ class CompoundReward(RewardFunction):
         if not self._stateful_names:
             for name, reward in self.rewards.items():
                 values[name] = reward._value(state, action)
-            return values, memory
+            return self._weighted(values), memory
         entries = copy_entries(memory)
         for name, reward in self.rewards.items():
             if reward.stateful:
                 values[name], entries[name] = reward._step(state, action, read(memory, name))
             else:
                 values[name] = reward._value(state, action)
-        return values, TensorDict._new_unsafe(entries, batch_size=memory.batch_size)
+        return self._weighted(values), TensorDict._new_unsafe(entries, batch_size=memory.batch_size)
 
     def _step(
         self, state: torch.Tensor, action: torch.Tensor | None, memory: TensorDict

@@ -15,7 +15,7 @@ from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.goals import GOAL_ENTRY, GoalSlot
 from torchtasks.tasks.leaf import RewardTask
-from torchtasks.tasks.success import never_succeeded
+from torchtasks.tasks.success import check_success_fn, never_succeeded, proximity_success_fn
 
 __all__ = ["DesiredStateTask", "RadiallySymmetricDesiredStateTask", "SuccessFn", "check_flag"]
 
@@ -44,7 +44,11 @@ class DesiredStateTask(RewardTask):
         spec: state and action boxes.
         state_des: the desired state, ``n`` numbers.
         reward: reward function of the errors.
-        success: ``error [*B, n] -> bool[*B]``; ``None`` never succeeds.
+        success: ``error [*B, n] -> bool[*B]``, called with the error alone (a function with other
+            required arguments, such as :func:`~torchtasks.tasks.proximity_succeeded` unbound, is a
+            ``TypeError`` at construction); ``None`` never succeeds.
+        threshold: shortcut for ``success=functools.partial(proximity_succeeded, threshold=threshold)``:
+            a success when the L2 norm of the error is below it. Positive and finite; not with ``success``.
 
     Pyrado name: ``DesStateTask``.
 
@@ -58,6 +62,10 @@ class DesiredStateTask(RewardTask):
         >>> memory = task.reset(torch.zeros(3, 2), state_des=torch.tensor([[1.0, 0.0], [0.0, 0.0], [2.0, 2.0]]))
         >>> task.has_succeeded(torch.zeros(3, 2), memory)
         tensor([False,  True, False])
+        >>> reward = ExpQuadraticErrorReward([1.0, 1.0], [0.1])
+        >>> same = DesiredStateTask(EnvSpec(2, 1), [1.0, 0.0], reward, threshold=0.1)
+        >>> same.has_succeeded(torch.zeros(3, 2), memory)
+        tensor([False,  True, False])
     """
 
     reset_keys = ("state_des",)
@@ -70,14 +78,22 @@ class DesiredStateTask(RewardTask):
         state_des: Sequence[float] | torch.Tensor,
         reward: RewardFunction,
         success: SuccessFn | None = None,
+        *,
+        threshold: float | None = None,
     ) -> None:
         super().__init__(spec, reward)
         state_des = as_constant(state_des, "state_des", ndim=(0, 1)).reshape(-1)
         if state_des.numel() != spec.state_size:
             raise ValueError(f"state_des must have {spec.state_size} entries (the state size), got {state_des.numel()}")
         self.register_buffer("state_des", state_des)
-        if success is not None and not callable(success):
-            raise TypeError(f"success must be callable or None, got {type(success).__name__}")
+        success = check_success_fn(success, "success")
+        if threshold is not None:
+            if success is not None:
+                raise ValueError(
+                    f"give success= or threshold= (which means success=proximity_succeeded with that threshold), "
+                    f"not both; got success={success!r} and threshold={threshold!r}"
+                )
+            success = proximity_success_fn(threshold, "threshold")
         self.success = never_succeeded if success is None else success
 
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
@@ -129,7 +145,9 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
         reward: reward function of the errors.
         indices: entries (ints or labels) that are angles.
         modulation: period of the wrapped entries, one number or one per index.
-        success: ``error -> bool[*B]``; ``None`` never succeeds.
+        success: ``error -> bool[*B]``, called with the error alone; ``None`` never succeeds.
+        threshold: shortcut for ``success=functools.partial(proximity_succeeded, threshold=threshold)``
+            on the wrapped error (as :class:`DesiredStateTask`); not with ``success``.
 
     Pyrado name: ``RadiallySymmDesStateTask``.
 
@@ -143,6 +161,9 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
         >>> memory = task.reset(torch.zeros(1, 2))
         >>> task.state_error(torch.tensor([[0.0, -math.pi + 0.1]]), memory)
         tensor([[ 0.0000, -0.1000]])
+        >>> near = RadiallySymmetricDesiredStateTask(EnvSpec(2, 1), [0.0, math.pi], reward, indices=[1], threshold=0.2)
+        >>> near.has_succeeded(torch.tensor([[0.0, -math.pi + 0.1]]), memory)
+        tensor([True])
     """
 
     def __init__(
@@ -153,8 +174,10 @@ class RadiallySymmetricDesiredStateTask(DesiredStateTask):
         indices: Iterable[int | str] | int | str,
         modulation: float | Sequence[float] = 2 * math.pi,
         success: SuccessFn | None = None,
+        *,
+        threshold: float | None = None,
     ) -> None:
-        super().__init__(spec, state_des, reward, success)
+        super().__init__(spec, state_des, reward, success, threshold=threshold)
         positions = _indices(spec, indices)
         if not positions:
             raise ValueError("indices must name at least one entry")
