@@ -212,7 +212,7 @@ def train(
     }
     deadline = start + 60.0 * config.max_minutes
     frames = 0
-    bar = tqdm(desc=description, unit="it")
+    bar = progress_bar(description, max_iterations and max_iterations * config.frames_per_batch, config.max_minutes)
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         train_stats = episode_stats(batch)
@@ -242,7 +242,7 @@ def train(
             }
         )
         bar.set_postfix(frames=frames, success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}")
-        bar.update()
+        advance(bar, batch.numel(), start)
         if stats["success_rate"] >= config.target:
             if record["frames_to_target"] is None:
                 record["time_to_target_s"], record["frames_to_target"] = seconds, frames
@@ -261,6 +261,21 @@ def train(
         machine_end=machine_info(),
     )
     return record
+
+
+def progress_bar(description: str, total_frames: int | None, max_minutes: float) -> tqdm:
+    """A bar over ``total_frames`` env frames, or over the wall-time limit in seconds if there is no frame total."""
+    if total_frames:
+        return tqdm(total=total_frames, desc=description, unit="frame", unit_scale=True)
+    return tqdm(total=round(60.0 * max_minutes), desc=f"{description} (time limit)", unit="s")
+
+
+def advance(bar: tqdm, frames: int, start: float) -> None:
+    """Move :func:`progress_bar`'s bar on by ``frames`` frames, or to the seconds since ``start`` (time-limit bar)."""
+    if bar.unit == "s":
+        bar.update(min(bar.total, round(time.perf_counter() - start)) - bar.n)
+    else:
+        bar.update(frames)
 
 
 def ppo_update(
@@ -323,17 +338,19 @@ def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     from matplotlib.ticker import EngFormatter
 
     figure, axes = plt.subplots(2, 2, figsize=(10, 7), sharey="row")
+    longest = max(point["seconds"] for record in runs.values() for point in record["curve"])
+    scale, unit = time_unit(longest)
     for label, record in runs.items():
         curve = record["curve"]
         frames = [point["frames"] for point in curve]
-        minutes = [point["seconds"] / 60.0 for point in curve]
-        for column, x in enumerate((frames, minutes)):
+        times = [point["seconds"] / scale for point in curve]
+        for column, x in enumerate((frames, times)):
             axes[0, column].plot(x, [point["eval_success_rate"] for point in curve], marker=".", label=label)
             axes[1, column].plot(x, [point["eval_episode_reward"] for point in curve], marker=".", label=label)
     target = next(iter(runs.values()))["target"]
     for column in range(2):
         axes[0, column].axhline(target, color="grey", linestyle="--", linewidth=1, label=f"target {target:.0%}")
-        axes[1, column].set_xlabel(("env frames", "wall time [min]")[column])
+        axes[1, column].set_xlabel(("env frames", f"wall time [{unit}]")[column])
         axes[0, column].legend(loc="upper left")
     for axis in axes.flat:
         axis.grid(alpha=0.3)
@@ -348,6 +365,18 @@ def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
+
+
+def time_unit(seconds: float) -> tuple[float, str]:
+    """The unit of a wall-time axis up to ``seconds``: ``(seconds per unit, name)``, seconds below 2 minutes.
+
+    Example:
+        >>> time_unit(13.0), time_unit(600.0), time_unit(3 * 3600.0)
+        ((1.0, 's'), (60.0, 'min'), (3600.0, 'h'))
+    """
+    if seconds < 120.0:
+        return 1.0, "s"
+    return (60.0, "min") if seconds < 2 * 3600.0 else (3600.0, "h")
 
 
 def save(

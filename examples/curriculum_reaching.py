@@ -19,7 +19,6 @@ run the curves: evaluation and training success rates, level fractions, effort w
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import sys
@@ -390,7 +389,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument("--output", type=Path, default=Path("runs") / NAME, help="directory for the JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of each variant")
@@ -454,4 +453,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

@@ -52,7 +52,6 @@ lists the hyper-parameter flags).
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
 from dataclasses import asdict, dataclass, replace
@@ -131,7 +130,10 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
     frames = iteration = 0
     next_evaluation = config.eval_every_frames
     state = env.reset()
-    bar = tqdm(desc="analytic gradients", unit="it")
+    if max_iterations is not None:  # the frames per iteration are known: a bar over the frame total
+        bar = tqdm(total=max_iterations * config.num_envs * config.horizon, desc="analytic gradients", unit="frame")
+    else:  # a run ends at the target or the time limit: a bar over the time limit
+        bar = tqdm(total=round(60.0 * config.max_minutes), desc="analytic gradients (time limit)", unit="s")
     while True:
         iteration += 1
         rollout = env.rollout(config.horizon, policy, tensordict=state, auto_reset=False, break_when_any_done=False)
@@ -143,7 +145,10 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
         # truncated backpropagation: the episodes go on from here, the graph behind them is dropped
         state = env.maybe_reset(step_mdp(rollout[..., -1]).detach())
         frames += rollout.numel()
-        bar.update()
+        if bar.unit == "s":
+            bar.update(min(bar.total, round(time.perf_counter() - start)) - bar.n)
+        else:
+            bar.update(rollout.numel())
         finished = (max_iterations is not None and iteration >= max_iterations) or time.perf_counter() > deadline
         if frames >= next_evaluation or finished:
             next_evaluation += config.eval_every_frames
@@ -208,7 +213,7 @@ def _frames_to_target(record: dict[str, Any]) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument(
         "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
@@ -245,4 +250,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

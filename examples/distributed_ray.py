@@ -50,7 +50,6 @@ a private test cluster with ``RAY_AUTH_MODE=disabled ray start --head``.
 
 from __future__ import annotations
 
-import argparse
 import functools
 import os
 import time
@@ -222,14 +221,21 @@ def main(
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a few thousand frames (seconds once Ray is up)")
     parser.add_argument(
-        "--address", default=None, help="address of an existing Ray cluster, e.g. HEAD_IP:6379 or 'auto' (ray.init)"
+        "--address",
+        default=None,
+        help="address of an existing Ray cluster, e.g. HEAD_IP:6379 or 'auto' (default: start a local one)",
     )
     parser.add_argument("--workers", type=int, default=2, help="number of remote collectors (Ray actors)")
     parser.add_argument("--envs", type=int, default=None, help="envs per worker (default 32, 8 with --quick)")
-    parser.add_argument("--frames", type=int, default=None, help="total frames to collect")
+    parser.add_argument(
+        "--frames", type=int, default=None, help="total frames to collect (default 64000, 6 batches with --quick)"
+    )
     parser.add_argument(
         "--env",
         default="Hopper-v5",

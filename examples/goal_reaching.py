@@ -46,7 +46,6 @@ Run: ``python examples/goal_reaching.py [--quick] [--seeds 0 1 2] [--variants he
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import os
@@ -283,7 +282,7 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument("--output", type=Path, default=Path("runs/goal_reaching"), help="directory for JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
@@ -329,4 +328,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

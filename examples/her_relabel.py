@@ -32,7 +32,6 @@ Run: ``python examples/her_relabel.py [--quick] [--strategy future|final|episode
 
 from __future__ import annotations
 
-import argparse
 import functools
 import math
 
@@ -180,7 +179,10 @@ def main(quick: bool = False, strategy: str = "future", seed: int = 0) -> dict[s
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a few thousand frames (seconds)")
     parser.add_argument("--strategy", default="future", choices=["future", "final", "episode", "random"])
     parser.add_argument("--seed", type=int, default=0, help="random seed")

@@ -20,7 +20,6 @@ Run: ``python examples/mujoco_locomotion.py [--quick] [--env Hopper-v5] [--frame
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import torch
@@ -132,8 +131,13 @@ def main(env_id: str = "HalfCheetah-v5", quick: bool = False, frames: int | None
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--env", default="HalfCheetah-v5", choices=SUPPORTED_ENV_IDS, help="Gymnasium env id")
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
+    parser = make_parser(__doc__)
+    parser.add_argument(
+        "--env", default="HalfCheetah-v5", choices=SUPPORTED_ENV_IDS, metavar="ID", help=", ".join(SUPPORTED_ENV_IDS)
+    )
     parser.add_argument("--quick", action="store_true", help="300 frames (seconds)")
     parser.add_argument("--frames", type=int, default=None, help="frames to collect (default 5000, 300 with --quick)")
     parser.add_argument("--seed", type=int, default=0, help="random seed")

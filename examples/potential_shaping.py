@@ -42,7 +42,6 @@ Run: ``python examples/potential_shaping.py [--quick] [--output DIR] [--seeds 0 
 
 from __future__ import annotations
 
-import argparse
 import functools
 import json
 import math
@@ -270,7 +269,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument("--output", type=Path, default=Path("runs") / NAME, help="directory for the JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", help=f"seeds of each variant (default {list(SEEDS)})")
@@ -303,4 +302,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

@@ -5,7 +5,6 @@ Run: ``python examples/quickstart.py [--quick]``.
 
 from __future__ import annotations
 
-import argparse
 import functools
 
 import torch
@@ -42,12 +41,21 @@ def main(quick: bool = False) -> None:
     print(f"{num_envs} envs x {steps} steps: {int(ended.sum())} episodes ended")
     print(f"  successes: {int(nxt['success'].sum())}, failures: {int(nxt['failure'].sum())}")
     print(f"  truncations: {int((nxt['truncated'] & ~nxt['success'] & ~nxt['failure']).sum())}")
-    for key in ("step", "final", "track", "effort"):
-        print(f"  mean per-step {key:>6}: {nxt['task_reward', key].mean():+.4f}")
+    labels = {
+        "step": "step reward (track + effort)",
+        "final": "final reward (+100 on success)",
+        "track": "track term",
+        "effort": "effort term",
+    }
+    for key, label in labels.items():
+        print(f"  mean per step, {label:<30}: {nxt['task_reward', key].mean():+.4f}")
     print(f"  mean episode reward of finished episodes: {nxt['episode_reward'][nxt['done']].mean():+.3f}")
 
 
 if __name__ == "__main__":
-    parser = argparse.ArgumentParser(description=__doc__)
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a few envs and steps (seconds)")
     main(parser.parse_args().quick)

@@ -51,7 +51,6 @@ tests; ``--help`` lists the flags). Measured results: ``docs/training.md``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -64,7 +63,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also when imported from elsewhere
 
 import torch
-from _ppo_common import machine_info, ppo_update
+from _ppo_common import machine_info, ppo_update, time_unit
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -392,11 +391,12 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     from matplotlib.ticker import EngFormatter
 
     figure, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
+    seconds_per_unit, unit = time_unit(max(record["total_seconds"] for record in records))
     for index, record in enumerate(sorted(records, key=lambda record: record["seed"])):
         color = f"C{index}"
         train = [point for point in record["curve"] if point["train_return"] is not None]
         evals = record["eval_curve"]
-        for axis, key, scale in ((axes[0], "frames", 1.0), (axes[1], "seconds", 1 / 60)):
+        for axis, key, scale in ((axes[0], "frames", 1.0), (axes[1], "seconds", 1 / seconds_per_unit)):
             axis.plot(
                 [point[key] * scale for point in train],
                 [point["train_return"] for point in train],
@@ -414,7 +414,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
             )
     axes[0].xaxis.set_major_formatter(EngFormatter())
     axes[0].set_xlabel("env frames")
-    axes[1].set_xlabel("wall-clock time [min]")
+    axes[1].set_xlabel(f"wall-clock time [{unit}]")
     axes[0].set_ylabel("mean episode return (1000 steps)")
     axes[0].legend(fontsize="small")
     for axis in axes:
@@ -431,7 +431,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory (default {DEFAULT_OUTPUT})")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
@@ -472,4 +472,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

@@ -45,7 +45,6 @@ Measured results: ``docs/constraints_results.md``.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -404,8 +403,8 @@ def file_name(variant: str, seed: int | str) -> str:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__.split("\n\n")[0],  # the set-up: the module docstring and docs/constraints_results.md
+    parser = make_parser(
+        __doc__,  # the set-up: the module docstring and docs/constraints_results.md
         epilog="Outputs: <output>/<variant>_seed<N>.json and safety_ppo_lagrangian_curve.png. "
         "Results: docs/constraints_results.md.",
     )
@@ -450,4 +449,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

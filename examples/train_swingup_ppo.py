@@ -40,7 +40,6 @@ lists the hyper-parameter flags).
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -123,7 +122,7 @@ def train(config: PPOConfig, seed: int, max_iterations: int | None = None) -> di
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument(
         "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
@@ -163,4 +162,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
+    from _cli import make_parser, quiet_torchrl
+
+    quiet_torchrl()
     main()

@@ -11,6 +11,8 @@ from __future__ import annotations
 import importlib.util
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -20,9 +22,44 @@ from example_runs import EXAMPLES, run_quick
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
 
 
+SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":attr:")
+
+
 def run_example(name: str, cwd: Path, *args: str, timeout: float = 180.0) -> str:
-    """Run ``examples/<name> --quick *args`` from the empty folder ``cwd``; return its stdout (:func:`run_quick`)."""
-    return run_quick(name, cwd, *args, timeout=timeout).stdout
+    """Run ``examples/<name> --quick *args`` from the empty folder ``cwd``; return its stdout (:func:`run_quick`).
+
+    Also checks that TorchRL's INFO logs are quiet (the examples set the ``torchrl`` logger to WARNING).
+    """
+    result = run_quick(name, cwd, *args, timeout=timeout)
+    assert_no_torchrl_info(result.stdout + result.stderr)
+    return result.stdout
+
+
+def assert_no_torchrl_info(output: str) -> None:
+    """No ``[torchrl][INFO]`` line (e.g. ``Initialized LazyTensorStorage``) in an example's output."""
+    lines = [line for line in output.splitlines() if "[torchrl][INFO]" in line]
+    assert not lines, f"TorchRL INFO logs in the example's output: {lines[:3]}"
+
+
+@pytest.mark.parametrize("script", sorted(path.name for path in EXAMPLES.glob("[!_]*.py")))
+def test_help_is_short_plain_and_shows_defaults(script: str, tmp_path: Path) -> None:
+    """``--help``: the docstring's first paragraph as plain text and the options with defaults, in 40 x 100."""
+    command = [sys.executable, str(EXAMPLES / script), "--help"]
+    result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
+    assert result.returncode == 0, result.stderr
+    assert not list(tmp_path.iterdir()), "--help wrote files"
+    text = result.stdout
+    lines = text.splitlines()
+    assert len(lines) <= 40, f"{len(lines)} lines:\n{text}"
+    wide = [line for line in lines if len(line) > 100]
+    assert not wide, f"lines over 100 columns: {wide}"
+    assert not [mark for mark in SPHINX_MARKUP if mark in text], text
+    assert "[torchrl][INFO]" not in text + result.stderr
+    # every option that takes a value (``--name VALUE``) says its default
+    blocks = re.split(r"\n(?=  -)", text.split("options:", 1)[1])
+    for block in blocks:
+        if re.match(r"\s*--[\w-]+ \S", block) and "--quick" not in block:
+            assert "default" in block, f"no default shown for:\n{block}"
 
 
 def _number(pattern: str, text: str) -> float:
@@ -34,8 +71,8 @@ def _number(pattern: str, text: str) -> float:
 def test_quickstart(tmp_path: Path) -> None:
     out = run_example("quickstart.py", tmp_path)
     assert "8 envs x 50 steps" in out
-    for key in ("step", "final", "track", "effort"):
-        assert re.search(rf"mean per-step\s+{key}:", out), key
+    for label in ("step reward (track + effort)", "final reward (+100 on success)", "track term", "effort term"):
+        assert re.search(rf"mean per step, {re.escape(label)}\s*: [+-]\d", out), label
     assert "successes:" in out and "mean episode reward of finished episodes" in out
 
 

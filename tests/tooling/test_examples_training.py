@@ -45,7 +45,10 @@ POINT_FIELDS = {"iteration", "frames", "seconds", "eval_success_rate", "eval_epi
 
 def run_example(script: str, cwd: Path, *args: str) -> subprocess.CompletedProcess[str]:
     """Run ``examples/<script> --quick <args>`` from the empty folder ``cwd`` (see :func:`run_quick`)."""
-    return run_quick(script, cwd, *args, timeout=TIMEOUT_S)
+    result = run_quick(script, cwd, *args, timeout=TIMEOUT_S)
+    info = [line for line in (result.stdout + result.stderr).splitlines() if "[torchrl][INFO]" in line]
+    assert not info, f"TorchRL INFO logs in {script}'s output (the examples quiet them): {info[:3]}"
+    return result
 
 
 def load_run(path: Path) -> dict[str, Any]:
