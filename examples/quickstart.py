@@ -13,6 +13,7 @@ from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchtasks.envs import PendulumEnv
 from torchtasks.rewards import CompoundReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
+from torchtasks.stats import episode_statistics
 from torchtasks.tasks import FinalRewardTask, RadiallySymmetricDesiredStateTask, proximity_succeeded
 from torchtasks.transforms import TaskTransform
 
@@ -37,10 +38,13 @@ def main(quick: bool = False) -> None:
     torch.manual_seed(0)
     rollout = env.rollout(steps, break_when_any_done=False)
     nxt = rollout["next"]
-    ended = nxt["done"].squeeze(-1)
-    print(f"{num_envs} envs x {steps} steps: {int(ended.sum())} episodes ended")
-    print(f"  successes: {int(nxt['success'].sum())}, failures: {int(nxt['failure'].sum())}")
-    print(f"  truncations: {int((nxt['truncated'] & ~nxt['success'] & ~nxt['failure']).sum())}")
+    # how the episodes ended and their returns, counted from the flags at each episode's last frame
+    stats = episode_statistics(rollout)
+    episodes = int(stats["episodes"])
+    print(f"{num_envs} envs x {steps} steps: {episodes} episodes ended")
+    counts = {name: round(stats.get(f"{name}_rate", 0.0) * episodes) for name in ("success", "failure", "timeout")}
+    print(f"  successes: {counts['success']}, failures: {counts['failure']}")
+    print(f"  truncations: {counts['timeout']}")
     labels = {
         "step": "step reward (track + effort)",
         "final": "final reward (+100 on success)",
@@ -49,7 +53,7 @@ def main(quick: bool = False) -> None:
     }
     for key, label in labels.items():
         print(f"  mean per step, {label:<30}: {nxt['task_reward', key].mean():+.4f}")
-    print(f"  mean episode reward of finished episodes: {nxt['episode_reward'][nxt['done']].mean():+.3f}")
+    print(f"  mean episode reward of finished episodes: {stats.get('return_mean', float('nan')):+.3f}")
 
 
 if __name__ == "__main__":
