@@ -384,7 +384,9 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     try:
         import matplotlib
     except ImportError:
-        print("matplotlib is not installed (pip install 'torchtasks[plot]'): the plot is skipped")
+        from torchtasks._optional import install_hint
+
+        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
         return None
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

@@ -331,7 +331,7 @@ def test_demo_without_matplotlib(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     monkeypatch.setitem(sys.modules, "matplotlib.figure", None)
     result = run_demo(total_frames=640, num_envs=8, frames_per_batch=320, output_dir=tmp_path / "demo", progress=False)
     assert result.plot_path is None
-    assert result.plot_note is not None and "pip install 'torchtasks[plot]'" in result.plot_note
+    assert result.plot_note is not None and "pip install" in result.plot_note and "[plot]'" in result.plot_note
     assert result.metrics_path == tmp_path / "demo" / "torchtasks_demo.json"
     assert [path.name for path in (tmp_path / "demo").iterdir()] == ["torchtasks_demo.json"]
     assert json.loads(result.metrics_path.read_text())["curves"]["frames"] == [320, 640]
@@ -343,6 +343,29 @@ CORE_IMPORT = (
     "import torchtasks, torchtasks.spaces, torchtasks.rewards, torchtasks.tasks, torchtasks.predefined, "
     "torchtasks.transforms, torchtasks.envs, torchtasks.cli"
 )
+
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _hint_outside_the_checkout(extra: str) -> str:
+    """What a user outside the checkout must type (absolute paths; the bracketed target quoted for a shell)."""
+    return f"pip install -c {REPO}/constraints.txt -e '{REPO}[{extra}]'"
+
+
+def test_install_hints_say_what_works_where_the_package_came_from(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A checkout (make setup's editable install): the checkout's extra with its pins, relative inside it, absolute
+    elsewhere; an installed wheel: the package's extra."""
+    import torchtasks._optional as optional
+
+    monkeypatch.chdir(REPO)
+    assert optional.install_hint("mujoco") == "pip install -c constraints.txt -e '.[mujoco]'"
+    monkeypatch.chdir(tmp_path)
+    assert optional.install_hint("plot") == _hint_outside_the_checkout("plot")
+    monkeypatch.setattr(optional, "checkout_root", lambda: None)
+    assert optional.install_hint("ray") == "pip install 'torchtasks[ray]'"
 
 
 def _python(code: str, cwd: Path) -> subprocess.CompletedProcess[str]:
@@ -401,13 +424,14 @@ print("CHECK", main(["check", "HalfCheetah-v5"]))
     assert re.search(r"^  gymnasium_env .*\[needs the 'mujoco' extra\]", out, flags=re.MULTILINE)  # the CI's grep
     assert "HalfCheetah-v5" in out
     _check_text(out[: out.index("ERROR")])
-    assert "[needs the 'mujoco' extra]: pip install 'torchtasks[mujoco]'" in out
+    hint = _hint_outside_the_checkout("mujoco")
+    assert f"[needs the 'mujoco' extra]: {hint}" in out
     errors = [line for line in out.splitlines() if line.startswith("ERROR")]
     assert len(errors) == 2
     for line in errors:
-        assert "needs the 'mujoco' extra: pip install 'torchtasks[mujoco]'" in line, line
+        assert f"needs the 'mujoco' extra: {hint}" in line, line
     assert out.splitlines()[-1] == "CHECK 2"
-    assert "torchtasks check needs the 'mujoco' extra: pip install 'torchtasks[mujoco]'" in result.stderr
+    assert f"torchtasks check needs the 'mujoco' extra: {hint}" in result.stderr
 
 
 # ------------------------------------------------------------------------------------------ check
