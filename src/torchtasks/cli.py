@@ -247,8 +247,9 @@ def _usage_error(command: str, message: str) -> int:
 def _unknown_env(env_id: str, env_ids: Sequence[str]) -> str:
     by_lower = {name.lower(): name for name in env_ids}
     close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=1, cutoff=0.6)
-    hint = f" (did you mean {by_lower[close[0]]}?)" if close else ""
-    return f"unknown env {env_id!r}; choose one of {', '.join(sorted(env_ids))}{hint}"
+    if close:  # the one valid choice the user meant: a line that fits a terminal
+        return f"unknown env {env_id!r}; did you mean {by_lower[close[0]]}?"
+    return f"unknown env {env_id!r}; choose one of {', '.join(sorted(env_ids))}"
 
 
 def _merge_gymnasium(parts: list[dict[str, Any]]) -> dict[str, Any]:

@@ -135,7 +135,7 @@ USER_MISTAKES = {
     "check without env": (["check"], ("required: ENV_ID",)),
     "lower-case env id": (
         ["check", "hopper-v5"],
-        ("unknown env 'hopper-v5'", "HalfCheetah-v5", "did you mean Hopper-v5?"),
+        ("unknown env 'hopper-v5'; did you mean Hopper-v5?",),
     ),
     "not a MuJoCo preset": (["check", "Pendulum-v1"], ("unknown env 'Pendulum-v1'; choose one of Ant-v5,",)),
     "second env unknown": (["check", "Hopper-v5", "Hoper-v5"], ("unknown env 'Hoper-v5'", "did you mean Hopper-v5?")),
@@ -167,6 +167,8 @@ def test_user_mistakes_are_one_line(case: str, capsys: pytest.CaptureFixture[str
     assert lines[0].startswith(f"torchtasks {argv[0]}: " if argv[0] in SUBCOMMANDS else "torchtasks: ")
     for text in expected:
         assert text in lines[0], (text, lines[0])
+    if "did you mean" in lines[0]:  # a suggestion, not the whole list: fits a terminal
+        assert len(lines[0]) <= 100, lines[0]
 
 
 def test_unknown_env_in_a_subprocess() -> None:
@@ -176,10 +178,7 @@ def test_unknown_env_in_a_subprocess() -> None:
     )
     assert result.returncode == 2
     assert result.stdout == ""
-    assert result.stderr.splitlines() == [
-        "torchtasks check: unknown env 'hopper-v5'; choose one of Ant-v5, HalfCheetah-v5, Hopper-v5, Humanoid-v5, "
-        "Swimmer-v5, Walker2d-v5 (did you mean Hopper-v5?)"
-    ]
+    assert result.stderr.splitlines() == ["torchtasks check: unknown env 'hopper-v5'; did you mean Hopper-v5?"]
 
 
 def test_list_into_a_closed_pipe() -> None:
