@@ -12,6 +12,7 @@ import argparse
 import logging
 import os
 import re
+import warnings
 
 WIDTH = 100  # --help fits this many columns
 
@@ -73,8 +74,14 @@ def make_parser(doc: str | None, epilog: str | None = None) -> argparse.Argument
 
 
 def quiet_torchrl() -> None:
-    """Show only TorchRL's warnings and errors, unless the environment variable ``RL_LOGGING_LEVEL`` says otherwise."""
+    """Show only TorchRL's warnings and errors, unless the environment variable ``RL_LOGGING_LEVEL`` says otherwise.
+
+    Also silences the one warning the examples trigger on purpose: ``VecNormV2`` on a batched env is "experimental"
+    (``reduce_batch_dims=True`` is what a batch needs), and TorchRL repeats it wherever it re-checks the transform (the
+    collector, the frozen copies).
+    """
     import torchrl  # noqa: F401  (torchrl sets its logger's level when imported: set ours after)
 
     if "RL_LOGGING_LEVEL" not in os.environ:
         logging.getLogger("torchrl").setLevel(logging.WARNING)
+    warnings.filterwarnings("ignore", message="Support of VecNormV2 for containers", category=UserWarning)

@@ -379,6 +379,17 @@ def time_unit(seconds: float) -> tuple[float, str]:
     return (60.0, "min") if seconds < 2 * 3600.0 else (3600.0, "h")
 
 
+def duration(seconds: float) -> str:
+    """``seconds`` in the unit of :func:`time_unit` (a 13 s run in seconds, a 40 min run in minutes).
+
+    Example:
+        >>> duration(3.61), duration(600.0), duration(3 * 3600.0)
+        ('3.6 s', '10.0 min', '3.00 h')
+    """
+    per_unit, unit = time_unit(seconds)
+    return f"{seconds / per_unit:.{2 if unit == 'h' else 1}f} {unit}"
+
+
 def save(
     record: dict[str, Any], output: Path, name: str, title: str, others: dict[str, dict[str, Any]] | None = None
 ) -> tuple[Path, Path]:

@@ -63,7 +63,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also when imported from elsewhere
 
 import torch
-from _ppo_common import machine_info, ppo_update, time_unit
+from _ppo_common import duration, machine_info, ppo_update, time_unit
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -299,7 +299,13 @@ def train(config: LocomotionPPOConfig, seed: int, quiet: bool = False) -> dict[s
     deadline = start + 60.0 * config.max_minutes
     frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
     last_train, last_eval = None, None
-    bar = tqdm(total=iterations, desc=f"PPO {ENV_ID} seed {seed}", unit="batch", disable=quiet)
+    bar = tqdm(  # the collector rounds the frame total up to whole batches
+        total=iterations * config.frames_per_batch,
+        desc=f"PPO {ENV_ID} seed {seed}",
+        unit="frame",
+        unit_scale=True,
+        disable=quiet,
+    )
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
@@ -355,7 +361,7 @@ def train(config: LocomotionPPOConfig, seed: int, quiet: bool = False) -> dict[s
         if last_eval is not None:
             postfix["eval_return"] = f"{last_eval['return_mean']:.0f}"
         bar.set_postfix(postfix)
-        bar.update()
+        bar.update(batch.numel())
         if done:
             break
     bar.close()
@@ -460,7 +466,7 @@ def main() -> None:
             else (f"training return {train_return:.1f} (episodes ended at {record['final_train_frames']} frames)")
         )
         print(
-            f"seed {seed}: {record['total_frames']} frames in {record['total_seconds'] / 60:.2f} min "
+            f"seed {seed}: {record['total_frames']} frames in {duration(record['total_seconds'])} "
             f"({record['frames_per_second']:.0f} frames/s, evaluation {record['eval_seconds']:.1f} s); {train_text}; "
             f"deterministic evaluation return {record['final_eval_return']:.1f}; "
             f"1-min load average {record['machine_start']['load_1min']:.2f} at start, "

@@ -57,7 +57,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' modules
 
 import torch
-from _ppo_common import machine_info, ppo_update
+from _ppo_common import duration, machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
@@ -268,7 +268,13 @@ def train(config: SafetyPPOConfig, variant: str, seed: int, quiet: bool = False)
     }
     deadline = start + 60.0 * config.max_minutes
     frames, next_eval, last_train, last_eval = 0, config.eval_every, None, None
-    bar = tqdm(total=iterations, desc=f"{LABELS[variant]} seed {seed}", unit="batch", disable=quiet)
+    bar = tqdm(  # the collector rounds the frame total up to whole batches
+        total=iterations * config.frames_per_batch,
+        desc=f"{LABELS[variant]} seed {seed}",
+        unit="frame",
+        unit_scale=True,
+        disable=quiet,
+    )
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         returns = training_returns(batch)
@@ -322,7 +328,7 @@ def train(config: SafetyPPOConfig, variant: str, seed: int, quiet: bool = False)
             postfix["return"] = f"{last_train['train_return']:.0f}"
             postfix["cost"] = f"{last_train['train_cost']:.0f}"
         bar.set_postfix(postfix)
-        bar.update()
+        bar.update(batch.numel())
         if done:
             break
     bar.close()
@@ -420,8 +426,6 @@ def main() -> None:
         kind = type(value)
         parser.add_argument(f"--{name.replace('_', '-')}", type=kind, help=f"default {value}")
     args = parser.parse_args()
-    # VecNormV2 on a batched env warns "experimental" wherever TorchRL re-checks it (the collector, the copies)
-    warnings.filterwarnings("ignore", message="Support of VecNormV2 for containers", category=UserWarning)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
@@ -434,7 +438,7 @@ def main() -> None:
             json_path.write_text(json.dumps(record, indent=2))
             r = record
             print(
-                f"{r['method']} seed {seed}: {r['total_frames']} frames in {r['total_seconds'] / 60:.2f} min "
+                f"{r['method']} seed {seed}: {r['total_frames']} frames in {duration(r['total_seconds'])} "
                 f"({r['frames_per_second']:.0f} frames/s); training episodes at {r['final_train_frames']} frames: "
                 f"return {r['final_train_return']:.1f}, episode cost {r['final_train_cost']:.1f}, above the limit "
                 f"{r['final_train_violation_rate']:.0%}; λ {r['final_lambda']:.3f}; deterministic evaluation: "

@@ -6,6 +6,7 @@ Shared by ``tooling/test_examples.py`` and ``tooling/test_examples_training.py``
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -24,7 +25,7 @@ def run_quick(script: str, cwd: Path, *args: str, timeout: float) -> subprocess.
 
     ``cwd`` must hold nothing but (inputs in) ``runs/``. Fails with both output streams on a non-zero
     exit, and with the new entries if the script left anything in ``cwd`` outside ``runs/`` or in
-    ``runs/`` outside ``runs/<script name without .py>/``.
+    ``runs/`` outside ``runs/<script name without .py>/``, and with the lines of any Python warning it printed.
     """
     before = _entries(cwd)
     assert before <= {"runs"}, f"run {script} from an empty directory, not one holding {sorted(before)}"
@@ -43,4 +44,6 @@ def run_quick(script: str, cwd: Path, *args: str, timeout: float) -> subprocess.
     assert not outside, f"{script} wrote {outside} into its current directory (outside runs/){detail}"
     stray = sorted(_entries(cwd / "runs") - runs_before - {Path(script).stem})
     assert not stray, f"{script} wrote {stray} into runs/ instead of runs/{Path(script).stem}/"
+    warned = [line for line in result.stderr.splitlines() if re.search(r"\b\w*Warning: ", line)]
+    assert not warned, f"{script} printed warnings (a user sees them as noise): {warned[:3]}"
     return result
