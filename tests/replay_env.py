@@ -224,6 +224,8 @@ def task_transforms(name: str, **transform_kwargs: Any) -> Compose:
     """``Compose(StepCounter(max_steps), TaskTransform(task))`` of the golden scenario ``name``."""
     case = scenario(name)
     max_steps = max_steps_of(case)
+    if max_steps is None:  # Pyrado's max_steps=inf: no limit on purpose (remaining steps 0, no warning)
+        transform_kwargs.setdefault("max_steps", math.inf)
     transforms = [] if max_steps is None else [StepCounter(max_steps)]
     return Compose(*transforms, task_transform(case, **transform_kwargs))
 

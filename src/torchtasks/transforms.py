@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
@@ -154,7 +155,9 @@ class TaskTransform(EnvDerivedTransform):
         memory_key, success_key, failure_key, terms_key: output keys.
         log_terms: write the reward breakdown.
         max_steps: time limit for the remaining steps; by default read from a preceding StepCounter.
-            Needed offline, and when the env's StepCounters are out of the transform's sight.
+            Needed offline, and when the env's StepCounters are out of the transform's sight. ``math.inf``
+            says the env has no limit on purpose (remaining steps 0, as Pyrado's ``max_steps=inf``): a
+            time-dependent task is then not warned about, and a preceding StepCounter with a limit is an error.
         reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (e.g. a goal
             sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
@@ -207,7 +210,7 @@ class TaskTransform(EnvDerivedTransform):
         failure_key: NestedKey = "failure",
         terms_key: NestedKey = "task_reward",
         log_terms: bool = True,
-        max_steps: int | None = None,
+        max_steps: int | float | None = None,
         reset_overrides: ResetOverrides | None = None,
         compile: bool = False,
         goal_key: NestedKey | None = None,
@@ -221,7 +224,12 @@ class TaskTransform(EnvDerivedTransform):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
-        max_steps = None if max_steps is None else check_positive_int(max_steps, "TaskTransform: max_steps")
+        # math.inf: no time limit on purpose (Pyrado's max_steps=inf): the remaining steps are 0, without a warning
+        self._no_limit = isinstance(max_steps, float) and max_steps == math.inf
+        if self._no_limit or max_steps is None:
+            max_steps = None
+        else:
+            max_steps = check_positive_int(max_steps, "TaskTransform: max_steps")
         if reset_overrides is not None and not callable(reset_overrides):
             raise TypeError(f"reset_overrides must be callable, got {type(reset_overrides).__name__}")
         state_keys = _state_keys(state_key)
@@ -341,6 +349,14 @@ class TaskTransform(EnvDerivedTransform):
                 inner = inner.base_env
             _check_vector_gym(container.base_env)
         counter = next((c for c in counters if c.max_steps is not None), None)
+        if self._no_limit:
+            if counter is not None:
+                raise ValueError(
+                    f"TaskTransform(max_steps=math.inf) says the env has no time limit, but StepCounter(max_steps="
+                    f"{counter.max_steps}) precedes it. Leave max_steps out (the transform reads the StepCounter's "
+                    "limit) or remove the StepCounter's limit."
+                )
+            return None, step_count_key, False
         if max_steps is None:
             if counter is not None:
                 max_steps, step_count_key = counter.max_steps, counter.step_count_key
@@ -430,7 +446,7 @@ class TaskTransform(EnvDerivedTransform):
 
     def _warn_no_time_limit(self, max_steps: int | None) -> None:
         """Warn (once per env) that a time-dependent task gets no time limit: its remaining steps are 0."""
-        if not self._uses_remaining or max_steps is not None or self.__dict__.get("_warned_no_limit"):
+        if self._no_limit or not self._uses_remaining or max_steps is not None or self.__dict__.get("_warned_no_limit"):
             return
         original = self.__dict__.get("_original")
         source = None if original is None else original()
@@ -445,7 +461,8 @@ class TaskTransform(EnvDerivedTransform):
             f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final reward), "
             f"but no time limit reaches the transform: max_steps is not given and {seen} precedes it, so the "
             "remaining steps are 0 (Pyrado's 'no limit') and the final reward does not depend on time. Put "
-            "StepCounter(max_steps) before TaskTransform in the Compose, or pass TaskTransform(..., max_steps=...).",
+            "StepCounter(max_steps) before TaskTransform in the Compose, or pass TaskTransform(..., max_steps=...) "
+            "(max_steps=math.inf: no limit on purpose, and no warning).",
             UserWarning,
             stacklevel=2,
         )

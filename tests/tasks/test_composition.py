@@ -304,6 +304,16 @@ def test_a_max_steps_that_disagrees_with_the_step_counter_is_refused_at_set_up()
         env.reset()  # when the env's specs are built
 
 
+def test_no_limit_on_purpose_is_refused_beside_a_step_counter_with_a_limit() -> None:
+    base = PendulumEnv(batch_size=[2])
+    env = TransformedEnv(base, Compose(StepCounter(10), TaskTransform(_pendulum_task(base), max_steps=math.inf)))
+    with pytest.raises(ValueError, match=r"max_steps=math.inf\) says the env has no time limit, but StepCounter"):
+        env.reset()
+    for bad in (-math.inf, math.nan, 2.0):
+        with pytest.raises(TypeError, match="max_steps must be a positive int"):
+            TaskTransform(_pendulum_task(base), max_steps=bad)
+
+
 def test_offline_data_beyond_the_limit_is_refused() -> None:
     base = PendulumEnv(batch_size=[2])
     env = TransformedEnv(base, Compose(StepCounter(10), TaskTransform(_pendulum_task(base))))

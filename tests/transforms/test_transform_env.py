@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import functools
 import math
+import warnings
 
 import gymnasium as gym
 import pytest
@@ -410,19 +411,27 @@ def _goal_task() -> FinalRewardTask:
         ([0.0, 5.0, 11.0], 10, [-1.0, -1.0 - 8.0]),  # failure at step_count 2: -(10 - 2)
         ([0.0, 1.0, 2.0, 3.0], 3, [-1.0, -1.0, -1.0 + 0.0]),  # success on the last allowed step: +0
         ([0.0, 1.0, 1.0, 1.0, 1.0], 4, [-1.0, -1.0, -1.0, -1.0]),  # time limit, neither: 0
-        ([0.0, 1.0, 2.0, 3.0], None, [-1.0, -1.0, -1.0]),  # no StepCounter: remaining steps are 0
+        ([0.0, 1.0, 2.0, 3.0], None, [-1.0, -1.0, -1.0]),  # no StepCounter: remaining steps are 0, with a warning
+        ([0.0, 1.0, 2.0, 3.0], math.inf, [-1.0, -1.0, -1.0]),  # no limit on purpose: the same, without a warning
     ],
 )
-def test_remaining_steps_reach_the_task(states: list[float], max_steps: int | None, expected: list[float]) -> None:
+def test_remaining_steps_reach_the_task(
+    states: list[float], max_steps: int | float | None, expected: list[float]
+) -> None:
     actions = [0.0] * (len(states) - 1)
 
     def make() -> TransformedEnv:
-        transforms = [] if max_steps is None else [StepCounter(max_steps)]
-        return _line_env(states, actions, Compose(*transforms, TaskTransform(_goal_task(), reward_on="state")))
+        transforms = [StepCounter(max_steps)] if isinstance(max_steps, int) else []
+        no_limit = {"max_steps": max_steps} if max_steps == math.inf else {}
+        task = TaskTransform(_goal_task(), reward_on="state", **no_limit)
+        return _line_env(states, actions, Compose(*transforms, task))
 
-    check_env_specs(make(), seed=None)
-    env = make()
-    data = env.rollout(len(expected), replay_policy(), break_when_any_done=True)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env_specs(make(), seed=None)
+        data = make().rollout(len(expected), replay_policy(), break_when_any_done=True)
+    no_limit_warnings = [w for w in caught if "no time limit reaches the transform" in str(w.message)]
+    assert len(no_limit_warnings) == (2 if max_steps is None else 0)  # once per env
     assert data["next", "reward"].squeeze(-1).tolist() == expected
     assert data["next", "done"][-1].item() and not data["next", "done"][:-1].any()
 
