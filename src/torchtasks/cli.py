@@ -215,6 +215,23 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------------------- demo
+def _unwritable(folder: str | Path) -> str | None:
+    """Why files cannot be written into ``folder`` (created if missing), or None: checked before a run, not after."""
+    path = Path(folder).expanduser()
+    if path.exists():
+        if not path.is_dir():
+            return f"--output: {str(folder)!r} exists and is not a folder"
+        return None if os.access(path, os.W_OK | os.X_OK) else f"--output: {str(folder)!r} is not writable"
+    parent = path.absolute().parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        return f"--output: cannot create {str(folder)!r}: {str(parent)!r} is not a folder"
+    if not os.access(parent, os.W_OK | os.X_OK):
+        return f"--output: cannot create {str(folder)!r}: {str(parent)!r} is not writable"
+    return None
+
+
 def _cmd_demo(args: argparse.Namespace) -> int:
     from torchtasks.demo import format_result, run_demo
 
@@ -285,6 +302,14 @@ def _number(value: float) -> str:
     return "0" if value == 0 else f"{value:.1e}"
 
 
+def _seeds(seeds: Sequence[int]) -> str:
+    """The seeds checked, as in the full table's column: ``0`` or a range ``0-2``."""
+    seeds = sorted(seeds)
+    if len(seeds) > 1 and seeds == list(range(seeds[0], seeds[-1] + 1)):
+        return f"{seeds[0]}-{seeds[-1]}"
+    return " ".join(str(seed) for seed in seeds)
+
+
 def _table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
@@ -296,7 +321,7 @@ def _gymnasium_table(rows: Sequence[dict[str, Any]]) -> str:
     cells = [
         (
             row["env"],
-            str(len(row["seeds"])),
+            _seeds(row["seeds"]),
             str(row["steps"]),
             str(row["episodes"]),
             _number(row["max_abs_reward_diff"]),
@@ -333,7 +358,7 @@ def _batched_table(rows: Sequence[dict[str, Any]], passed: Callable[[dict[str, A
             (
                 row["env"],
                 str(row.get("num_envs", "")),
-                str(len(row["seeds"])),
+                _seeds(row["seeds"]),
                 str(row["steps"]),
                 str(row.get("episodes", "")),
                 str(row.get("forced_resets", "")),
@@ -400,7 +425,7 @@ def _cmd_check(args: argparse.Namespace) -> int:
                 parts.append(part)
                 progress.update(args.steps)
             rows.append(_merge_batched(parts) if batched else _merge_gymnasium(parts))
-    compact = args.table == "compact" or (args.table == "auto" and sys.stdout.isatty())
+    compact = args.table == "compact"
     if batched:
         tolerance = parity.BATCHED_PARITY_TOLERANCE
         markdown = parity.format_batched_parity_table(rows)
@@ -433,10 +458,24 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------- parser
+def _suggest(message: str) -> str:
+    """argparse's ``invalid choice: 'chek' (choose from ...)`` as ``invalid choice: 'chek'; did you mean 'check'?``
+    when one choice is close (the whole list otherwise)."""
+    match = re.search(r"invalid choice: '([^']*)' \(choose from (.*)\)$", message)
+    if match is None:
+        return message
+    choices = re.findall(r"'([^']*)'", match.group(2))
+    close = difflib.get_close_matches(match.group(1), choices, n=1, cutoff=0.6)
+    if not close:
+        return message
+    return f"{message[: match.start()]}invalid choice: {match.group(1)!r}; did you mean {close[0]!r}?"
+
+
 class _Parser(argparse.ArgumentParser):
     """An argument parser whose errors are one line: ``torchtasks check: argument --seeds: ...``."""
 
     def error(self, message: str) -> NoReturn:
+        message = _suggest(message)
         line = f"{self.prog}: {message.replace('argument COMMAND: ', '')}"
         hint = f" (see '{self.prog} --help')"
         self.exit(2, line + (hint if len(line + hint) <= WIDTH else "") + "\n")
@@ -466,6 +505,9 @@ def _parser() -> argparse.ArgumentParser:
         epilog="'torchtasks COMMAND --help' describes a command's options.",
         formatter_class=_formatter,
     )
+    from torchtasks import __version__
+
+    parser.add_argument("--version", action="version", version=f"torchtasks {__version__}")
     commands = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
 
     def command(name: str, help: str, description: str) -> argparse.ArgumentParser:
@@ -526,9 +568,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     check.add_argument(
         "--table",
-        choices=("auto", "compact", "full"),
-        default="auto",
-        help="compact (100 columns) or full (every term); auto: compact on a terminal (default: %(default)s)",
+        choices=("compact", "full"),
+        default="compact",
+        help="compact (100 columns) or full (a column per reward term) (default: %(default)s)",
     )
     check.add_argument("--no-progress", action="store_true", help="hide the progress bar (shown on a terminal)")
     check.set_defaults(run=_cmd_check)
@@ -569,13 +611,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     """
     parser = _parser()
     args, unknown = parser.parse_known_args(argv)
+    commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
     if unknown:  # reported by the subcommand's parser, whose options the user meant
-        commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
-        command = commands.choices.get(args.command, parser)
-        command.error(f"unrecognized arguments: {' '.join(unknown)}")
+        commands.choices.get(args.command, parser).error(f"unrecognized arguments: {' '.join(unknown)}")
     if args.command is None:
         parser.print_help()
         return 2
+    problem = _unwritable(args.output) if getattr(args, "output", None) is not None else None
+    if problem is not None:
+        commands.choices[args.command].error(problem)
     try:
         return args.run(args)
     except BrokenPipeError:  # e.g. `torchtasks list | head`: stop quietly, as other commands do

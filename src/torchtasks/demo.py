@@ -186,7 +186,8 @@ def run_demo(
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=total_frames, unit="frames", desc="swing-up demo")
+        # unit_scale: 43.6k frame/s; disable=None: shown on a terminal only (not as \r-updates in a log file)
+        bar = tqdm(total=total_frames, unit="frame", unit_scale=True, desc="swing-up demo", disable=None)
     actor.scale = noise_at(0)
     start = time.perf_counter()
     for batch in collector:
@@ -306,16 +307,20 @@ def _plot(result: DemoResult, figure_class: type, path: Path) -> Path:
 def format_result(result: DemoResult) -> str:
     """Return the demo's summary as a Markdown table."""
     rows = [
-        ("frames", f"{result.frames}"),
+        ("frames", f"{result.frames:,}"),
         ("frames/s", f"{result.frames_per_second:,.0f}"),
         ("action noise σ", f"{result.noise:g} → 0"),
-        ("episodes ended", f"{result.episodes}"),
-        ("successes", f"{result.successes}"),
-        ("failures", f"{result.failures}"),
-        ("truncations", f"{result.truncations}"),
+        ("episodes ended", f"{result.episodes:,}"),
+        ("successes", f"{result.successes:,}"),
+        ("failures", f"{result.failures:,}"),
+        ("truncations", f"{result.truncations:,}"),
     ]
-    rows += [(f"mean episode reward: {name}", f"{value:+.3f}") for name, value in result.episode_terms.items()]
+    rows += [(f"mean episode reward: {name}", f"{value:+,.3f}") for name, value in result.episode_terms.items()]
     width = max(len(name) for name, _ in rows)
-    lines = [f"| {'quantity':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]
-    lines += [f"| {name:<{width}} | {value} |" for name, value in rows]
+    value_width = max(len("value"), *(len(value) for _, value in rows))
+    lines = [
+        f"| {'quantity':<{width}} | {'value':>{value_width}} |",
+        f"|{'-' * (width + 2)}|{'-' * (value_width + 1)}:|",
+    ]
+    lines += [f"| {name:<{width}} | {value:>{value_width}} |" for name, value in rows]
     return "\n".join(lines)

@@ -62,7 +62,7 @@ def _run_in_a_temporary_directory(tmp_path, monkeypatch) -> None:
 
 
 def _check(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, dict[str, dict[str, str]], str]:
-    code = main(["check", *argv, "--backend", "batched"])
+    code = main(["check", *argv, "--backend", "batched", "--table", "full"])
     captured = capsys.readouterr()
     return code, _rows(captured.out), captured.err
 
