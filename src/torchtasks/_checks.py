@@ -18,6 +18,7 @@ got <value> of type <type>``):
 
 from __future__ import annotations
 
+import difflib
 import math
 import numbers
 from collections.abc import Sequence
@@ -183,3 +184,19 @@ def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     if constant.dtype == x.dtype and constant.device == x.device:
         return constant
     return constant.to(device=x.device, dtype=x.dtype)
+
+
+def did_you_mean(name: str, choices: Sequence[str]) -> str:
+    """``"; did you mean 'x'?"`` for the choice closest to a misspelt ``name`` (``""`` when none is close).
+
+    Dotted names (``reward.rewards.effort.weight``) are compared whole, so one wrong letter in a long
+    path still finds its match.
+
+    Example:
+        >>> did_you_mean("reward.rewards.efort.weight", ["reward.rewards.effort.weight", "reward.Q"])
+        "; did you mean 'reward.rewards.effort.weight'?"
+        >>> did_you_mean("speed", ["reward.Q"])
+        ''
+    """
+    close = difflib.get_close_matches(name, list(choices), n=1, cutoff=0.8)
+    return f"; did you mean {close[0]!r}?" if close else ""

@@ -25,7 +25,7 @@ from torch import nn
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
-from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
+from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
 from torchtasks._torchrl import EnvDerivedTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
@@ -611,10 +611,13 @@ class Curriculum(EnvDerivedTransform):
                 )
         unknown = [target for target in self.targets if target not in schedulable and target not in commands]
         if unknown:
+            names = sorted(schedulable) + listed
             raise ValueError(
-                f"Curriculum: unknown target(s) {unknown} in the {type(task).__name__} tree and the env's "
-                f"GoalCommands; the schedulable names (float buffers of the task tree, and under {COMMAND + '.'!r} "
-                f"the sampling range of a GoalCommand) are {sorted(schedulable) + listed}"
+                f"Curriculum: unknown target {unknown[0]!r}{did_you_mean(unknown[0], names) or '.'} "
+                + (f"(Also unknown: {unknown[1:]}.) " if len(unknown) > 1 else "")
+                + f"It is not in the {type(task).__name__} tree or the env's GoalCommands; the schedulable names "
+                f"(float buffers of the task tree, and under {COMMAND + '.'!r} the sampling range of a GoalCommand) "
+                f"are {names}"
             )
         slots = []
         for target, schedule in zip(self.targets, self.schedules, strict=True):

@@ -25,7 +25,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Bounded, Composite
 
-from torchtasks._checks import check_non_negative_int, check_positive_int
+from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
 from torchtasks._torchrl import EnvDerivedTransform, container_env, key_parts, nested_key
 from torchtasks.commands import GoalCommand
@@ -254,7 +254,8 @@ class DifficultyLevels(EnvDerivedTransform):
         if name not in buffers:
             listed = sorted(buffers) if where != "the base env" else sorted(f"{ENV}.{n}" for n in buffers)
             raise ValueError(
-                f"DifficultyLevels: unknown target {target!r} in {where}; its float buffers are {listed} (and "
+                f"DifficultyLevels: unknown target {target!r}{did_you_mean(target, listed) or '.'} "
+                f"It is not in {where}; its float buffers are {listed} (and "
                 f"{COMMAND + '.low'!r}/{COMMAND + '.high'!r} name a GoalCommand's range)"
             )
         owner_name, _, leaf = name.rpartition(".")

@@ -178,8 +178,11 @@ SIZE_MISMATCHES = {
 @pytest.mark.parametrize("case", sorted(SIZE_MISMATCHES))
 def test_tasks_reject_rewards_that_do_not_fit_at_construction(case):
     build, match = SIZE_MISMATCHES[case]
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(ValueError, match=match) as error:
         build()
+    # a state-size mismatch names both fixes: a reward of the task's size, or a sub-spec task in a MaskedTask
+    fixes = "spec.select_state([...]) and wrap it in MaskedTask(spec, task, [...])"
+    assert (fixes in str(error.value)) == ("expects states of size" in str(error.value)), str(error.value)
 
 
 def test_compound_does_not_broadcast_weights_and_the_step_never_indexes_out_of_range():

@@ -247,7 +247,9 @@ def test_a_misspelt_target_lists_the_schedulable_names():
     with pytest.raises(ValueError, match="unknown target") as error:
         env.reset()
     message = str(error.value)
-    assert "'wrapped_task.reward.rewards.efort.weight'" in message
+    assert message.startswith(
+        f"Curriculum: unknown target 'wrapped_task.reward.rewards.efort.weight'; did you mean {WEIGHT!r}?"
+    )
     for name in (WEIGHT, "wrapped_task.reward.rewards.track.Q", "wrapped_task.state_des", "success_value"):
         assert repr(name) in message
     assert "no_remaining_steps" not in message  # an int buffer is not schedulable

@@ -216,7 +216,7 @@ def _goal_env(levels: DifficultyLevels, *, command_first: bool = False, curricul
         ({"command.low": [[-0.1], [-1.5]]}, "level 1.*leaves the goal space"),
         ({"command.low": [[0.5], [-1.0]], "command.high": [[0.2], [1.0]]}, "level 0.*low > high"),
         ({"command.low": [[-0.1, 0.0], [-1.0, 0.0]]}, "shape \\[2, 1\\]"),
-        ({"env.step_siz": [0.4, 0.2]}, "unknown target 'env.step_siz'.*env.step_size"),
+        ({"env.step_siz": [0.4, 0.2]}, "unknown target 'env.step_siz'; did you mean 'env.step_size'\\?"),
         ({"state_des": [[0.1], [0.2]]}, "needs a buffer of shape \\[4, 1\\]"),
     ],
 )

@@ -42,7 +42,15 @@ class RewardTask(Task):
         :class:`~torchtasks.rewards.CompoundReward`) and checks the state indices of the rewards that
         read single entries, so the unchecked step path cannot broadcast or index out of range.
         """
-        reward.check_sizes(spec.state_size, spec.action_size)
+        try:
+            reward.check_sizes(spec.state_size, spec.action_size)
+        except ValueError as error:
+            if "expects states of size" not in str(error):
+                raise
+            raise ValueError(
+                f"{error}. Build the reward for the task's {spec.state_size} state entries, or, to reward part of "
+                "the state, build the task on spec.select_state([...]) and wrap it in MaskedTask(spec, task, [...])"
+            ) from None
 
     def _own_memory(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> dict[str, Any]:
         return {}
