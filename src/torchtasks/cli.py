@@ -1,8 +1,9 @@
 """The ``torchtasks`` command: ``demo``, ``list``, ``check`` and ``bench``.
 
-Every mistake in the arguments is reported on one line naming the valid choices (exit status 2, no
-traceback); a bare ``torchtasks`` prints the help and exits with status 2 (nothing was run). The help,
-``list`` and ``check`` (on a terminal) fit ``WIDTH`` (100) columns.
+Every mistake in the arguments is reported on one line, before anything runs, naming the choice meant
+when one is close and the valid choices otherwise (exit status 2, no traceback); a bare ``torchtasks``
+prints the help and exits with status 2 (nothing was run). The help, ``list`` and ``check``'s table fit
+``WIDTH`` (100) columns; progress bars are drawn on a terminal only.
 """
 
 from __future__ import annotations
