@@ -1,20 +1,33 @@
 """Command-line helpers shared by the example scripts (not a script).
 
 :func:`make_parser` builds an example's ``argparse`` parser: a short ``--help`` (the first paragraph of
-the module docstring as plain text, the options with their defaults, 100 columns). :func:`quiet_torchrl`
-hides TorchRL's INFO logs (``[torchrl][INFO] Initialized LazyTensorStorage ...``) unless the user asked
-for them with ``RL_LOGGING_LEVEL``.
+the module docstring as plain text, then one line or two per option: a description and its default,
+100 columns). Every default is written by :func:`default_text` (``(default: 0 1 2)``, ``(default:
+2,097,152)``), options with a ``default=`` get it appended by the formatter, and the metavars are short
+(``N`` for integers, ``X`` for floats, ``PATH`` for paths unless the option says ``DIR``).
+:func:`config_arguments` adds a flag per field of a config dataclass, described by a table of field
+descriptions. :func:`frame_bar` is the progress bar of every example: it counts env frames.
+:func:`quiet_torchrl` hides TorchRL's INFO logs (``[torchrl][INFO] Initialized LazyTensorStorage ...``)
+unless the user asked for them with ``RL_LOGGING_LEVEL``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import logging
 import os
 import re
 import warnings
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from tqdm import tqdm
 
 WIDTH = 100  # --help fits this many columns
+EPILOG = "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO."
 
 _ROLE = re.compile(r":[a-z]+(?::[a-z]+)?:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
 _LITERAL = re.compile(r"``(.+?)``")
@@ -37,8 +50,44 @@ def short_description(doc: str | None) -> str:
     return " ".join(plain(first).split())
 
 
+def shown(value: Any) -> str:
+    """A default value as ``--help`` writes it: no Python reprs, thousands separators from 10,000 on.
+
+    Example:
+        >>> shown([0, 1, 2]), shown(("her", "plain")), shown(2_097_152), shown(8192), shown(1e-3), shown(10.0)
+        ('0 1 2', 'her plain', '2,097,152', '8192', '0.001', '10')
+    """
+    if isinstance(value, str):
+        return value
+    if isinstance(value, Path):
+        return str(value)
+    if isinstance(value, bool):
+        return "on" if value else "off"
+    if isinstance(value, Iterable):
+        return " ".join(shown(item) for item in value)
+    if isinstance(value, float) and value.is_integer() and abs(value) < 1e15:
+        value = int(value)
+    if isinstance(value, int):
+        return f"{value:,}" if abs(value) >= 10_000 else str(value)
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def default_text(value: Any, note: str = "") -> str:
+    """``(default: VALUE)``, or ``(default: VALUE; note)``: how every option of every example states its default.
+
+    ``%`` is doubled (argparse %-formats help strings). A string value is shown as it is, so a default
+    that is not a value can be said in words: ``default_text("start a local one")``.
+
+    Example:
+        >>> default_text([0, 1, 2]), default_text(64_000, "2,400 with --quick")
+        ('(default: 0 1 2)', '(default: 64,000; 2,400 with --quick)')
+    """
+    text = shown(value) + (f"; {note}" if note else "")
+    return f"(default: {text})".replace("%", "%%")
+
+
 class _Formatter(argparse.HelpFormatter):
-    """A help formatter 100 columns wide that appends ``(default: ...)`` to options that do not state it."""
+    """100 columns; appends :func:`default_text` to options whose help does not state a default; short metavars."""
 
     def __init__(self, prog: str) -> None:
         super().__init__(prog, width=WIDTH, max_help_position=32)
@@ -47,30 +96,65 @@ class _Formatter(argparse.HelpFormatter):
         text = (action.help or "").strip()
         default = action.default
         if (
-            "default" in text
+            "(default: " in text
             or default is None
             or default is argparse.SUPPRESS
             or isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction))
         ):
             return text
-        shown = " ".join(str(value) for value in default) if isinstance(default, (list, tuple)) else str(default)
-        shown = shown.replace("%", "%%")
-        return f"{text} (default: {shown})" if text else f"default: {shown}"
+        return f"{text} {default_text(default)}".strip()
+
+    def _get_default_metavar_for_optional(self, action: argparse.Action) -> str:
+        short = {int: "N", float: "X", Path: "PATH"}
+        return short.get(action.type, action.dest.upper())  # type: ignore[call-overload]
 
     def _format_action(self, action: argparse.Action) -> str:
         if not action.help and action.option_strings and action.default not in (None, argparse.SUPPRESS):
-            action.help = "(default: %(default)s)"  # argparse formats only the help of actions that have one
+            action.help = " "  # argparse formats only the help of actions that have one
         return super()._format_action(action)
 
 
-def make_parser(doc: str | None, epilog: str | None = None) -> argparse.ArgumentParser:
+def make_parser(doc: str | None) -> argparse.ArgumentParser:
     """Return a parser whose ``--help`` is the docstring's first paragraph and the options with their defaults."""
     return argparse.ArgumentParser(
         usage="%(prog)s [-h] [options]",
         description=short_description(doc),
-        epilog=epilog or "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO.",
+        epilog=EPILOG,
         formatter_class=_Formatter,
     )
+
+
+def config_arguments(
+    parser: argparse.ArgumentParser, defaults: Any, descriptions: Mapping[str, str], names: Iterable[str] | None = None
+) -> None:
+    """Add ``--field-name`` for the fields ``names`` (default: all) of the config dataclass instance ``defaults``.
+
+    Each flag takes the field's type (``N`` or ``X``), is described by ``descriptions[name]`` (one table
+    beside the dataclass) and shows the field's value in ``defaults`` as its default. The parsed value is
+    None unless given: the caller replaces only the fields the user set (``--quick`` has its own config).
+    """
+    values = dataclasses.asdict(defaults)
+    for name in values if names is None else names:
+        value = values[name]
+        parser.add_argument(
+            f"--{name.replace('_', '-')}",
+            type=type(value),
+            help=f"{descriptions[name]} {default_text(value)}",
+        )
+
+
+def frame_bar(description: str, total: int | None, until: str = "") -> tqdm:
+    """The progress bar of every example: it counts env frames (``frame``, scaled: ``12.3kframe/s``).
+
+    ``total``: the frames the run will collect (its frame budget). A run without one, ended by a success
+    target or a time limit, passes None and says what ends it in ``until`` (``"80% success or 10 min"``):
+    the bar then counts the frames without a total.
+    """
+    from tqdm import tqdm
+
+    if total is None and until:
+        description = f"{description} (until {until})"
+    return tqdm(total=total, desc=description, unit="frame", unit_scale=True)
 
 
 def quiet_torchrl() -> None:

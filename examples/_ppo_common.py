@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from _cli import frame_bar
 from tensordict import TensorDictBase
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
@@ -31,7 +32,6 @@ from torchrl.envs import Compose, ExplorationType, RewardSum, StepCounter, Trans
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm import tqdm
 
 from torchtasks.envs import PendulumEnv
 from torchtasks.stats import episode_statistics
@@ -212,7 +212,11 @@ def train(
     }
     deadline = start + 60.0 * config.max_minutes
     frames = 0
-    bar = progress_bar(description, max_iterations and max_iterations * config.frames_per_batch, config.max_minutes)
+    bar = frame_bar(
+        description,
+        None if max_iterations is None else max_iterations * config.frames_per_batch,
+        until=(f"{config.target:.0%} success or " if stop_at_target else "") + duration(60.0 * config.max_minutes),
+    )
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         train_stats = episode_stats(batch)
@@ -241,8 +245,8 @@ def train(
                 **train_stats,
             }
         )
-        bar.set_postfix(frames=frames, success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}")
-        advance(bar, batch.numel(), start)
+        bar.set_postfix(success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}")
+        bar.update(batch.numel())
         if stats["success_rate"] >= config.target:
             if record["frames_to_target"] is None:
                 record["time_to_target_s"], record["frames_to_target"] = seconds, frames
@@ -261,21 +265,6 @@ def train(
         machine_end=machine_info(),
     )
     return record
-
-
-def progress_bar(description: str, total_frames: int | None, max_minutes: float) -> tqdm:
-    """A bar over ``total_frames`` env frames, or over the wall-time limit in seconds if there is no frame total."""
-    if total_frames:
-        return tqdm(total=total_frames, desc=description, unit="frame", unit_scale=True)
-    return tqdm(total=round(60.0 * max_minutes), desc=f"{description} (time limit)", unit="s")
-
-
-def advance(bar: tqdm, frames: int, start: float) -> None:
-    """Move :func:`progress_bar`'s bar on by ``frames`` frames, or to the seconds since ``start`` (time-limit bar)."""
-    if bar.unit == "s":
-        bar.update(min(bar.total, round(time.perf_counter() - start)) - bar.n)
-    else:
-        bar.update(frames)
 
 
 def ppo_update(

@@ -30,6 +30,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also when imported from elsewhere
 
 import torch
+from _cli import frame_bar
 from _ppo_common import machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import NormalParamExtractor, TensorDictModule
@@ -39,7 +40,6 @@ from torchrl.envs import Compose, ExplorationType, RewardSum, StepCounter, Trans
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm import tqdm
 
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, linear
@@ -226,7 +226,7 @@ def level_fractions(stats: dict[str, float]) -> list[float]:
     return [stats.get(f"curriculum/level_fraction/{k}", 0.0) for k in range(len(GOAL_HALF_WIDTHS))]
 
 
-def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, quiet: bool = False) -> dict[str, Any]:
+def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS) -> dict[str, Any]:
     """One PPO run of ``variant`` for ``config.total_frames`` frames; returns its curves."""
     torch.manual_seed(seed)
     start = time.perf_counter()
@@ -247,7 +247,7 @@ def train(config: Config, seed: int, variant: str, eval_envs: int = EVAL_ENVS, q
     curve = [{"frames": 0, "seconds": 0.0, **{f"eval_{k}": v for k, v in first.items()}}]
     train_curve: list[dict[str, Any]] = []
     frames, next_eval = 0, config.eval_every
-    bar = tqdm(total=config.total_frames, desc=f"{variant} seed {seed}", unit="frame", unit_scale=True, disable=quiet)
+    bar = frame_bar(f"{variant} seed {seed}", config.total_frames)
     for batch in collector:
         frames += batch.numel()
         stats = episode_statistics(batch)
@@ -309,8 +309,9 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
     """Success rates per variant and the level fractions and effort weight of the curriculum runs, against frames.
 
     Top row: the first ``2 * ramp_frames`` frames, where the levels and the effort weight move; bottom row: the
-    whole run. Training success rates are left out before every env could have ended a full-length episode (the
-    episodes that end first are the quick successes).
+    whole run (one row only when the run is not longer than that). Each variant has its own colour and line
+    style, the curriculum thinner and drawn last (on top). Training success rates are left out before every env
+    could have ended a full-length episode (the episodes that end first are the quick successes).
     """
     try:
         import matplotlib
@@ -325,20 +326,30 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
 
     variants = experiment["variants"]
     config = experiment["config"]
+    total = config["total_frames"]
     first_full_episodes = config["num_envs"] * MAX_STEPS
     leveled = next((variant for variant in variants if VARIANTS[variant][0]), None)  # curriculum, or its ablation
-    figure, axes = plt.subplots(2, 2, figsize=(12, 8))
+    zoom = 2 * config["ramp_frames"]
+    ends = (zoom, total) if zoom < total else (total,)  # the zoomed row only when it shows less than the whole run
+    figure, axes = plt.subplots(len(ends), 2, figsize=(12, 4 * len(ends)), squeeze=False)
     colors = {"curriculum": "tab:blue", "baseline": "tab:orange", "levels": "tab:green", "ramp": "tab:purple"}
+    styles = {"curriculum": "-", "baseline": "--", "levels": "-.", "ramp": (0, (6, 2, 1, 2, 1, 2))}
     palette = plt.cm.viridis([k / (len(GOAL_HALF_WIDTHS) - 1) for k in range(len(GOAL_HALF_WIDTHS))])
-    for row, end in enumerate((min(2 * config["ramp_frames"], config["total_frames"]), config["total_frames"])):
+    widths = {"curriculum": 2.0}  # thinner than the others and drawn last: both visible where the lines coincide
+    order = sorted(variants, key=lambda variant: variant == "curriculum")
+    handles: dict[str, Any] = {}
+    several = any(len(runs) > 1 for runs in variants.values())
+    for row, end in enumerate(ends):
         success, levels = axes[row]
-        for variant, runs in variants.items():
-            color = colors[variant]
+        span = "the whole run" if end == total else f"the first {end:,} frames (twice the effort ramp)"
+        for variant in order:
+            runs, color, style = variants[variant], colors[variant], styles[variant]
             for run in runs:
-                evals = [p for p in run["curve"] if p["frames"] <= end]
-                success.plot(
-                    [p["frames"] for p in evals], [p["eval_success_rate"] for p in evals], color=color, alpha=0.4
-                )
+                if several:
+                    evals = [p for p in run["curve"] if p["frames"] <= end]
+                    success.plot(
+                        [p["frames"] for p in evals], [p["eval_success_rate"] for p in evals], color=color, alpha=0.4
+                    )
                 train = [
                     p for p in run["train_curve"]
                     if p["train_success_rate"] is not None and first_full_episodes <= p["frames"] <= end
@@ -347,11 +358,15 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
                 success.plot([p["frames"] for p in train], rates, color=color, alpha=0.6, linestyle=":", linewidth=1)
             frames = [p["frames"] for p in runs[0]["curve"] if p["frames"] <= end]  # increasing: a prefix
             mean = mean_curve(runs, "eval_success_rate")[: len(frames)]
-            label = f"{variant}: evaluation, mean of {len(runs)} seeds"
-            success.plot(frames, mean, color=color, linewidth=2.5, label=label)
+            seeds = f"seed {runs[0]['seed']}" if len(runs) == 1 else f"mean of {len(runs)} seeds"
+            (handles[variant],) = success.plot(
+                frames, mean, color=color, linestyle=style, linewidth=widths.get(variant, 3.5),
+                label=f"{variant}: evaluation, {seeds}",
+            )  # fmt: skip
         success.axhline(config["target"], color="grey", linestyle="--", linewidth=1)
         success.set_ylim(-0.02, 1.02)
         success.set_ylabel(f"success rate ({experiment['eval_envs']} fixed full-task goals)")
+        success.set_title(f"success rates, {span}", fontsize=9)
         runs = variants.get(leveled, [])
         if runs:
             train = [[p for p in run["train_curve"] if p["frames"] <= end] for run in runs]
@@ -372,18 +387,19 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
                 weight.legend(loc="upper right", fontsize=8)
         levels.set_ylim(0, 1)
         levels.set_ylabel(f"{leveled}: fraction of envs per level" if runs else "fraction of envs per level")
+        levels.set_title(f"levels and effort weight ({leveled or 'curriculum'} runs' mean), {span}", fontsize=9)
         for axis in (success, levels):
             axis.set_xlim(0, end)
             axis.xaxis.set_major_formatter(EngFormatter())
             axis.grid(alpha=0.3)
-        levels.set_xlabel("environment frames")
-        success.set_xlabel("environment frames")
-    axes[0, 0].legend(loc="center right", fontsize=8)
-    axes[0, 0].set_title(
-        f"thin: evaluation per seed; dotted: training success on its own goals ({SMOOTHING}-batch mean)", fontsize=9
+            axis.set_xlabel("environment frames")
+    axes[0, 0].legend(handles=[handles[variant] for variant in variants], loc="center right", fontsize=8)
+    thin = "thin: evaluation per seed; " if several else ""
+    figure.suptitle(
+        "Point-mass goal reaching, PPO: a curriculum against the full task from the first frame\n"
+        f"{thin}dotted: training success on its own goals ({SMOOTHING}-batch mean); dashed grey: the target",
+        fontsize=11,
     )
-    axes[0, 1].set_title(f"levels and effort weight (means over the {leveled or 'curriculum'} seeds)", fontsize=9)
-    figure.suptitle("Point-mass goal reaching, PPO: a curriculum against the full task from the first frame")
     figure.tight_layout()
     figure.savefig(path, dpi=100)
     plt.close(figure)
@@ -393,15 +409,17 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=Path("runs") / NAME, help="directory for the JSON and PNG")
+    parser.add_argument(
+        "--output", type=Path, default=Path("runs") / NAME, metavar="DIR", help="directory for the JSON and PNG"
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of each variant")
     parser.add_argument(
         "--variants", nargs="+", choices=list(VARIANTS), default=["curriculum", "baseline"], metavar="NAME",
-        help="curriculum, baseline (default: both); ablations: levels (no ramp), ramp (no levels)",
+        help="curriculum, baseline; ablations: levels (no ramp), ramp (no levels)",
     )  # fmt: skip
-    parser.add_argument("--frames", type=int, help=f"frame budget per run (default {Config.total_frames:,})")
+    parser.add_argument("--frames", type=int, help=f"frame budget per run {default_text(Config.total_frames)}")
     parser.add_argument(
-        "--effort-weight", type=float, help=f"the full task's effort weight w (default {EFFORT_WEIGHT})"
+        "--effort-weight", type=float, help=f"the full task's effort weight w {default_text(EFFORT_WEIGHT)}"
     )
     args = parser.parse_args()
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
@@ -430,7 +448,7 @@ def main() -> None:
     start = time.perf_counter()
     for seed in seeds:
         for variant in args.variants:
-            run = train(config, seed, variant, eval_envs, quiet=args.quick)
+            run = train(config, seed, variant, eval_envs)
             experiment["variants"].setdefault(variant, []).append(run)
             reached = run["frames_to_target"]
             what = f"after {reached:,} frames" if reached is not None else "not reached"
@@ -455,7 +473,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

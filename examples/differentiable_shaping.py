@@ -45,7 +45,7 @@ is there, else where ``train_swingup_ppo.py`` writes it by default
 Outputs in ``--output`` (default ``runs/differentiable_shaping/``, relative to the current
 directory): ``differentiable_shaping_curve.json`` and ``differentiable_shaping_curve.png``.
 
-Run: ``python examples/differentiable_shaping.py [--quick] [--output DIR] [--seed N] [--ppo-json FILE]``
+Run: ``python examples/differentiable_shaping.py [--quick] [--output DIR] [--seed N] [--ppo-json PATH]``
 (``--quick``: a tiny run of a few seconds that runs every code path, for the tests; ``--help``
 lists the hyper-parameter flags).
 """
@@ -59,10 +59,11 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from _cli import frame_bar
+from _ppo_common import duration
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import step_mdp
-from tqdm import tqdm
 from train_swingup_ppo import CURVE_NAME as PPO_CURVE_NAME
 from train_swingup_ppo import DEFAULT_OUTPUT as PPO_OUTPUT
 from train_swingup_ppo import MAX_TORQUE, evaluate, machine_info, make_env, mlp, save
@@ -130,10 +131,11 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
     frames = iteration = 0
     next_evaluation = config.eval_every_frames
     state = env.reset()
-    if max_iterations is not None:  # the frames per iteration are known: a bar over the frame total
-        bar = tqdm(total=max_iterations * config.num_envs * config.horizon, desc="analytic gradients", unit="frame")
-    else:  # a run ends at the target or the time limit: a bar over the time limit
-        bar = tqdm(total=round(60.0 * config.max_minutes), desc="analytic gradients (time limit)", unit="s")
+    bar = frame_bar(  # a frame total with max_iterations; else the run ends at the target or the time limit
+        "analytic gradients",
+        None if max_iterations is None else max_iterations * config.num_envs * config.horizon,
+        until=f"{config.target:.0%} success or {duration(60.0 * config.max_minutes)}",
+    )
     while True:
         iteration += 1
         rollout = env.rollout(config.horizon, policy, tensordict=state, auto_reset=False, break_when_any_done=False)
@@ -145,10 +147,7 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
         # truncated backpropagation: the episodes go on from here, the graph behind them is dropped
         state = env.maybe_reset(step_mdp(rollout[..., -1]).detach())
         frames += rollout.numel()
-        if bar.unit == "s":
-            bar.update(min(bar.total, round(time.perf_counter() - start)) - bar.n)
-        else:
-            bar.update(rollout.numel())
+        bar.update(rollout.numel())
         finished = (max_iterations is not None and iteration >= max_iterations) or time.perf_counter() > deadline
         if frames >= next_evaluation or finished:
             next_evaluation += config.eval_every_frames
@@ -165,9 +164,7 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
                     "eval_episode_length": stats["episode_length"],
                 }
             )
-            bar.set_postfix(
-                frames=frames, success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}"
-            )
+            bar.set_postfix(success=f"{stats['success_rate']:.2f}", reward=f"{stats['episode_reward']:.0f}")
             if stats["success_rate"] >= config.target:
                 record["time_to_target_s"], record["frames_to_target"] = seconds, frames
                 finished = True
@@ -216,21 +213,31 @@ def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument(
-        "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
+        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSON and PNG"
     )
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
         "--ppo-json",
         type=Path,
-        help=f"PPO run to compare with (default: OUTPUT/{PPO_CURVE_NAME}.json if there, else in {PPO_OUTPUT})",
+        metavar="PATH",
+        help="PPO run to compare with "
+        + default_text(f"{PPO_CURVE_NAME}.json in --output if there, else in {PPO_OUTPUT}"),
     )
-    parser.add_argument("--max-minutes", type=float, help=f"wall-clock limit (default {ShapingConfig.max_minutes})")
     parser.add_argument(
-        "--target", type=float, help=f"stop at this success rate (default {ShapingConfig.target}; above 1: never)"
+        "--max-minutes", type=float, help=f"wall-clock limit in minutes {default_text(ShapingConfig.max_minutes)}"
     )
-    parser.add_argument("--num-envs", type=int, help=f"pendulums (default {ShapingConfig.num_envs})")
-    parser.add_argument("--horizon", type=int, help=f"backpropagation window (default {ShapingConfig.horizon})")
-    parser.add_argument("--learning-rate", type=float, help=f"Adam (default {ShapingConfig.learning_rate})")
+    parser.add_argument(
+        "--target", type=float, help=f"stop at this success rate, above 1: never {default_text(ShapingConfig.target)}"
+    )
+    parser.add_argument(
+        "--num-envs", type=int, help=f"pendulums, stepped as one batch {default_text(ShapingConfig.num_envs)}"
+    )
+    parser.add_argument(
+        "--horizon", type=int, help=f"backpropagation window in steps {default_text(ShapingConfig.horizon)}"
+    )
+    parser.add_argument(
+        "--learning-rate", type=float, help=f"Adam's learning rate {default_text(ShapingConfig.learning_rate)}"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else ShapingConfig()
@@ -250,7 +257,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -221,7 +221,7 @@ def main(
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     parser = make_parser(__doc__)
@@ -229,17 +229,18 @@ if __name__ == "__main__":
     parser.add_argument(
         "--address",
         default=None,
-        help="address of an existing Ray cluster, e.g. HEAD_IP:6379 or 'auto' (default: start a local one)",
+        help=f"an existing Ray cluster, e.g. HEAD_IP:6379 or auto {default_text('start a local one')}",
     )
-    parser.add_argument("--workers", type=int, default=2, help="number of remote collectors (Ray actors)")
-    parser.add_argument("--envs", type=int, default=None, help="envs per worker (default 32, 8 with --quick)")
+    parser.add_argument("--workers", type=int, default=2, help="remote collectors, one Ray actor each")
+    parser.add_argument("--envs", type=int, default=None, help=f"envs per worker {default_text(32, '8 with --quick')}")
     parser.add_argument(
-        "--frames", type=int, default=None, help="total frames to collect (default 64000, 6 batches with --quick)"
+        "--frames", type=int, default=None, help=f"frames to collect {default_text(64_000, '6 batches with --quick')}"
     )
     parser.add_argument(
         "--env",
         default="Hopper-v5",
-        help="a Gymnasium MuJoCo v5 locomotion id (batched, random actions; default Hopper-v5) or 'pendulum'",
+        metavar="ID",
+        help="a Gymnasium MuJoCo v5 locomotion id, batched with random actions, or pendulum",
     )
     args = parser.parse_args()
     main(args.quick, args.address, args.workers, args.envs, args.frames, args.env)

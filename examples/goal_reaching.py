@@ -55,13 +55,13 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from _cli import frame_bar
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import Bounded, HERReplayBuffer, LazyTensorStorage, TensorDictReplayBuffer
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 from torchrl.objectives import SoftUpdate, TD3Loss
-from tqdm import tqdm
 
 from torchtasks.commands import GoalCommand
 from torchtasks.envs import PointMassEnv
@@ -172,7 +172,7 @@ def mark_rows(batch: TensorDictBase) -> TensorDictBase:
     return batch.reshape(-1)
 
 
-def train(config: Config, seed: int, her: bool, quiet: bool = False) -> dict[str, Any]:
+def train(config: Config, seed: int, her: bool) -> dict[str, Any]:
     """One TD3 run (with HER or a plain buffer); returns the curve and the frames to ``config.target``."""
     torch.manual_seed(seed)
     env = make_env(config.num_envs, seed)
@@ -204,7 +204,7 @@ def train(config: Config, seed: int, her: bool, quiet: bool = False) -> dict[str
     frames_to_target = None
     start = time.perf_counter()
     td = env.reset()
-    progress = tqdm(total=config.total_frames, desc=f"{'HER' if her else 'plain'} seed {seed}", disable=quiet)
+    progress = frame_bar(f"{'HER' if her else 'plain'} seed {seed}", config.total_frames)
     while frames < config.total_frames:
         steps = []
         with torch.no_grad():
@@ -284,11 +284,16 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=Path("runs/goal_reaching"), help="directory for JSON and PNG")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    parser.add_argument("--variants", nargs="+", default=["her", "plain"], choices=["her", "plain"])
-    parser.add_argument("--frames", type=int, help=f"frame budget per run (default {Config.total_frames})")
-    parser.add_argument("--target", type=float, help=f"stop a run at this success rate (default {Config.target})")
+    parser.add_argument(
+        "--output", type=Path, default=Path("runs/goal_reaching"), metavar="DIR", help="directory for the JSON and PNG"
+    )
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of each variant")
+    parser.add_argument(
+        "--variants", nargs="+", default=["her", "plain"], choices=["her", "plain"], metavar="NAME",
+        help="her and/or plain: TD3 with and without HER",
+    )  # fmt: skip
+    parser.add_argument("--frames", type=int, help=f"frame budget per run {default_text(Config.total_frames)}")
+    parser.add_argument("--target", type=float, help=f"stop a run at this success rate {default_text(Config.target)}")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = QUICK if args.quick else Config()
@@ -309,7 +314,7 @@ def main() -> None:
     for variant in args.variants:
         runs = []
         for seed in seeds:
-            run = train(config, seed, her=variant == "her", quiet=args.quick)
+            run = train(config, seed, her=variant == "her")
             runs.append(run)
             reached = run["frames_to_target"]
             what = f"after {reached} frames" if reached is not None else f"not reached in {run['total_frames']} frames"
@@ -328,7 +333,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -146,7 +146,8 @@ def main(quick: bool = False, strategy: str = "future", seed: int = 0) -> dict[s
     finally:
         collector.shutdown()
     stored = buffer[:]
-    print(f"collected {len(buffer)} transitions from {num_envs} envs, {episodes} episodes ended")
+    ended = f"{episodes} episode{'' if episodes == 1 else 's'} ended"
+    print(f"collected {len(buffer)} transitions from {num_envs} envs, {ended}")
     print(f"per-env goal sampling: each env's goal changes exactly at its {resets} episode starts inside the rows")
 
     sample = buffer.sample()
@@ -184,7 +185,13 @@ if __name__ == "__main__":
     quiet_torchrl()
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a few thousand frames (seconds)")
-    parser.add_argument("--strategy", default="future", choices=["future", "final", "episode", "random"])
+    parser.add_argument(
+        "--strategy",
+        default="future",
+        choices=["future", "final", "episode", "random"],
+        metavar="NAME",
+        help="where new goals come from: future, final, episode or random",
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     args = parser.parse_args()
     main(args.quick, args.strategy, args.seed)

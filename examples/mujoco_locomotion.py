@@ -14,7 +14,7 @@ sum of the episode still running at the last frame (RewardSum's entries, checked
 per-step terms summed by hand). Gymnasium's own terms (``info["reward_<term>"]``) are read into the
 same frames (an extra info reader on the base env) and compared term by term with the task's.
 
-Run: ``python examples/mujoco_locomotion.py [--quick] [--env Hopper-v5] [--frames N] [--seed S]``
+Run: ``python examples/mujoco_locomotion.py [--quick] [--env Hopper-v5] [--frames N] [--seed N]``
 (``--quick``: 300 frames, seconds; used by the tests). Needs the ``mujoco`` extra.
 """
 
@@ -120,7 +120,7 @@ def main(env_id: str = "HalfCheetah-v5", quick: bool = False, frames: int | None
     env.close()
     nxt = data["next"]
     episodes = int(nxt["done"].sum())
-    print(f"{env_id}: {data.numel()} frames, random policy, {episodes} episodes ended")
+    print(f"{env_id}: {data.numel()} frames, random policy, {episodes} episode{'' if episodes == 1 else 's'} ended")
     print(f"  failures (unhealthy): {int(nxt['failure'].sum())}, truncations: {int(nxt['truncated'].sum())}")
     print(f"  task reward terms: {', '.join(terms)} (+ the breakdown entries step and final)")
     rows = summarise(data, terms)
@@ -131,15 +131,21 @@ def main(env_id: str = "HalfCheetah-v5", quick: bool = False, frames: int | None
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     parser = make_parser(__doc__)
     parser.add_argument(
-        "--env", default="HalfCheetah-v5", choices=SUPPORTED_ENV_IDS, metavar="ID", help=", ".join(SUPPORTED_ENV_IDS)
+        "--env",
+        default="HalfCheetah-v5",
+        choices=SUPPORTED_ENV_IDS,
+        metavar="ID",
+        help="one of " + ", ".join(SUPPORTED_ENV_IDS),
     )
     parser.add_argument("--quick", action="store_true", help="300 frames (seconds)")
-    parser.add_argument("--frames", type=int, default=None, help="frames to collect (default 5000, 300 with --quick)")
+    parser.add_argument(
+        "--frames", type=int, default=None, help=f"frames to collect {default_text(5000, '300 with --quick')}"
+    )
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     args = parser.parse_args()
     main(args.env, args.quick, args.frames, args.seed)

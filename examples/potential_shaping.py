@@ -271,14 +271,24 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=Path("runs") / NAME, help="directory for the JSON and PNG")
-    parser.add_argument("--seeds", type=int, nargs="+", help=f"seeds of each variant (default {list(SEEDS)})")
-    parser.add_argument("--frames", type=int, help=f"frame budget per run (default {FRAMES:,})")
+    parser.add_argument(
+        "--output", type=Path, default=Path("runs") / NAME, metavar="DIR", help="directory for the JSON and PNG"
+    )
+    parser.add_argument("--seeds", type=int, nargs="+", help=f"seeds of each variant {default_text(SEEDS)}")
+    parser.add_argument(
+        "--frames", type=int, help=f"frame budget per run, rounded up to whole batches {default_text(FRAMES)}"
+    )
     parser.add_argument("--target", type=float, default=TARGET, help="the success rate to report the frames to")
     parser.add_argument(
         "--success-threshold", type=float, default=SUCCESS_THRESHOLD, help="success: ‖[wrapped θ, θ̇]‖ below this"
     )
-    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), help="the variants to run (default: both)")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=list(VARIANTS),
+        metavar="NAME",
+        help=f"sparse and/or shaped {default_text(list(VARIANTS))}",
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
@@ -292,7 +302,7 @@ def main() -> None:
     json_path = args.output / f"{NAME}.json"
     json_path.write_text(json.dumps(experiment, indent=2))
     png_path = plot(experiment, args.output / f"{NAME}.png")
-    print(f"frame budget {experiment['frame_budget']:,} per run; mean success rate over seeds {seeds}:")
+    print(f"frame budget {experiment['frame_budget']:,} per run; mean success rate over seeds {shown(seeds)}:")
     for variant in experiment["variants"].values():
         reached = variant["mean_curve_frames_to_target"]
         where = "not reached" if reached is None else f"reached after {reached:,} frames"
@@ -302,7 +312,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl, shown
 
     quiet_torchrl()
     main()

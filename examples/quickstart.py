@@ -41,7 +41,7 @@ def main(quick: bool = False) -> None:
     # how the episodes ended and their returns, counted from the flags at each episode's last frame
     stats = episode_statistics(rollout)
     episodes = int(stats["episodes"])
-    print(f"{num_envs} envs x {steps} steps: {episodes} episodes ended")
+    print(f"{num_envs} envs x {steps} steps: {episodes} episode{'' if episodes == 1 else 's'} ended")
     counts = {name: round(stats.get(f"{name}_rate", 0.0) * episodes) for name in ("success", "failure", "timeout")}
     print(f"  successes: {counts['success']}, failures: {counts['failure']}")
     print(f"  truncations: {counts['timeout']}")

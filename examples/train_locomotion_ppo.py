@@ -63,6 +63,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also when imported from elsewhere
 
 import torch
+from _cli import frame_bar
 from _ppo_common import duration, machine_info, ppo_update, time_unit
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
@@ -79,7 +80,6 @@ from torchrl.envs import (
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm import tqdm
 
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, gymnasium_env
 from torchtasks.stats import episode_statistics
@@ -121,6 +121,20 @@ class LocomotionPPOConfig:
     def frames_per_batch(self) -> int:
         return self.num_envs * self.rollout_steps
 
+
+#: the ``--help`` text of the fields that are command-line flags (``--num-envs`` for ``num_envs``)
+CONFIG_HELP = {
+    "num_envs": "HalfCheetahs stepped as one batch",
+    "rollout_steps": "steps per env and batch",
+    "total_frames": "frames to train for, rounded up to whole batches",
+    "epochs": "PPO passes over each batch",
+    "minibatch_size": "frames per PPO minibatch",
+    "eval_every": "frames between two deterministic evaluations",
+    "eval_envs": "envs of each evaluation, one episode each",
+    "eval_steps": "steps of each evaluation episode",
+    "learning_rate": "Adam's learning rate, annealed linearly to 0",
+    "max_minutes": "wall-clock limit in minutes",
+}
 
 #: --quick: two batches of 4 envs x 500 steps, so that the training episodes end (at step 1000) in the run
 QUICK = LocomotionPPOConfig(
@@ -260,7 +274,7 @@ def evaluate(actor: ProbabilisticActor, config: LocomotionPPOConfig, vecnorm: Ve
     return {key: value for key, value in stats.items() if not key.endswith(("/step", "/final"))}
 
 
-def train(config: LocomotionPPOConfig, seed: int, quiet: bool = False) -> dict[str, Any]:
+def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
     """Train one seed for ``config.total_frames`` frames (or ``config.max_minutes``); return the run record."""
     torch.manual_seed(seed)
     start = time.perf_counter()
@@ -299,13 +313,7 @@ def train(config: LocomotionPPOConfig, seed: int, quiet: bool = False) -> dict[s
     deadline = start + 60.0 * config.max_minutes
     frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
     last_train, last_eval = None, None
-    bar = tqdm(  # the collector rounds the frame total up to whole batches
-        total=iterations * config.frames_per_batch,
-        desc=f"PPO {ENV_ID} seed {seed}",
-        unit="frame",
-        unit_scale=True,
-        disable=quiet,
-    )
+    bar = frame_bar(f"PPO {ENV_ID} seed {seed}", iterations * config.frames_per_batch)  # whole batches
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
@@ -353,7 +361,7 @@ def train(config: LocomotionPPOConfig, seed: int, quiet: bool = False) -> dict[s
             last_eval = {"iteration": iteration, "frames": frames, "seconds": time.perf_counter() - start, **stats}
             record["eval_curve"].append(last_eval)
             next_eval += config.eval_every
-        postfix = {"frames": frames, "ended": int(batch_stats["episodes"])}
+        postfix = {"ended": int(batch_stats["episodes"])}
         if last_train is not None:
             postfix["train_return"] = f"{last_train['train_return']:.0f}"
             postfix["forward"] = f"{last_train['train_return/forward']:.0f}"
@@ -441,14 +449,12 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory (default {DEFAULT_OUTPUT})")
+    parser.add_argument(
+        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSONs and PNG"
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
     defaults = LocomotionPPOConfig()
-    int_flags = ("num_envs", "rollout_steps", "total_frames", "epochs", "minibatch_size", "eval_every", "eval_envs")
-    for name in (*int_flags, "eval_steps"):
-        parser.add_argument(f"--{name.replace('_', '-')}", type=int, help=f"default {getattr(defaults, name)}")
-    for name in ("learning_rate", "max_minutes"):
-        parser.add_argument(f"--{name.replace('_', '-')}", type=float, help=f"default {getattr(defaults, name)}")
+    config_arguments(parser, defaults, CONFIG_HELP, CONFIG_HELP)
     args = parser.parse_args()
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
@@ -456,7 +462,7 @@ def main() -> None:
     config = replace(config, **overrides)
     args.output.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
-        record = train(config, seed, quiet=args.quick)
+        record = train(config, seed)
         json_path = args.output / file_name(seed)
         json_path.write_text(json.dumps(record, indent=2))
         train_return = record["final_train_return"]
@@ -476,11 +482,11 @@ def main() -> None:
     records = [json.loads(path.read_text()) for path in sorted(args.output.glob(file_name("*")))]
     png = plot(records, args.output / PLOT_NAME)
     if png is not None:
-        print(f"wrote {png} ({len(records)} seed(s))")
+        print(f"wrote {png} ({len(records)} seed{'' if len(records) == 1 else 's'})")
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import config_arguments, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -57,6 +57,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' modules
 
 import torch
+from _cli import frame_bar
 from _ppo_common import duration, machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
@@ -66,7 +67,6 @@ from torchrl.envs import ClipTransform, DoubleToFloat, ExplorationType, Transfor
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from tqdm import tqdm
 from train_locomotion_ppo import GAE_NEXT_KEYS, OBSERVATION_CLIP, ReturnScaler, make_policy, mlp, training_returns
 
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
@@ -110,6 +110,29 @@ class SafetyPPOConfig:
     def frames_per_batch(self) -> int:
         return self.num_envs * self.rollout_steps
 
+
+#: the ``--help`` text of every field (each is a flag: ``--num-envs`` for ``num_envs``)
+CONFIG_HELP = {
+    "num_envs": "HalfCheetahs stepped as one batch",
+    "rollout_steps": "steps per env and batch",
+    "total_frames": "frames to train for, rounded up to whole batches",
+    "epochs": "PPO passes over each batch",
+    "minibatch_size": "frames per PPO minibatch",
+    "learning_rate": "Adam's learning rate, annealed linearly to 0",
+    "gamma": "discount γ of both GAEs",
+    "lmbda": "GAE's λ, for the reward and the cost",
+    "clip_epsilon": "PPO's clipping ε",
+    "critic_coeff": "weight of the critic losses",
+    "max_grad_norm": "gradient norm clipped to this",
+    "hidden": "units per hidden layer",
+    "cost_limit": "limit on the episode cost of the velocity constraint",
+    "lambda_init": "the multiplier's initial λ",
+    "lambda_lr": "Adam's learning rate for λ",
+    "mujoco_threads": "threads stepping MuJoCo",
+    "eval_every": "frames between two deterministic evaluations",
+    "eval_envs": "envs of each evaluation, one episode each",
+    "max_minutes": "wall-clock limit in minutes",
+}
 
 #: --quick: two batches of 4 envs x 500 steps, so that the episodes end (and λ moves) in the second one
 QUICK = SafetyPPOConfig(
@@ -222,7 +245,7 @@ def combined_advantage(data: TensorDictBase, lam: float) -> torch.Tensor:
     return (reward_adv - lam * cost_adv) / (1.0 + lam)
 
 
-def train(config: SafetyPPOConfig, variant: str, seed: int, quiet: bool = False) -> dict[str, Any]:
+def train(config: SafetyPPOConfig, variant: str, seed: int) -> dict[str, Any]:
     """Train one run for ``config.total_frames`` frames (or ``config.max_minutes``); return its record."""
     torch.manual_seed(seed)
     start = time.perf_counter()
@@ -268,13 +291,7 @@ def train(config: SafetyPPOConfig, variant: str, seed: int, quiet: bool = False)
     }
     deadline = start + 60.0 * config.max_minutes
     frames, next_eval, last_train, last_eval = 0, config.eval_every, None, None
-    bar = tqdm(  # the collector rounds the frame total up to whole batches
-        total=iterations * config.frames_per_batch,
-        desc=f"{LABELS[variant]} seed {seed}",
-        unit="frame",
-        unit_scale=True,
-        disable=quiet,
-    )
+    bar = frame_bar(f"{LABELS[variant]} seed {seed}", iterations * config.frames_per_batch)  # whole batches
     for iteration, batch in enumerate(collector, start=1):
         frames += batch.numel()
         returns = training_returns(batch)
@@ -323,7 +340,7 @@ def train(config: SafetyPPOConfig, variant: str, seed: int, quiet: bool = False)
             last_eval = {"iteration": iteration, "frames": frames, **evaluate(actor, config, vecnorm)}
             record["eval_curve"].append(last_eval)
             next_eval += config.eval_every
-        postfix: dict[str, Any] = {"frames": frames, "λ": f"{lam:.3f}"}
+        postfix: dict[str, Any] = {"λ": f"{lam:.3f}"}
         if last_train is not None:
             postfix["return"] = f"{last_train['train_return']:.0f}"
             postfix["cost"] = f"{last_train['train_cost']:.0f}"
@@ -411,20 +428,21 @@ def file_name(variant: str, seed: int | str) -> str:
 
 
 def main() -> None:
-    parser = make_parser(
-        __doc__,  # the set-up: the module docstring and docs/constraints_results.md
-        epilog="Outputs: <output>/<variant>_seed<N>.json and safety_ppo_lagrangian_curve.png. "
-        "Results: docs/constraints_results.md.",
-    )
+    parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory (default {DEFAULT_OUTPUT})")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds (default 0)")
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS), help="default: both")
+    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory of the outputs")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=VARIANTS,
+        default=list(VARIANTS),
+        metavar="NAME",
+        help="lagrangian and/or ppo (λ fixed at 0)",
+    )
     parser.add_argument("--plot-only", action="store_true", help="train nothing: re-plot the JSONs in --output")
     defaults = SafetyPPOConfig()
-    for name, value in asdict(defaults).items():
-        kind = type(value)
-        parser.add_argument(f"--{name.replace('_', '-')}", type=kind, help=f"default {value}")
+    config_arguments(parser, defaults, CONFIG_HELP)
     args = parser.parse_args()
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
@@ -433,7 +451,7 @@ def main() -> None:
     args.output.mkdir(parents=True, exist_ok=True)
     for variant in () if args.plot_only else args.variants:
         for seed in args.seeds:
-            record = train(config, variant, seed, quiet=args.quick)
+            record = train(config, variant, seed)
             json_path = args.output / file_name(variant, seed)
             json_path.write_text(json.dumps(record, indent=2))
             r = record
@@ -451,11 +469,11 @@ def main() -> None:
         return
     png = plot(records, args.output / PLOT_NAME)
     if png is not None:
-        print(f"wrote {png} ({len(records)} run(s))")
+        print(f"wrote {png} ({len(records)} run{'' if len(records) == 1 else 's'})")
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import config_arguments, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

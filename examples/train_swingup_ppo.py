@@ -125,18 +125,22 @@ def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     parser.add_argument(
-        "--output", type=Path, default=DEFAULT_OUTPUT, help=f"directory for the JSON and PNG (default {DEFAULT_OUTPUT})"
+        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSON and PNG"
     )
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--max-minutes", type=float, help=f"wall-clock limit (default {PPOConfig.max_minutes})")
+    parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
-        "--target", type=float, help=f"stop at this success rate (default {PPOConfig.target}; above 1: never)"
+        "--max-minutes", type=float, help=f"wall-clock limit in minutes {default_text(PPOConfig.max_minutes)}"
     )
-    parser.add_argument("--num-envs", type=int, help=f"pendulums per batch (default {PPOConfig.num_envs})")
     parser.add_argument(
-        "--rollout-steps", type=int, help=f"steps per env and batch (default {PPOConfig.rollout_steps})"
+        "--target", type=float, help=f"stop at this success rate, above 1: never {default_text(PPOConfig.target)}"
     )
-    parser.add_argument("--minibatch-size", type=int, help=f"PPO minibatch (default {PPOConfig.minibatch_size})")
+    parser.add_argument("--num-envs", type=int, help=f"pendulums per batch {default_text(PPOConfig.num_envs)}")
+    parser.add_argument(
+        "--rollout-steps", type=int, help=f"steps per env and batch {default_text(PPOConfig.rollout_steps)}"
+    )
+    parser.add_argument(
+        "--minibatch-size", type=int, help=f"frames per PPO minibatch {default_text(PPOConfig.minibatch_size)}"
+    )
     args = parser.parse_args()
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
@@ -162,7 +166,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import make_parser, quiet_torchrl
+    from _cli import default_text, make_parser, quiet_torchrl
 
     quiet_torchrl()
     main()

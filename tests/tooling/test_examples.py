@@ -23,6 +23,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
 
 
 SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":attr:")
+EPILOG = "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO."
 
 
 def run_example(name: str, cwd: Path, *args: str, timeout: float = 180.0) -> str:
@@ -43,7 +44,10 @@ def assert_no_torchrl_info(output: str) -> None:
 
 @pytest.mark.parametrize("script", sorted(path.name for path in EXAMPLES.glob("[!_]*.py")))
 def test_help_is_short_plain_and_shows_defaults(script: str, tmp_path: Path) -> None:
-    """``--help``: the docstring's first paragraph as plain text and the options with defaults, in 40 x 100."""
+    """``--help``: the docstring's first paragraph, then every option with a description and its default, in 40 x 100.
+
+    One format everywhere: ``(default: 0 1 2)`` (``_cli.default_text``), short metavars, the same footer.
+    """
     command = [sys.executable, str(EXAMPLES / script), "--help"]
     result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 0, result.stderr
@@ -55,11 +59,47 @@ def test_help_is_short_plain_and_shows_defaults(script: str, tmp_path: Path) -> 
     assert not wide, f"lines over 100 columns: {wide}"
     assert not [mark for mark in SPHINX_MARKUP if mark in text], text
     assert "[torchrl][INFO]" not in text + result.stderr
-    # every option that takes a value (``--name VALUE``) says its default
-    blocks = re.split(r"\n(?=  -)", text.split("options:", 1)[1])
-    for block in blocks:
-        if re.match(r"\s*--[\w-]+ \S", block) and "--quick" not in block:
-            assert "default" in block, f"no default shown for:\n{block}"
+    assert lines[-1] == EPILOG, "the footer differs from the other examples'"
+    options = text.split("options:", 1)[1].split("\n\n", 1)[0]
+    for block in re.split(r"\n(?=  -)", options.strip("\n")):
+        # the invocation (``--name METAVAR [METAVAR ...]``, single spaces), then the help after 2+ spaces or a new line
+        match = re.fullmatch(r"\s*(\S+(?: \S+)*?)(?: {2,}|\n\s+)(.+)", block, flags=re.DOTALL)
+        assert match is not None, f"an option without a description:\n{block}"
+        invocation, help_text = match.group(1), " ".join(match.group(2).split())
+        metavars = [
+            word.strip("[],.") for word in invocation.split() if not word.startswith("-") and word.strip("[],.")
+        ]
+        short = [name for name in metavars if not re.fullmatch(r"[A-Z]{1,7}", name)]
+        assert not short, f"metavars should be short (N, X, DIR, PATH, NAME, ID): {short} in {invocation!r}"
+        described = help_text.split("(default: ", 1)[0].strip()
+        assert re.search(r"[a-z]{2}", described), f"{invocation}: no description besides the default: {help_text!r}"
+        defaults = re.findall(r"\(default: ([^)]*)\)", help_text)
+        assert help_text.count("default") == len(defaults), f"{invocation}: a default not as '(default: ...)'"
+        if metavars:  # an option that takes a value says its default
+            assert len(defaults) == 1, f"{invocation}: no '(default: ...)' in {help_text!r}"
+        for default in defaults:
+            assert not re.search(r"[\[\]'\"]", default), f"{invocation}: a Python repr as default: {default!r}"
+            assert not re.search(r"\d{5}", default), f"{invocation}: {default!r} without thousands separators"
+
+
+def test_default_text_is_the_one_format() -> None:
+    """``_cli.default_text``: lists space-separated, numbers from 10,000 on with separators, no reprs."""
+    spec = importlib.util.spec_from_file_location("_cli", EXAMPLES / "_cli.py")
+    cli = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(cli)
+    assert cli.default_text([0, 1, 2]) == "(default: 0 1 2)"
+    assert cli.default_text(("her", "plain")) == "(default: her plain)"
+    assert cli.default_text(2_097_152) == "(default: 2,097,152)" and cli.default_text(8192) == "(default: 8192)"
+    assert cli.default_text(3e-4) == "(default: 0.0003)" and cli.default_text(30.0) == "(default: 30)"
+    assert cli.default_text(Path("runs/x")) == "(default: runs/x)"
+    assert cli.default_text(32, "8 with --quick") == "(default: 32; 8 with --quick)"
+    assert cli.default_text("80%") == "(default: 80%%)"  # argparse %-formats the help
+
+
+def test_progress_bars_count_frames() -> None:
+    """Every example's progress bar is ``_cli.frame_bar`` (unit ``frame``, scaled): no example builds its own."""
+    own = [path.name for path in EXAMPLES.glob("*.py") if path.name != "_cli.py" and "tqdm" in path.read_text()]
+    assert not own, f"examples with their own tqdm bar (use _cli.frame_bar): {own}"
 
 
 def _number(pattern: str, text: str) -> float:

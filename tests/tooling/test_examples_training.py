@@ -132,7 +132,7 @@ def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     assert "seed 3: 4000 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "locomotion_ppo_curve.png").stat().st_size > 0
-        assert "locomotion_ppo_curve.png (1 seed(s))" in result.stdout
+        assert "locomotion_ppo_curve.png (1 seed)" in result.stdout
 
 
 def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None:
@@ -169,4 +169,4 @@ def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None
     assert "Warning" not in result.stderr
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "safety_ppo_lagrangian_curve.png").stat().st_size > 0
-        assert "safety_ppo_lagrangian_curve.png (2 run(s))" in result.stdout
+        assert "safety_ppo_lagrangian_curve.png (2 runs)" in result.stdout
