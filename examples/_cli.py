@@ -148,13 +148,14 @@ def frame_bar(description: str, total: int | None, until: str = "") -> tqdm:
 
     ``total``: the frames the run will collect (its frame budget). A run without one, ended by a success
     target or a time limit, passes None and says what ends it in ``until`` (``"80% success or 10 min"``):
-    the bar then counts the frames without a total.
+    the bar then counts the frames without a total. Drawn on a terminal only, as the ``torchtasks`` command's
+    bars: a log file gets the run's summary lines, not carriage-return updates.
     """
     from tqdm import tqdm
 
     if total is None and until:
         description = f"{description} (until {until})"
-    return tqdm(total=total, desc=description, unit="frame", unit_scale=True)
+    return tqdm(total=total, desc=description, unit="frame", unit_scale=True, disable=None)
 
 
 def quiet_torchrl() -> None:

@@ -44,6 +44,7 @@ def run_quick(script: str, cwd: Path, *args: str, timeout: float) -> subprocess.
     assert not outside, f"{script} wrote {outside} into its current directory (outside runs/){detail}"
     stray = sorted(_entries(cwd / "runs") - runs_before - {Path(script).stem})
     assert not stray, f"{script} wrote {stray} into runs/ instead of runs/{Path(script).stem}/"
+    assert "\r" not in result.stderr, f"{script} drew a progress bar into a file (bars are for terminals only)"
     warned = [line for line in result.stderr.splitlines() if re.search(r"\b\w*Warning: ", line)]
     assert not warned, f"{script} printed warnings (a user sees them as noise): {warned[:3]}"
     return result
