@@ -17,7 +17,6 @@ import argparse
 import dataclasses
 import logging
 import os
-import re
 import warnings
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -29,25 +28,17 @@ if TYPE_CHECKING:
 WIDTH = 100  # --help fits this many columns
 EPILOG = "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO."
 
-_ROLE = re.compile(r":[a-z]+(?::[a-z]+)?:`(~?)([^`<]*?)(?:\s*<[^>]*>)?`")
-_LITERAL = re.compile(r"``(.+?)``")
-
-
-def plain(text: str) -> str:
-    """Return ``text`` without Sphinx markup: roles become their target (``~`` keeps the last name), literals plain.
+def short_description(doc: str | None) -> str:
+    """Return the first paragraph of a module docstring as plain text on one line (the ``torchtasks`` command's
+    :func:`~torchtasks.cli.plain_text`: no Sphinx roles or literals).
 
     Example:
-        >>> plain("Use :func:`~torchtasks.stats.episode_statistics` and ``--quick``.")
+        >>> short_description("Use :func:`~torchtasks.stats.episode_statistics` and ``--quick``.\\n\\nDetails.")
         'Use episode_statistics and --quick.'
     """
-    text = _ROLE.sub(lambda m: m.group(2).rsplit(".", 1)[-1] if m.group(1) else m.group(2), text)
-    return _LITERAL.sub(r"\1", text)
+    from torchtasks.cli import plain_text
 
-
-def short_description(doc: str | None) -> str:
-    """Return the first paragraph of a module docstring as plain text on one line."""
-    first = (doc or "").strip().split("\n\n", 1)[0]
-    return " ".join(plain(first).split())
+    return plain_text((doc or "").strip().split("\n\n", 1)[0])
 
 
 def shown(value: Any) -> str:
