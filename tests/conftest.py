@@ -1,4 +1,4 @@
-"""Shared fixtures (kept minimal; the one autouse fixture only restores global torch state)."""
+"""Shared fixtures (kept minimal; the one autouse fixture restores global torch state and seeds it per test)."""
 
 from __future__ import annotations
 
@@ -17,16 +17,22 @@ def golden() -> dict[str, Any]:
 
 @pytest.fixture(autouse=True)
 def _restore_torch_threads(request: pytest.FixtureRequest):
-    """Keep torch's global thread count from leaking between tests.
+    """Keep torch's global thread count from leaking between tests, and seed torch's global generator per test.
 
-    Multi-process collectors and envs change it, also from finalizers that run whenever garbage is
-    collected; dynamo refuses a trace during which it changes. Collect their garbage right after such
+    Multi-process collectors and envs change the thread count, also from finalizers that run whenever garbage
+    is collected; dynamo refuses a trace during which it changes. Collect their garbage right after such
     tests and restore the count after every test.
+
+    The global generator (random actions of ``env.rollout()`` without a policy, a fresh ``nn.Linear``) is
+    seeded from the test's id: a test draws the same numbers whichever tests ran before it in its worker
+    (pytest-xdist distributes them differently from run to run).
     """
     import gc
+    import zlib
 
     import torch
 
+    torch.manual_seed(zlib.crc32(request.node.nodeid.encode()))
     threads = torch.get_num_threads()
     yield
     if request.node.get_closest_marker("multiprocess") is not None:
