@@ -103,10 +103,27 @@ def _is_api(obj: object) -> bool:
     return inspect.isclass(obj) or inspect.isroutine(obj)
 
 
+def _source_file(module_name: str) -> Path | None:
+    """The source file of a torchtasks module, found without importing it or its parent packages.
+
+    (``importlib.util.find_spec("torchtasks.envs.locomotion")`` imports ``torchtasks.envs``, and with it torch
+    and tensordict: seconds, for a command that only builds its parser.)
+    """
+    package, *parts = module_name.split(".")
+    if package != "torchtasks":
+        spec = importlib.util.find_spec(module_name)
+        return None if spec is None or spec.origin is None else Path(spec.origin)
+    folder = Path(__file__).resolve().parent.joinpath(*parts)
+    for path in (folder.with_suffix(".py"), folder / "__init__.py"):
+        if path.is_file():
+            return path
+    return None
+
+
 def _parse(module_name: str) -> ast.Module | None:
     try:
-        spec = importlib.util.find_spec(module_name)
-        return ast.parse(Path(spec.origin).read_text(encoding="utf-8"))  # type: ignore[union-attr, arg-type]
+        path = _source_file(module_name)
+        return None if path is None else ast.parse(path.read_text(encoding="utf-8"))
     except (ImportError, AttributeError, OSError, SyntaxError, TypeError, ValueError):
         return None
 
@@ -267,7 +284,7 @@ def _unknown_env(env_id: str, env_ids: Sequence[str]) -> str:
     close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=1, cutoff=0.6)
     if close:  # the one valid choice the user meant: a line that fits a terminal
         return f"unknown env {env_id!r}; did you mean {by_lower[close[0]]}?"
-    return f"unknown env {env_id!r}; choose one of {', '.join(sorted(env_ids))}"
+    return f"unknown env {env_id!r}; choose one of {', '.join(env_ids)}"
 
 
 def _merge_gymnasium(parts: list[dict[str, Any]]) -> dict[str, Any]:

@@ -137,7 +137,10 @@ USER_MISTAKES = {
         ["check", "hopper-v5"],
         ("unknown env 'hopper-v5'; did you mean Hopper-v5?",),
     ),
-    "not a MuJoCo preset": (["check", "Pendulum-v1"], ("unknown env 'Pendulum-v1'; choose one of Ant-v5,",)),
+    "not a MuJoCo preset": (
+        ["check", "Pendulum-v1"],
+        ("unknown env 'Pendulum-v1'; choose one of HalfCheetah-v5, Hopper-v5,",),
+    ),
     "second env unknown": (["check", "Hopper-v5", "Hoper-v5"], ("unknown env 'Hoper-v5'", "did you mean Hopper-v5?")),
     "zero seeds": (["check", "Hopper-v5", "--seeds", "0"], ("--seeds: expected an integer >= 1, got '0'",)),
     "steps not a number": (["check", "Hopper-v5", "--steps", "many"], ("--steps: expected an integer >= 1",)),
@@ -539,3 +542,22 @@ def test_version(capsys: pytest.CaptureFixture[str]) -> None:
         main(["--version"])
     assert exit_info.value.code == 0
     assert capsys.readouterr().out == f"torchtasks {version}\n"
+
+
+def test_the_parser_and_argument_mistakes_do_not_import_torch(tmp_path: Path) -> None:
+    """``--version``, ``--help`` and a refused argument answer at once: building the parser (the env ids of
+    ``check`` are read from the source) imports neither torch nor the optional modules."""
+    code = """
+import sys
+from torchtasks.cli import main
+assert main(["check", "pendulum"]) == 2
+for argv in (["--version"], ["check", "--help"], ["demo", "--output", "/dev/null/x"]):
+    try:
+        main(argv)
+    except SystemExit:
+        pass
+loaded = sorted(name for name in ("torch", "tensordict", "torchrl", "mujoco", "gymnasium") if name in sys.modules)
+print("LOADED", loaded)
+"""
+    result = _python(code, tmp_path)
+    assert "LOADED []" in result.stdout, result.stdout
