@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 WIDTH = 100  # --help fits this many columns
 EPILOG = "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO."
 
+
 def short_description(doc: str | None) -> str:
     """Return the first paragraph of a module docstring as plain text on one line (the ``torchtasks`` command's
     :func:`~torchtasks.cli.plain_text`: no Sphinx roles or literals).
@@ -132,6 +133,29 @@ def config_arguments(
             type=type(value),
             help=f"{descriptions[name]} {default_text(value)}",
         )
+
+
+def time_unit(seconds: float) -> tuple[float, str]:
+    """The unit of a wall-time axis up to ``seconds``: ``(seconds per unit, name)``, seconds below 2 minutes.
+
+    Example:
+        >>> time_unit(13.0), time_unit(600.0), time_unit(3 * 3600.0)
+        ((1.0, 's'), (60.0, 'min'), (3600.0, 'h'))
+    """
+    if seconds < 120.0:
+        return 1.0, "s"
+    return (60.0, "min") if seconds < 2 * 3600.0 else (3600.0, "h")
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` in the unit of :func:`time_unit` (a 13 s run in seconds, a 40 min run in minutes).
+
+    Example:
+        >>> duration(3.61), duration(600.0), duration(3 * 3600.0)
+        ('3.6 s', '10.0 min', '3.00 h')
+    """
+    per_unit, unit = time_unit(seconds)
+    return f"{seconds / per_unit:.{2 if unit == 'h' else 1}f} {unit}"
 
 
 def frame_bar(description: str, total: int | None, until: str = "") -> tqdm:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _cli import frame_bar
+from _cli import duration, frame_bar, time_unit
 from tensordict import TensorDictBase
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
@@ -354,29 +354,6 @@ def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
-
-
-def time_unit(seconds: float) -> tuple[float, str]:
-    """The unit of a wall-time axis up to ``seconds``: ``(seconds per unit, name)``, seconds below 2 minutes.
-
-    Example:
-        >>> time_unit(13.0), time_unit(600.0), time_unit(3 * 3600.0)
-        ((1.0, 's'), (60.0, 'min'), (3600.0, 'h'))
-    """
-    if seconds < 120.0:
-        return 1.0, "s"
-    return (60.0, "min") if seconds < 2 * 3600.0 else (3600.0, "h")
-
-
-def duration(seconds: float) -> str:
-    """``seconds`` in the unit of :func:`time_unit` (a 13 s run in seconds, a 40 min run in minutes).
-
-    Example:
-        >>> duration(3.61), duration(600.0), duration(3 * 3600.0)
-        ('3.6 s', '10.0 min', '3.00 h')
-    """
-    per_unit, unit = time_unit(seconds)
-    return f"{seconds / per_unit:.{2 if unit == 'h' else 1}f} {unit}"
 
 
 def save(

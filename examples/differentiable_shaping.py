@@ -59,8 +59,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _cli import frame_bar
-from _ppo_common import duration
+from _cli import duration, frame_bar
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import step_mdp

@@ -55,7 +55,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _cli import frame_bar
+from _cli import duration, frame_bar
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
@@ -317,10 +317,10 @@ def main() -> None:
             run = train(config, seed, her=variant == "her")
             runs.append(run)
             reached = run["frames_to_target"]
-            what = f"after {reached} frames" if reached is not None else f"not reached in {run['total_frames']} frames"
+            what = f"after {reached:,} frames" if reached is not None else "not reached"
             print(
-                f"{variant}, seed {seed}: {config.target:.0%} {what} "
-                f"(final success {run['final_success_rate']:.2f}, {run['seconds']:.0f} s)",
+                f"{variant}, seed {seed}: {config.target:.0%} {what}; final success rate "
+                f"{run['final_success_rate']:.3f} after {run['total_frames']:,} frames ({duration(run['seconds'])})",
                 flush=True,
             )
         experiment["variants"][variant] = {"runs": runs, "frames_to_target": [r["frames_to_target"] for r in runs]}

@@ -147,8 +147,11 @@ def main(quick: bool = False, strategy: str = "future", seed: int = 0) -> dict[s
         collector.shutdown()
     stored = buffer[:]
     ended = f"{episodes} episode{'' if episodes == 1 else 's'} ended"
-    print(f"collected {len(buffer)} transitions from {num_envs} envs, {ended}")
-    print(f"per-env goal sampling: each env's goal changes exactly at its {resets} episode starts inside the rows")
+    print(f"collected {len(buffer):,} transitions from {num_envs} envs, {ended}")
+    print(
+        f"per-env goal sampling: checked at the {resets} episode starts inside the collected rows "
+        "(the goal changes there, nowhere else)"
+    )
 
     sample = buffer.sample()
     index = sample["index"]

@@ -218,14 +218,12 @@ def run_line(name: str, record: dict[str, Any]) -> str:
     """One line per run: frames and wall time to the target (or not reached) and the final success rate."""
     target = f"{record['target']:.0%}"
     if record["frames_to_target"] is None:
-        reached = f"{target} not reached within {record['total_frames']:,} frames"
+        reached = f"{target} not reached"
     else:
-        reached = f"{target} after {record['frames_to_target']:,} frames, {record['time_to_target_s']:.1f} s"
+        reached = f"{target} after {record['frames_to_target']:,} frames ({record['time_to_target_s']:.1f} s)"
     return (
-        f"{VARIANTS[name]:>16}, seed {record['seed']}: {reached}; "
-        f"final success rate {record['final_success_rate']:.3f} "
-        f"({record['total_frames']:,} frames, {record['total_seconds']:.1f} s, "
-        f"1-min load {record['machine_start']['load_1min']:.1f})"
+        f"{VARIANTS[name]:>16}, seed {record['seed']}: {reached}; final success rate "
+        f"{record['final_success_rate']:.3f} after {record['total_frames']:,} frames ({record['total_seconds']:.1f} s)"
     )
 
 

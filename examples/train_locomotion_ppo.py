@@ -63,8 +63,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also when imported from elsewhere
 
 import torch
-from _cli import frame_bar
-from _ppo_common import duration, machine_info, ppo_update, time_unit
+from _cli import duration, frame_bar, time_unit
+from _ppo_common import machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn

@@ -57,8 +57,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' modules
 
 import torch
-from _cli import frame_bar
-from _ppo_common import duration, machine_info, ppo_update
+from _cli import duration, frame_bar
+from _ppo_common import machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn

@@ -217,7 +217,9 @@ def test_goal_reaching(tmp_path: Path) -> None:
     out = run_example("goal_reaching.py", tmp_path)
     output = tmp_path / "runs" / "goal_reaching"  # the default --output
     for variant in ("her", "plain"):
-        assert re.search(rf"^{variant}, seed 0: 90% (after \d+ frames|not reached in \d+ frames)", out, re.MULTILINE)
+        assert re.search(
+            rf"^{variant}, seed 0: 90% (after [\d,]+ frames|not reached); final success rate", out, re.MULTILINE
+        )
     experiment = json.loads((output / "goal_reaching.json").read_text())
     assert set(experiment["variants"]) == {"her", "plain"}
     for variant in experiment["variants"].values():
