@@ -564,7 +564,11 @@ def _parser() -> argparse.ArgumentParser:
         "--seeds", type=_count(1), default=3, metavar="N", help="seeds 0, ..., N-1 (default: %(default)s)"
     )
     check.add_argument(
-        "--steps", type=_count(1), default=1000, metavar="N", help="steps per seed (default: %(default)s)"
+        "--steps",
+        type=_count(1),
+        default=1000,
+        metavar="N",
+        help="steps per seed (the table counts all seeds' steps) (default: %(default)s)",
     )
     check.add_argument(
         "--backend",
