@@ -94,6 +94,28 @@ class PendulumFeatures(nn.Module):
         return torch.stack((torch.cos(theta), torch.sin(theta), speed / self.max_speed), dim=-1)
 
 
+#: ``--help`` text of the PPO config fields the MuJoCo PPO examples share (each is a flag: ``--num-envs``)
+PPO_CONFIG_HELP = {
+    "num_envs": "HalfCheetahs stepped as one batch",
+    "rollout_steps": "steps per env and batch",
+    "total_frames": "frames to train for, rounded up to whole batches",
+    "epochs": "PPO passes over each batch",
+    "minibatch_size": "frames per PPO minibatch",
+    "learning_rate": "Adam's learning rate, annealed linearly to 0",
+    "gamma": "discount γ",
+    "lmbda": "GAE's λ",
+    "clip_epsilon": "PPO's clipping ε",
+    "critic_coeff": "weight of the critic loss",
+    "max_grad_norm": "gradient norm clipped to this",
+    "hidden": "units per hidden layer",
+    "mujoco_threads": "threads stepping MuJoCo",
+    "eval_every": "frames between two deterministic evaluations",
+    "eval_envs": "envs of each evaluation, one episode each",
+    "eval_steps": "steps of each evaluation episode",
+    "max_minutes": "wall-clock limit in minutes",
+}
+
+
 def mlp(out_features: int, hidden: int) -> nn.Sequential:
     """Return ``PendulumFeatures`` followed by a two-hidden-layer tanh MLP."""
     return nn.Sequential(

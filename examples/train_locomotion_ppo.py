@@ -64,7 +64,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also
 
 import torch
 from _cli import duration, frame_bar, time_unit
-from _ppo_common import machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -122,19 +122,19 @@ class LocomotionPPOConfig:
         return self.num_envs * self.rollout_steps
 
 
-#: the ``--help`` text of the fields that are command-line flags (``--num-envs`` for ``num_envs``)
-CONFIG_HELP = {
-    "num_envs": "HalfCheetahs stepped as one batch",
-    "rollout_steps": "steps per env and batch",
-    "total_frames": "frames to train for, rounded up to whole batches",
-    "epochs": "PPO passes over each batch",
-    "minibatch_size": "frames per PPO minibatch",
-    "eval_every": "frames between two deterministic evaluations",
-    "eval_envs": "envs of each evaluation, one episode each",
-    "eval_steps": "steps of each evaluation episode",
-    "learning_rate": "Adam's learning rate, annealed linearly to 0",
-    "max_minutes": "wall-clock limit in minutes",
-}
+#: the config fields that are command-line flags (``--num-envs`` for ``num_envs``), described by PPO_CONFIG_HELP
+FLAGS = (
+    "num_envs",
+    "rollout_steps",
+    "total_frames",
+    "epochs",
+    "minibatch_size",
+    "eval_every",
+    "eval_envs",
+    "eval_steps",
+    "learning_rate",
+    "max_minutes",
+)
 
 #: --quick: two batches of 4 envs x 500 steps, so that the training episodes end (at step 1000) in the run
 QUICK = LocomotionPPOConfig(
@@ -454,7 +454,7 @@ def main() -> None:
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
     defaults = LocomotionPPOConfig()
-    config_arguments(parser, defaults, CONFIG_HELP, CONFIG_HELP)
+    config_arguments(parser, defaults, PPO_CONFIG_HELP, FLAGS)
     args = parser.parse_args()
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults

@@ -58,7 +58,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar
-from _ppo_common import machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
@@ -113,25 +113,13 @@ class SafetyPPOConfig:
 
 #: the ``--help`` text of every field (each is a flag: ``--num-envs`` for ``num_envs``)
 CONFIG_HELP = {
-    "num_envs": "HalfCheetahs stepped as one batch",
-    "rollout_steps": "steps per env and batch",
-    "total_frames": "frames to train for, rounded up to whole batches",
-    "epochs": "PPO passes over each batch",
-    "minibatch_size": "frames per PPO minibatch",
-    "learning_rate": "Adam's learning rate, annealed linearly to 0",
+    **PPO_CONFIG_HELP,
     "gamma": "discount γ of both GAEs",
     "lmbda": "GAE's λ, for the reward and the cost",
-    "clip_epsilon": "PPO's clipping ε",
     "critic_coeff": "weight of the critic losses",
-    "max_grad_norm": "gradient norm clipped to this",
-    "hidden": "units per hidden layer",
     "cost_limit": "limit on the episode cost of the velocity constraint",
     "lambda_init": "the multiplier's initial λ",
     "lambda_lr": "Adam's learning rate for λ",
-    "mujoco_threads": "threads stepping MuJoCo",
-    "eval_every": "frames between two deterministic evaluations",
-    "eval_envs": "envs of each evaluation, one episode each",
-    "max_minutes": "wall-clock limit in minutes",
 }
 
 #: --quick: two batches of 4 envs x 500 steps, so that the episodes end (and λ moves) in the second one
