@@ -228,7 +228,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
     summaries = [summary for _, entries in sections for _, summary in entries]
     for extra in sorted({extra for _, extra in _LAZY.values()}):
         if any(summary.endswith(_needs(extra)) for summary in summaries):
-            print(f"\n{_needs(extra)}: {install_hint(extra)}")
+            print(f"\n{_needs(extra)}: install it with\n  {install_hint(extra)}")  # the command unwrapped
     return 0
 
 
