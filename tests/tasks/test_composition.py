@@ -23,10 +23,11 @@ from torchrl.envs import Compose, StepCounter, TransformedEnv
 
 from task_trees import all_task_cases, random_transitions, shaping_potential
 from torchtasks.envs import PendulumEnv
-from torchtasks.rewards import ConstantReward, ForwardVelocityReward
+from torchtasks.rewards import ConstantReward, ForwardVelocityReward, StateFunctionReward
 from torchtasks.spaces import Box, EnvSpec, rows_outside
 from torchtasks.tasks import (
     BestStateFinalRewardTask,
+    ConstrainedTask,
     DesiredStateTask,
     FinalRewardMode,
     FinalRewardTask,
@@ -36,10 +37,8 @@ from torchtasks.tasks import (
     PotentialShapingTask,
     SequentialTasks,
     Task,
-    all_tasks,
     proximity_succeeded,
 )
-from torchtasks.tasks.base import Task as BaseTask
 from torchtasks.tasks.memory import where_memory
 from torchtasks.transforms import TaskTransform
 
@@ -51,6 +50,11 @@ BEST_FACTOR = -0.5
 
 
 TASKS = all_task_cases()
+WRAPPER_COST = "wrapper_cost"
+
+
+def _first_entry_size(state: torch.Tensor) -> torch.Tensor:
+    return state[..., 0].abs()
 
 
 def _extended(spec: EnvSpec) -> EnvSpec:
@@ -66,20 +70,11 @@ WRAPPERS: dict[str, Callable[[Task], Task]] = {
     "final_time": lambda t: FinalRewardTask(t, FinalRewardMode(time_dependent=True)),
     "best_state": lambda t: BestStateFinalRewardTask(t, BEST_FACTOR),
     "masked": lambda t: MaskedTask(_extended(t.spec), t, list(range(1, t.state_size + 1))),
+    "constrained": lambda t: ConstrainedTask(t, {WRAPPER_COST: StateFunctionReward(_first_entry_size, negate=False)}),
     "shaping": lambda t: PotentialShapingTask(t, shaping_potential, GAMMA),
     "parallel": lambda t: ParallelTasks([t]),
     "sequential": lambda t: SequentialTasks([t]),
 }
-
-
-def _own_final_only(task: Task) -> bool:
-    """Whether at most one task of ``task``'s wrapper chain pays a final reward of its own.
-
-    A composite pays a sub-task that did not finish by itself its own final reward at the episode end
-    (Pyrado's ``compute_final_rew`` over the immediate sub-tasks); for such a chain that is all of it.
-    """
-    payers = [t for t in all_tasks(task) if type(t)._compute_final_reward is not BaseTask._compute_final_reward]
-    return len(payers) <= 1
 
 
 def _wrapped_state(name: str, state: torch.Tensor) -> torch.Tensor:
@@ -99,12 +94,18 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         else:
             torch.testing.assert_close(actual, expected, rtol=1e-12, atol=1e-12, msg=f"{name}: {what}")
 
-    if name in ("final", "final_time", "best_state", "masked", "shaping"):
+    if name in ("final", "final_time", "best_state", "masked", "shaping", "constrained"):
         for flag in ("success", "failure", "terminated", "done"):
             same(getattr(wrapped_out, flag), getattr(out, flag), flag)
-    if name == "masked":
+    if name in ("masked", "constrained"):
         for field in ("reward", "step_reward", "final_reward"):
             same(getattr(wrapped_out, field), getattr(out, field), field)
+        expected_costs = dict(out.costs)
+        if name == "constrained":  # one more cost, on the state the step reward sees; nothing else changes
+            expected_costs[WRAPPER_COST] = context["reward_state"][..., 0].abs()
+        assert list(wrapped_out.costs) == list(expected_costs)
+        for cost_name, cost in expected_costs.items():
+            same(wrapped_out.costs[cost_name], cost, f"cost {cost_name}")
     elif name in ("final", "final_time"):
         same(wrapped_out.step_reward, out.step_reward, "step reward")
         magnitude = (
@@ -128,7 +129,7 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         assert torch.equal(wrapped_out.terms["shaping"], shaping)
     elif name in ("parallel", "sequential"):
         # the sub-task's final reward is paid in the step where it finishes by itself; at an episode end
-        # by the env's flags alone, the composite pays its own final reward then
+        # by the env's flags alone, the composite pays it then: the same final reward either way
         same(wrapped_out.step_reward, out.step_reward + torch.where(own_end, out.final_reward, zero), "step reward")
         same(wrapped_out.success, out.success, "success")
         if name == "parallel":
@@ -136,11 +137,7 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         else:  # a failed sub-task does not end a sequence; leaving the first sub-task's box does
             box = task.spec.state_space
             same(wrapped_out.failure, rows_outside(context["next_state"], box.low, box.high), "failure")
-        env_end = out.done & ~own_end
-        if _own_final_only(task):
-            same(wrapped_out.reward, out.reward, "reward")
-        else:
-            same(wrapped_out.reward[~env_end], out.reward[~env_end], "reward where the sub-task ended itself")
+        same(wrapped_out.reward, out.reward, "reward")
 
 
 def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
@@ -177,7 +174,8 @@ def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
             remaining,
             **kwargs,
         )
-        context.update(next_state=next_state, remaining=remaining)
+        reward_state = next_state if reward_on == "next" else state
+        context.update(next_state=next_state, remaining=remaining, reward_state=reward_state)
         _check_rule(wrapper_name, task, wrapped_out, out, context)
         # partial reset of both where the task's episode ended
         reset_state = torch.where(out.done.unsqueeze(-1), draws["resets"][t], next_state)
@@ -199,6 +197,53 @@ def test_wrapper_composes_the_task_transition(task_name: str, wrapper_name: str)
     # judge their sub-tasks on s_t (the golden scenarios test that order); wrappers pass it through
     if wrapper_name not in ("shaping", "parallel", "sequential"):
         _run(task_name, wrapper_name, 3, "state")
+
+
+# transparent wrappers: each changes nothing of a task's reward, flags or final reward
+TRANSPARENT: dict[str, Callable[[Task], Task]] = {
+    "identity_mask": lambda t: MaskedTask(t.spec, t, list(range(t.state_size))),
+    "constrained": WRAPPERS["constrained"],
+    "zero_potential": lambda t: PotentialShapingTask(t, lambda s: s.new_zeros(s.shape[:-1]), GAMMA),
+}
+COMPOSITES: dict[str, Callable[[Task], Task]] = {
+    "parallel": lambda t: ParallelTasks([t]),
+    "parallel_hold": lambda t: ParallelTasks([t], hold_reward_when_done=True),
+    "sequential": lambda t: SequentialTasks([t]),
+    "final_of_sequential": lambda t: FinalRewardTask(SequentialTasks([t]), factor=FACTOR),
+}
+
+
+@pytest.mark.parametrize("composite_name", sorted(COMPOSITES))
+@pytest.mark.parametrize("wrapper_name", sorted(TRANSPARENT))
+@pytest.mark.parametrize("task_name", sorted(TASKS))
+def test_a_composite_pays_a_wrapped_sub_task_what_it_pays_the_bare_one(
+    task_name: str, wrapper_name: str, composite_name: str
+) -> None:
+    """``C([W(T)])`` gives ``C([T])``'s reward, final reward and flags for a wrapper ``W`` that changes nothing:
+    the final rewards inside ``W`` are paid in the step where the sub-task finishes and at the episode end."""
+    task = TASKS[task_name]().double()
+    if wrapper_name == "zero_potential" and "shaping" in task.term_names:
+        return  # shaping twice is refused (tested above)
+    bare = COMPOSITES[composite_name](task)
+    wrapped = COMPOSITES[composite_name](TRANSPARENT[wrapper_name](TASKS[task_name]().double()))
+    draws = random_transitions(task, torch.Generator().manual_seed(7), STEPS, batch=BATCH)
+    state = draws["states"][0]
+    memory, wrapped_memory = bare.reset(state), wrapped.reset(state)
+    for t in range(STEPS):
+        args = (state, draws["actions"][t], draws["states"][t + 1])
+        kwargs = {
+            "remaining_steps": draws["remaining"][t],
+            "terminated": draws["terminated"][t],
+            "truncated": draws["truncated"][t],
+            "goal": draws["goals"][t] if "goals" in draws else None,
+        }
+        out = bare.transition(*args, memory, **kwargs)
+        wrapped_out = wrapped.transition(*args, wrapped_memory, **kwargs)
+        for field in ("reward", "final_reward", "success", "failure", "done"):
+            assert torch.equal(getattr(wrapped_out, field), getattr(out, field)), (field, t)
+        state = torch.where(out.done.unsqueeze(-1), draws["resets"][t], draws["states"][t + 1])
+        memory = where_memory(out.done, bare.reset(state), out.memory)
+        wrapped_memory = where_memory(out.done, wrapped.reset(state), wrapped_out.memory)
 
 
 # ----------------------------------------------------------------------------------- regressions

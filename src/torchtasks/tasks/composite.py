@@ -37,6 +37,15 @@ class CompositeTask(Task):
                     f"({tasks[0].state_size}, {tasks[0].action_size}), tasks[{i}] reads "
                     f"({task.state_size}, {task.action_size})"
                 )
+        owners: dict[str, int] = {}
+        for i, task in enumerate(tasks):
+            for name in task.cost_names:
+                if name in owners:  # two costs under one name: one would overwrite the other
+                    raise ValueError(
+                        f"{type(self).__name__}: cost names must be unique in the tree; {name!r} names a cost of "
+                        f"tasks[{owners[name]}] and of tasks[{i}] (give the constraints different names)"
+                    )
+                owners[name] = i
         if not isinstance(hold_reward_when_done, bool):
             raise TypeError(f"hold_reward_when_done must be a bool, got {hold_reward_when_done!r}")
         super().__init__(tasks[0].spec)
@@ -99,11 +108,16 @@ class CompositeTask(Task):
         done: torch.Tensor,
         flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        """Sum of the sub-tasks' own final rewards, judged on the final state (Pyrado's order)."""
+        """Sum of the sub-tasks' final rewards, judged on the final state (Pyrado's order).
+
+        Each sub-task pays what it pays when it finishes by itself: its whole final reward, the tasks it
+        wraps included (Pyrado paid only the sub-task's own, so a wrapper around a sub-task hid the final
+        rewards inside it). Sub-tasks that already paid give 0 (their final rewards are paid once).
+        """
         total = state.new_zeros(state.shape[:-1])
         entries = copy_entries(memory)
         for key, task in zip(self._keys, self.tasks, strict=True):
-            value, entries[key] = task._compute_final_reward(state, read(memory, key), remaining_steps, done)
+            value, entries[key] = task._final_reward(state, read(memory, key), remaining_steps, done)
             total = total + value
         return total, make_memory(entries, memory.batch_size)
 
