@@ -154,6 +154,8 @@ def test_the_transition_with_costs_compiles_with_fullgraph():
         (lambda t: ConstrainedTask(t, {"not a name": ConstantReward(1.0)}), ValueError, "identifiers"),
         (lambda t: ConstrainedTask(t, {"c": 3.0}), TypeError, "Constraint or a RewardFunction"),
         (lambda t: ConstrainedTask(_constrained(t), {"energy": ConstantReward(1.0)}), ValueError, "unique"),
+        (lambda t: ParallelTasks([_constrained(t), _constrained(t)]), ValueError, "'energy' names a cost of tasks"),
+        (lambda t: SequentialTasks([t, _constrained(t), _constrained(t)]), ValueError, r"tasks\[1\] and of tasks\[2\]"),
         (lambda t: ConstrainedTask(t, {"q": QuadraticErrorReward([1.0, 1.0])}), ValueError, "4"),
         (lambda t: Constraint(ConstantReward(1.0), limit=-1.0), ValueError, "finite and >= 0"),
         (lambda t: Constraint(ConstantReward(1.0), limit=math.inf), ValueError, "finite and >= 0"),
