@@ -266,6 +266,17 @@ def test_errors_are_dm_controls() -> None:
                 dm_rewards.tolerance(np.zeros(3) + 5, (0.0, 1.0), 1.0, sigmoid, bad)
     with pytest.raises(ValueError, match=r"Unknown sigmoid type 'logistic'; valid sigmoids are \['gaussian'"):
         tolerance(x, (0.0, 1.0), 1.0, "logistic")
+    with pytest.raises(ValueError, match=r"Unknown sigmoid type 'logistic'"):  # stricter: dm_control ignores it
+        tolerance(x, (0.0, 1.0), 0.0, "logistic")
+
+
+@pytest.mark.parametrize("sigmoid", SIGMOIDS)
+def test_a_zero_margin_ignores_value_at_margin_as_dm_control(sigmoid: str) -> None:
+    """With ``margin=0`` the output is the bounds' indicator: dm_control never checks ``value_at_margin`` then."""
+    x = np.array(FAR)
+    for bounds, value in itertools.product(BOUNDS, (0.0, 1.0, 1.5, -0.1)):
+        got = tolerance(torch.tensor(x), bounds=bounds, margin=0, sigmoid=sigmoid, value_at_margin=value)
+        _assert_equals_dm_control(got, x, bounds, 0, sigmoid, value)
 
 
 def test_dtype_and_device_follow_x_and_compile_traces() -> None:

@@ -33,9 +33,13 @@ _COMPACT = ("cosine", "linear", "quadratic")
 Bound = float | torch.Tensor
 
 
-def _check_value_at_margin(value_at_margin: float, sigmoid: str) -> float:
+def _check_sigmoid(sigmoid: str) -> None:
     if sigmoid not in SIGMOIDS:
         raise ValueError(f"Unknown sigmoid type {sigmoid!r}; valid sigmoids are {list(SIGMOIDS)}")
+
+
+def _check_value_at_margin(value_at_margin: float, sigmoid: str) -> float:
+    _check_sigmoid(sigmoid)
     value = check_finite_scalar(value_at_margin, "value_at_margin")
     if sigmoid in _COMPACT:
         if not 0 <= value < 1:
@@ -124,18 +128,27 @@ def _check_bounds(lower: Bound, upper: Bound, margin: Bound) -> None:
         raise ValueError(f"`margin` must be non-negative, got {margin!r}.")
 
 
-def _tolerance(
-    x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, margin: torch.Tensor | float, sigmoid: str, scale: float
-) -> torch.Tensor:
-    """The kernel on already-checked tensor arguments (``margin`` a tensor or a Python number)."""
+def _indicator(x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor) -> torch.Tensor:
+    """The 0/1 indicator of the bounds (``margin == 0``), on the graph of ``x`` and the bounds (gradients 0)."""
     in_bounds = (lower <= x) & (x <= upper)
     one = torch.ones((), dtype=x.dtype, device=x.device)
     zero = torch.zeros((), dtype=x.dtype, device=x.device)
     distance = torch.where(x < lower, lower - x, x - upper)
+    # a zero built from the distance keeps the output on the graph (backward works); nan_to_num keeps it exact
+    # and its gradient 0 at ±inf/NaN
+    return torch.where(in_bounds, one, zero) + distance.nan_to_num(0.0, 0.0, 0.0) * 0
+
+
+def _tolerance(
+    x: torch.Tensor, lower: torch.Tensor, upper: torch.Tensor, margin: torch.Tensor | float, sigmoid: str, scale: float
+) -> torch.Tensor:
+    """The kernel on already-checked tensor arguments (``margin`` a tensor or a Python number)."""
     if isinstance(margin, (int, float)) and margin == 0:
-        # the 0/1 indicator, plus a zero built from the distance so the output stays on the graph of x and of
-        # the bounds (backward works, gradients 0); nan_to_num keeps the zero exact and its gradient 0 at ±inf/NaN
-        return torch.where(in_bounds, one, zero) + distance.nan_to_num(0.0, 0.0, 0.0) * 0
+        return _indicator(x, lower, upper)
+    in_bounds = (lower <= x) & (x <= upper)
+    one = torch.ones((), dtype=x.dtype, device=x.device)
+    zero = torch.zeros((), dtype=x.dtype, device=x.device)
+    distance = torch.where(x < lower, lower - x, x - upper)
     positive: torch.Tensor | None = None
     if isinstance(margin, torch.Tensor):
         positive = margin > 0
@@ -177,7 +190,7 @@ def tolerance(
             ``long_tail``, ``reciprocal`` (never reach 0), ``cosine``, ``linear``, ``quadratic`` (reach
             0 at a finite distance), ``tanh_squared``.
         value_at_margin: the output at ``margin`` distance from the bounds; in ``(0, 1)``, or ``[0, 1)``
-            for the compact sigmoids.
+            for the compact sigmoids (not checked with a number ``margin`` of 0, as dm_control).
 
     Returns:
         a tensor of the broadcast shape of ``x``, the bounds and the margin, in ``x``'s dtype and device,
@@ -217,6 +230,10 @@ def tolerance(
         raise ValueError(f"bounds must be a (lower, upper) pair, got {bounds!r}")
     lower, upper = bounds
     _check_bounds(lower, upper, margin)
+    if not isinstance(margin, torch.Tensor) and float(margin) == 0:
+        # as dm_control: the sigmoid's value_at_margin plays no part in the indicator, so it is not checked
+        _check_sigmoid(sigmoid)
+        return _indicator(x, _as_bound(lower, x), _as_bound(upper, x))
     scale = _scale(sigmoid, _check_value_at_margin(value_at_margin, sigmoid))
     margin_value = cast_like(margin, x) if isinstance(margin, torch.Tensor) else float(margin)
     return _tolerance(x, _as_bound(lower, x), _as_bound(upper, x), margin_value, sigmoid, scale)
