@@ -877,6 +877,22 @@ def test_memory_does_not_alias_the_callers_tensors(name):
         assert torch.equal(memory.get(key), value), ("step", key)
 
 
+@pytest.mark.parametrize("name", sorted(_ALL_CASES))
+def test_memory_of_another_float_dtype_is_refused_not_promoted(name):
+    """Memory from a float64 reset passed with float32 states: a TypeError naming the entry and both dtypes
+    (it promoted the reward to float64); a memory without float entries works and keeps float32."""
+    task = _ALL_CASES[name]()
+    data = make_drive_data(task, 4, 1, 0)
+    state, next_state, action = data.states[0].float(), data.states[1].float(), data.actions[0].float()
+    memory = task.reset(state.double())
+    floats = [key for key, value in memory_leaves(memory).items() if value.is_floating_point()]
+    if floats:
+        with pytest.raises(TypeError, match=r"memory\[.*\] is torch.float64 but the state is torch.float32"):
+            task.transition(state, action, next_state, memory, 3)
+    else:
+        assert task.transition(state, action, next_state, memory, 3).reward.dtype == torch.float32
+
+
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
 def test_half_precision_is_refused_by_tasks_rewards_and_the_transform(dtype):
     from torchrl.envs import Compose, DTypeCastTransform, TransformedEnv

@@ -352,6 +352,12 @@ class Task(nn.Module):
                 f"{tuple(state.shape[:-1])}; call reset() with a state of the same batch shape"
             )
         check_memory_layout(memory, self.memory_layout, type(self).__name__)
+        for key, value in memory.items(include_nested=True, leaves_only=True):
+            if value.is_floating_point() and value.dtype != state.dtype:  # would silently promote the outputs
+                raise TypeError(
+                    f"memory[{key!r}] is {value.dtype} but the state is {state.dtype}; call reset() with a state "
+                    f"of the dtype the task is called with"
+                )
 
     def _check_transition(
         self,
