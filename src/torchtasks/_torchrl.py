@@ -14,6 +14,7 @@ import weakref
 from collections.abc import Iterable
 from typing import Any
 
+from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
 from torchrl.envs.transforms import Compose, Transform
 
@@ -97,8 +98,9 @@ class EnvDerivedTransform(Transform):
     def home_transforms(self) -> tuple[list[Transform], int] | None:
         """The leaf transforms of the env this transform works in and its index among them; ``None`` outside an env.
 
-        For a clone that is the last transform of its env (TorchRL's ``parent`` view built for a later
-        transform), the answer of the transform it was cloned from, whose env also holds the later transforms.
+        For a clone in TorchRL's ``parent`` view built for a later transform (the same base env, the transforms
+        before that later one cloned), the answer of the transform it was cloned from, whose env also holds the
+        transforms the view leaves out.
         """
         env = container_env(self)
         transform = getattr(env, "transform", None)
@@ -108,8 +110,32 @@ class EnvDerivedTransform(Transform):
         position = next(i for i, t in enumerate(flat) if t is self)
         original = self.__dict__.get("_original")
         source = None if original is None else original()
-        if source is not None and source is not self and position == len(flat) - 1:
+        if source is not None and source is not self:
             home = source.home_transforms()
-            if home is not None:
+            source_env = container_env(source)
+            if (
+                home is not None
+                and home[1] == position
+                and len(home[0]) > len(flat)
+                and getattr(source_env, "base_env", None) is getattr(env, "base_env", False)
+            ):
                 return home
         return flat, position
+
+
+class ResetWritingTransform(EnvDerivedTransform):
+    """An env-derived transform whose ``_reset`` writes buffers that the env or earlier transforms read at reset.
+
+    TorchRL resets the base env, then runs the transforms' ``_reset`` in order, so a buffer written there
+    comes too late for the base env's reset (a start state) and for an earlier transform's (the
+    TaskTransform copying a desired state into the episode's memory). This class also runs ``_reset``
+    (on a scratch TensorDict) in ``_reset_env_preprocess``, which TorchRL calls before the base env
+    resets: the first episode, and the first one of a resumed run, see the values of the run's state.
+    """
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
+        tensordict = super()._reset_env_preprocess(tensordict)
+        env = container_env(self)
+        if env is not None:
+            self._reset(tensordict, TensorDict(batch_size=env.batch_size, device=env.device))
+        return tensordict

@@ -27,7 +27,7 @@ from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
-from torchtasks._torchrl import EnvDerivedTransform, key_parts, nested_key
+from torchtasks._torchrl import ResetWritingTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.transforms import TaskTransform
 
@@ -391,7 +391,7 @@ def _value_at(schedule: Schedule, count: int) -> torch.Tensor:
     return schedule(torch.tensor(count, dtype=torch.int64)).detach().to("cpu", torch.float64)
 
 
-class Curriculum(EnvDerivedTransform):
+class Curriculum(ResetWritingTransform):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
@@ -411,7 +411,8 @@ class Curriculum(EnvDerivedTransform):
     At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the
     steps of all envs, not their resets), gated schedules take note of the episodes that ended, and
     every schedule's value at the new count is written into its buffer (``buffer.copy_(value)``),
-    where the next step's reward reads it. At reset the values of the current count are written too.
+    where the next step's reward reads it. At reset the values of the current count are written too,
+    before the env and the TaskTransform reset (the first episode reads the schedule's first values).
     Constant, linear and staged schedules are evaluated on the host from the count (a sum of batch
     sizes); their buffer and entry are written again only when the value changes (the same entry tensor
     goes into the data meanwhile, never written into afterwards). Under grad mode (a differentiable

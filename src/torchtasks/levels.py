@@ -27,7 +27,7 @@ from torchrl.data import Bounded, Composite
 
 from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
-from torchtasks._torchrl import EnvDerivedTransform, container_env, key_parts, nested_key
+from torchtasks._torchrl import ResetWritingTransform, container_env, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum
 from torchtasks.transforms import TaskTransform
@@ -65,7 +65,7 @@ def _table(values: object, num_levels: int, name: str) -> torch.Tensor:
     return table
 
 
-class DifficultyLevels(EnvDerivedTransform):
+class DifficultyLevels(ResetWritingTransform):
     """Keep an integer difficulty level per env, moved at that env's episode ends; set per-env values from it.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env and before the
@@ -76,7 +76,8 @@ class DifficultyLevels(EnvDerivedTransform):
     after one that ends in failure, unchanged after a truncation. Resets never change a level.
 
     ``values`` maps targets to tables with one row per level (``[num_levels, *value_shape]``); after
-    every step and reset each env's row, ``table[level]``, is written into the target:
+    every step, and before every reset (the base env and the TaskTransform read some targets at reset),
+    each env's row, ``table[level]``, is written into the target:
 
     - ``"command.low"`` / ``"command.high"`` (``"command.<goal key>.low"`` with several commands):
       the GoalCommand's sampling range, made per env (``[*B, k]``); each row must lie in the
@@ -364,8 +365,9 @@ class DifficultyLevels(EnvDerivedTransform):
     # ------------------------------------------------------------------ TorchRL hooks
     def _write_levels(self, tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
         """Write each env's row of every table into its target, and the levels into ``tensordict``."""
+        slots = self._setup(tensordict.batch_size)  # first: it creates the levels at the first call
         level = self.level
-        for i, (module, leaf) in enumerate(self._setup(tensordict.batch_size)):
+        for i, (module, leaf) in enumerate(slots):
             buffer = module._buffers[leaf]
             table = self._buffers[f"table_{i}"]
             if table.dtype != buffer.dtype or table.device != buffer.device:

@@ -24,6 +24,7 @@ from torchtasks.rewards import CompoundReward, ControlCostReward, QuadraticError
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
 from torchtasks.transforms import TaskTransform
+from walk_env import WalkEnv
 
 WEIGHT = "wrapped_task.reward.rewards.effort.weight"
 BATCH = 8
@@ -151,6 +152,26 @@ def test_frames_follow_steps_not_resets():
     assert torch.equal(
         a["next", "curriculum", "success_value"][0, :, 0], torch.tensor([1.0] * 4 + [2.0] * 5 + [3.0] * 5)
     )
+
+
+def test_the_first_episode_and_a_resumed_one_read_the_scheduled_desired_state():
+    """A desired state the task copies into the episode's memory at reset: the first episode, and the first of a
+    resumed run, are played with the schedule's value at the run's frame count, not the value at construction."""
+
+    def build() -> TransformedEnv:
+        task = DesiredStateTask(EnvSpec(1, 1), [0.8], QuadraticErrorReward([1.0], [0.0]))  # never ends
+        curriculum = Curriculum({"state_des": linear([0.5], [0.9], 0, 40)})
+        return TransformedEnv(WalkEnv([2]), Compose(TaskTransform(task), curriculum))  # x stays 0 with no action
+
+    still = {"action": torch.zeros(2, 1)}
+    env = build()
+    data = env.rollout(5, lambda td: td.update(still), break_when_any_done=False)
+    assert torch.allclose(data["next", "reward"][:, 0, 0], torch.full((2,), -(0.5**2)))  # x = 0, goal 0.5
+    env.rollout(5, lambda td: td.update(still), break_when_any_done=False)  # 20 frames: the ramp's middle
+    resumed = build()
+    resumed.transform.load_state_dict(env.transform.state_dict())
+    data = resumed.rollout(1, lambda td: td.update(still), break_when_any_done=False)
+    assert torch.allclose(data["next", "reward"][:, 0, 0], torch.full((2,), -(0.7**2)))
 
 
 def test_the_scheduled_weight_changes_the_reward():
@@ -526,15 +547,31 @@ def test_a_multi_sync_collector_of_two_workers_sees_the_single_process_schedule(
 GOAL_SPACE = Box([-1.0, -0.5], [1.0, 0.5])  # the goal spec: the widest range a schedule may reach
 
 
-def goal_env(schedules, *, command=None, max_steps: int = 5, batch: int = BATCH) -> TransformedEnv:
-    """A pendulum tracking a goal state drawn by a GoalCommand whose range the Curriculum schedules."""
+def goal_env(schedules, *, command=None, max_steps: int = 5, batch: int = BATCH, between: tuple = ()) -> TransformedEnv:
+    """A pendulum tracking a goal state drawn by a GoalCommand whose range the Curriculum schedules (``between``:
+    transforms placed between the Curriculum and the GoalCommand)."""
     near = functools.partial(proximity_succeeded, threshold=0.1)
     task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
     command = command if command is not None else GoalCommand(GOAL_SPACE, resample_steps=1, seed=0)
     return TransformedEnv(
         PendulumEnv(batch_size=[batch], seed=0, dtype=torch.float64),
-        Compose(StepCounter(max_steps), TaskTransform(task, goal_key="goal"), Curriculum(schedules), command),
+        Compose(StepCounter(max_steps), TaskTransform(task, goal_key="goal"), Curriculum(schedules), *between, command),
     )
+
+
+@pytest.mark.parametrize("between", ["RewardSum", "DifficultyLevels"])
+def test_transforms_between_the_curriculum_and_its_command(between: str) -> None:
+    """Other transforms may sit between a Curriculum and the GoalCommand it schedules (TorchRL's view of a later
+    transform's parent env holds a clone of the Curriculum without the command: it answers for the original)."""
+    from torchrl.envs import RewardSum
+
+    from torchtasks.levels import DifficultyLevels
+
+    middle = RewardSum() if between == "RewardSum" else DifficultyLevels(2)  # levels without a target
+    env = goal_env({"command.high": linear([0.1, 0.05], [1.0, 0.5], 0, 40 * BATCH)}, between=(middle,))
+    data = env.rollout(4, policy(), break_when_any_done=False)
+    high = data["next", "curriculum", "command/high"]
+    assert (data["next", "goal"] <= high).all() and high[0, -1, 0] > 0.1
 
 
 def test_a_widening_goal_range_bounds_every_goal_drawn():

@@ -71,6 +71,56 @@ def test_the_first_reset_keeps_the_initial_level():
     assert td["curriculum", "level"][:, 0].tolist() == [2, 2, 2]
 
 
+class StartWalkEnv(WalkEnv):
+    """A walk whose episodes start at a per-env buffer ``start``, read by the base env at reset."""
+
+    def __init__(self, batch_size: list[int]) -> None:
+        super().__init__(batch_size)
+        self.register_buffer("start", torch.full(self.batch_size, 9.0))  # no level's row
+
+    def _sample_state(self) -> torch.Tensor:
+        return self.start.unsqueeze(-1).clone()
+
+
+def test_every_episode_starts_at_its_levels_row_the_first_and_a_resumed_one_too():
+    """A target the base env reads at reset: the first episode and the first after a resume start from their
+    level's row, not from the buffer's value at construction (the rows were written after the env's reset)."""
+    table = torch.tensor([0.0, 0.4, -0.4])
+
+    def build() -> TransformedEnv:
+        levels = DifficultyLevels(NUM_LEVELS, {"env.start": table.tolist()}, initial_level=1)
+        return TransformedEnv(StartWalkEnv([6]), Compose(StepCounter(3), TaskTransform(walk_task()), levels))
+
+    env = build()
+    torch.manual_seed(12)
+    data = env.rollout(30, random_walk_policy, break_when_any_done=False)
+    level = data["curriculum", "level"][..., 0]
+    first = torch.ones_like(data["next", "done"][:, :1, 0])
+    starts = torch.cat([first, data["next", "done"][:, :-1, 0]], dim=-1)  # each episode's first frame
+    assert torch.equal(data["observation"][..., 0][starts], table[level][starts])
+    assert (level != 1).any()  # some envs changed level
+    resumed = build()
+    resumed.transform.load_state_dict(env.transform.state_dict())
+    assert torch.equal(resumed.reset()["observation"][:, 0], table[data["next", "curriculum", "level"][:, -1, 0]])
+
+
+def test_a_transform_between_the_levels_and_their_command():
+    """A RewardSum between DifficultyLevels and the GoalCommand whose range they set (TorchRL's view of the
+    RewardSum's parent env holds a clone of the levels without the command: it answers for the original)."""
+    from torchrl.envs import RewardSum
+
+    high = [[0.1], [0.5], [1.0]]
+    levels = DifficultyLevels(NUM_LEVELS, {"command.low": [[-0.1], [-0.5], [-1.0]], "command.high": high})
+    command = GoalCommand(Box([-1.0], [1.0]), resample_steps=(2, 3), seed=0)
+    env = TransformedEnv(
+        WalkEnv([8]), Compose(StepCounter(5), TaskTransform(walk_task(), goal_key="goal"), levels, RewardSum(), command)
+    )
+    torch.manual_seed(4)
+    data = env.rollout(40, random_walk_policy, break_when_any_done=False)
+    level = data["curriculum", "level"][..., 0]
+    assert (data["goal"][..., 0].abs() <= torch.tensor(high)[:, 0][level]).all() and (level > 0).any()
+
+
 def test_levels_persist_across_collector_batches():
     torch.manual_seed(2)
     env = make_walk_env(6)
