@@ -10,13 +10,14 @@ frames, evaluates its schedules and writes each value into a float buffer of the
 
 The frame counter and the state of every gated schedule are buffers of the Curriculum: its
 ``state_dict()`` (and so TorchRL's ``Collector.state_dict()``, which saves the env's transforms)
-restores them on resume.
+restores them on resume, with each schedule's definition (values, frames, threshold, window).
 """
 
 from __future__ import annotations
 
 import bisect
 from collections.abc import Hashable, Mapping, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -189,6 +190,20 @@ class _Linear(Schedule):
         value = _lerp(self._host_copy("start_value"), self._host_copy("end_value"), state)
         return _single(value) if self.start_value.numel() == 1 else value
 
+    def get_extra_state(self) -> dict[str, int]:
+        """The ramp's frames, saved beside its values: a checkpoint restores the whole schedule."""
+        return {"start_frame": self.start_frame, "end_frame": self.end_frame}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the frames saved by :meth:`get_extra_state` (checked as the constructor checks them)."""
+        if not isinstance(state, Mapping) or set(state) != {"start_frame", "end_frame"}:
+            raise ValueError(f"linear.load_state_dict: expected {{'start_frame', 'end_frame'}}, got {state!r}")
+        start = check_non_negative_int(state["start_frame"], "linear.load_state_dict: start_frame")
+        end = check_non_negative_int(state["end_frame"], "linear.load_state_dict: end_frame")
+        if end < start:
+            raise ValueError(f"linear.load_state_dict: end_frame must be >= start_frame, got {start} and {end}")
+        self.start_frame, self.end_frame = start, end
+
     def extra_repr(self) -> str:
         return (
             f"start_value={self.start_value.tolist()}, end_value={self.end_value.tolist()}, "
@@ -237,7 +252,8 @@ class GatedSchedule(Schedule):
     episode count then restart in the new stage. A stage never goes back. Build it with
     :func:`gated`; the value is ``values[stage]``.
 
-    ``stage``, ``average`` and ``episodes`` are registered buffers (``state_dict()`` restores them).
+    ``stage``, ``average`` and ``episodes`` are registered buffers (``state_dict()`` restores them), and so
+    are the values; the threshold and window are saved beside them (``"_extra_state"``).
     """
 
     def __init__(self, values: Sequence[object], metric: NestedKey, threshold: float, window: int) -> None:
@@ -281,6 +297,18 @@ class GatedSchedule(Schedule):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         return self.values[self.stage]
+
+    def get_extra_state(self) -> dict[str, float | int]:
+        """The gate's threshold and window, saved beside its values and state: a checkpoint restores it whole."""
+        return {"threshold": self.threshold, "window": self.window}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the threshold and window saved by :meth:`get_extra_state` (checked as the constructor does)."""
+        if not isinstance(state, Mapping) or set(state) != {"threshold", "window"}:
+            raise ValueError(f"gated.load_state_dict: expected {{'threshold', 'window'}}, got {state!r}")
+        self.threshold = check_finite_scalar(state["threshold"], "gated.load_state_dict: threshold")
+        self.window = check_positive_int(state["window"], "gated.load_state_dict: window")
+        self.keep.fill_(1.0 - 1.0 / self.window)
 
     def extra_repr(self) -> str:
         return f"stages={self.values.shape[0]}, metric={self.metric_key!r}, threshold={self.threshold}, " + (

@@ -319,6 +319,32 @@ def test_state_dict_round_trip():
     assert torch.equal(env.transform[-1].schedules[1].average, fresh.transform[-1].schedules[1].average)
 
 
+def test_a_checkpoint_restores_each_schedule_whole():
+    """Values, frame boundaries, threshold and window all come from the checkpoint: a schedule edited in the code
+    is not mixed with the saved one (the saved values with the edited frames)."""
+    saved = {WEIGHT: linear(0.0, 100.0, 0, 400), "success_value": gated([1.0, 2.0], threshold=0.5, window=60)}
+    env = make_env(saved, task=weighted_task(success_threshold=100.0))
+    env.rollout(3, policy(), break_when_any_done=False)
+    edited = {WEIGHT: linear(0.0, 200.0, 0, 4000), "success_value": gated([5.0, 6.0], threshold=0.9, window=7)}
+    resumed = make_env(edited, task=weighted_task(success_threshold=100.0))
+    resumed.transform[-1].load_state_dict(torch.load(_saved(env.transform[-1].state_dict()), weights_only=True))
+    ramp, gate = resumed.transform[-1].schedules
+    assert (float(ramp.end_value), ramp.start_frame, ramp.end_frame) == (100.0, 0, 400)
+    assert (gate.values.tolist(), gate.threshold, gate.window) == ([1.0, 2.0], 0.5, 60)
+    assert float(gate.keep) == 1.0 - 1.0 / 60
+    frames = torch.tensor(3 * BATCH)
+    assert torch.equal(ramp(frames), saved[WEIGHT](frames))
+    with pytest.raises(ValueError, match="end_frame must be >= start_frame"):
+        ramp.set_extra_state({"start_frame": 10, "end_frame": 5})
+
+
+def _saved(state: dict) -> io.BytesIO:
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    buffer.seek(0)
+    return buffer
+
+
 def test_a_collector_checkpoint_resumes_the_curriculum():
     """Collector.state_dict() saves the env's transforms, so the Curriculum's frames and gated stage; a fresh
     collector that loads it continues the schedules exactly where an uninterrupted one goes on."""
