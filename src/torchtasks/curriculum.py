@@ -52,6 +52,14 @@ def _as_value(value: object, name: str) -> torch.Tensor:
     return tensor
 
 
+def _saved_number(value: object) -> object:
+    """A number of a loaded state dict as a Python number: TorchRL's multi-process collectors gather the workers'
+    state dicts in TensorDicts, which turn Python numbers into 0-d tensors (a host copy, once at a load)."""
+    if isinstance(value, torch.Tensor) and value.numel() == 1 and value.dtype != torch.bool:
+        return value.item()
+    return value
+
+
 def _stack_values(values: Sequence[object], name: str) -> torch.Tensor:
     """The values of a schedule's stages stacked on a new first dim (all of one shape)."""
     tensors = [_as_value(value, f"{name}[{i}]") for i, value in enumerate(values)]
@@ -198,8 +206,8 @@ class _Linear(Schedule):
         """Restore the frames saved by :meth:`get_extra_state` (checked as the constructor checks them)."""
         if not isinstance(state, Mapping) or set(state) != {"start_frame", "end_frame"}:
             raise ValueError(f"linear.load_state_dict: expected {{'start_frame', 'end_frame'}}, got {state!r}")
-        start = check_non_negative_int(state["start_frame"], "linear.load_state_dict: start_frame")
-        end = check_non_negative_int(state["end_frame"], "linear.load_state_dict: end_frame")
+        start = check_non_negative_int(_saved_number(state["start_frame"]), "linear.load_state_dict: start_frame")
+        end = check_non_negative_int(_saved_number(state["end_frame"]), "linear.load_state_dict: end_frame")
         if end < start:
             raise ValueError(f"linear.load_state_dict: end_frame must be >= start_frame, got {start} and {end}")
         self.start_frame, self.end_frame = start, end
@@ -298,16 +306,20 @@ class GatedSchedule(Schedule):
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         return self.values[self.stage]
 
-    def get_extra_state(self) -> dict[str, float | int]:
-        """The gate's threshold and window, saved beside its values and state: a checkpoint restores it whole."""
-        return {"threshold": self.threshold, "window": self.window}
+    def get_extra_state(self) -> dict[str, torch.Tensor | int]:
+        """The gate's threshold and window, saved beside its values and state: a checkpoint restores it whole.
+
+        The threshold is saved as a float64 tensor: a Python float would come back as float32 from the TensorDict
+        in which a multi-process collector gathers its workers' state dicts.
+        """
+        return {"threshold": torch.tensor(self.threshold, dtype=torch.float64), "window": self.window}
 
     def set_extra_state(self, state: Any) -> None:
         """Restore the threshold and window saved by :meth:`get_extra_state` (checked as the constructor does)."""
         if not isinstance(state, Mapping) or set(state) != {"threshold", "window"}:
             raise ValueError(f"gated.load_state_dict: expected {{'threshold', 'window'}}, got {state!r}")
-        self.threshold = check_finite_scalar(state["threshold"], "gated.load_state_dict: threshold")
-        self.window = check_positive_int(state["window"], "gated.load_state_dict: window")
+        self.threshold = check_finite_scalar(_saved_number(state["threshold"]), "gated.load_state_dict: threshold")
+        self.window = check_positive_int(_saved_number(state["window"]), "gated.load_state_dict: window")
         self.keep.fill_(1.0 - 1.0 / self.window)
 
     def extra_repr(self) -> str:

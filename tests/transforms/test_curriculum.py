@@ -322,7 +322,7 @@ def test_state_dict_round_trip():
 def test_a_checkpoint_restores_each_schedule_whole():
     """Values, frame boundaries, threshold and window all come from the checkpoint: a schedule edited in the code
     is not mixed with the saved one (the saved values with the edited frames)."""
-    saved = {WEIGHT: linear(0.0, 100.0, 0, 400), "success_value": gated([1.0, 2.0], threshold=0.5, window=60)}
+    saved = {WEIGHT: linear(0.0, 100.0, 0, 400), "success_value": gated([1.0, 2.0], threshold=0.3, window=60)}
     env = make_env(saved, task=weighted_task(success_threshold=100.0))
     env.rollout(3, policy(), break_when_any_done=False)
     edited = {WEIGHT: linear(0.0, 200.0, 0, 4000), "success_value": gated([5.0, 6.0], threshold=0.9, window=7)}
@@ -330,12 +330,15 @@ def test_a_checkpoint_restores_each_schedule_whole():
     resumed.transform[-1].load_state_dict(torch.load(_saved(env.transform[-1].state_dict()), weights_only=True))
     ramp, gate = resumed.transform[-1].schedules
     assert (float(ramp.end_value), ramp.start_frame, ramp.end_frame) == (100.0, 0, 400)
-    assert (gate.values.tolist(), gate.threshold, gate.window) == ([1.0, 2.0], 0.5, 60)
+    assert (gate.values.tolist(), gate.threshold, gate.window) == ([1.0, 2.0], 0.3, 60)
     assert float(gate.keep) == 1.0 - 1.0 / 60
     frames = torch.tensor(3 * BATCH)
     assert torch.equal(ramp(frames), saved[WEIGHT](frames))
     with pytest.raises(ValueError, match="end_frame must be >= start_frame"):
         ramp.set_extra_state({"start_frame": 10, "end_frame": 5})
+    # as a multi-process collector gathers the workers' state dicts (numbers as 0-d tensors): the same numbers
+    gate.set_extra_state({key: torch.as_tensor(value) for key, value in gate.get_extra_state().items()})
+    assert (gate.threshold, gate.window) == (0.3, 60) and type(gate.window) is int
 
 
 def _saved(state: dict) -> io.BytesIO:
