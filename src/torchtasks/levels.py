@@ -27,7 +27,7 @@ from torchrl.data import Bounded, Composite
 
 from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
-from torchtasks._torchrl import ResetWritingTransform, container_env, key_parts, nested_key
+from torchtasks._torchrl import ResetWritingTransform, container_env, key_parts, keys_text, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum
 from torchtasks.transforms import TaskTransform
@@ -384,9 +384,15 @@ class DifficultyLevels(ResetWritingTransform):
         batch = next_tensordict.batch_size
         if self.rule is None:
             success_key, failure_key = self.__dict__["_flags"]
-            success = next_tensordict.get(success_key).reshape(batch)
-            failure = next_tensordict.get(failure_key).reshape(batch)
-            return success.to(torch.int64) - failure.to(torch.int64)
+            success = next_tensordict.get(success_key, None)
+            failure = next_tensordict.get(failure_key, None)
+            for argument, key, flag in (("success_key", success_key, success), ("failure_key", failure_key, failure)):
+                if flag is None:
+                    raise ValueError(
+                        f"DifficultyLevels: {argument}={key!r} is not an entry of the step's data under 'next' "
+                        f"(its entries: {keys_text(next_tensordict.keys(True, True))})"
+                    )
+            return success.reshape(batch).to(torch.int64) - failure.reshape(batch).to(torch.int64)
         change = self.rule(tensordict, next_tensordict)
         if (
             not isinstance(change, torch.Tensor)

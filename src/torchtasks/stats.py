@@ -455,10 +455,12 @@ def _schedule(frames: _Frames, key: tuple[str, ...]) -> dict[str, torch.Tensor]:
         latest = torch.arange(frames.rows) * frames.steps + frames.steps - 1
     else:  # flat: the frames with the largest frame count
         count = frames.get((*key, CURRICULUM_FRAMES))
-        if count is None:
-            raise KeyError(
-                f"episode_statistics: a flat batch needs the Curriculum's frame count ('next', *{key!r}, "
-                f"{CURRICULUM_FRAMES!r}) to find its latest frame"
+        if count is None:  # e.g. DifficultyLevels without a Curriculum: nothing orders the frames of a flat batch
+            raise ValueError(
+                f"episode_statistics: the entries ('next', *{key!r}) of a flat batch are read at its latest frames, "
+                f"found by a Curriculum's frame count ('next', *{key!r}, {CURRICULUM_FRAMES!r}), which this batch "
+                "does not hold; pass the batch time-major ([*E, T], as a collector returns it), add a Curriculum to "
+                "the env, or pass curriculum_key=None to leave these statistics out"
             )
         count = count.reshape(frames.count, -1)[:, 0]
         latest = torch.nonzero(count == count.max()).squeeze(-1)

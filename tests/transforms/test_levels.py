@@ -165,6 +165,27 @@ def test_a_rule_must_return_integer_changes_per_env(result):
         env.rollout(5, random_walk_policy, break_when_any_done=False)
 
 
+@pytest.mark.parametrize("argument", ["success_key", "failure_key"])
+def test_a_misspelt_flag_key_names_the_argument_and_the_entries(argument: str) -> None:
+    levels = DifficultyLevels(3, **{argument: "succes"})
+    env = TransformedEnv(WalkEnv([2]), Compose(StepCounter(4), TaskTransform(walk_task()), levels))
+    with pytest.raises(ValueError, match=rf"{argument}='succes' is not an entry .* 'success'"):
+        env.rollout(2, random_walk_policy)
+
+
+def test_levels_without_a_curriculum_in_a_flat_batch_say_what_to_do():
+    """A flat batch has no order to find each env's latest level without a Curriculum's frame count."""
+    torch.manual_seed(3)
+    data = make_walk_env(4).rollout(12, random_walk_policy, break_when_any_done=False)
+    done = data["next", "done"][..., 0].long()
+    episode = done.cumsum(-1) - done  # the episodes each env finished before the frame
+    data["collector", "traj_ids"] = torch.arange(4).unsqueeze(-1) * 100 + episode  # one id per episode
+    assert "curriculum/level" in episode_statistics(data, terms_key=None)
+    with pytest.raises(ValueError, match="pass the batch time-major"):
+        episode_statistics(data.reshape(-1), terms_key=None)
+    assert "curriculum/level" not in episode_statistics(data.reshape(-1), terms_key=None, curriculum_key=None)
+
+
 def test_goals_are_drawn_in_the_range_of_their_envs_level():
     torch.manual_seed(4)
     low = [[-0.1], [-0.5], [-1.0]]
