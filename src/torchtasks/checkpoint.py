@@ -32,7 +32,7 @@ from tensordict import TensorDictBase
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Transform
 
-from torchtasks._torchrl import container_env
+from torchtasks._torchrl import container_env, flat_transforms
 
 __all__ = ["BaseEnvState"]
 
@@ -45,8 +45,11 @@ class BaseEnvState(Transform):
     ``"_extra_state"``, the ``state_dict()`` of the ``base_env`` of the ``TransformedEnv`` it sits in;
     ``load_state_dict`` loads it into that base env (``strict``, as ``nn.Module.load_state_dict``).
     Put it last in the ``Compose`` (anywhere works; last keeps the indices of the other transforms'
-    state entries as they were). With a ``TransformedEnv`` nested in another, the base env of the one
-    it sits in is saved (for an inner ``TransformedEnv``, its transforms): put it in the innermost.
+    state entries as they were). With a ``TransformedEnv`` nested in another (``auto_unwrap=False``),
+    put it in the outermost env: TorchRL's ``Collector.state_dict()`` saves that env's transforms only.
+    Its base env is then the inner ``TransformedEnv``, whose ``state_dict()`` is the inner transforms';
+    unless the inner env holds a ``BaseEnvState`` of its own, the state of the env below it is saved
+    too (under ``"_inner_base_env"``), down to the innermost base env.
 
     Loading or saving it outside a ``TransformedEnv`` (e.g. a ``Compose`` not yet in an env) raises a
     ``ValueError``: the state belongs to an env, so load it once the env is built.
@@ -94,18 +97,40 @@ class BaseEnvState(Transform):
 
     # ------------------------------------------------------------------ checkpoints
     def get_extra_state(self) -> dict[str, Any]:
-        """The base env's ``state_dict()`` (a dict of its entries)."""
-        return dict(self._base_env("save").state_dict())
+        """The base env's ``state_dict()`` (a dict of its entries), and the envs' below it (see the class)."""
+        return _env_state(self._base_env("save"))
 
     def set_extra_state(self, state: Any) -> None:
-        """Load ``state`` (as :meth:`get_extra_state` returns it) into the base env."""
-        if not isinstance(state, Mapping):
-            raise TypeError(
-                "BaseEnvState.load_state_dict: the extra state must be the base env's state_dict (a mapping), "
-                f"got {type(state).__name__}"
+        """Load ``state`` (as :meth:`get_extra_state` returns it) into the base env (and the envs below it)."""
+        _load_env_state(self._base_env("load"), state)
+
+
+_INNER = "_inner_base_env"  # the state of the env below an inner TransformedEnv without a BaseEnvState
+
+
+def _env_state(env: EnvBase) -> dict[str, Any]:
+    state = dict(env.state_dict())
+    if isinstance(env, TransformedEnv) and not any(isinstance(t, BaseEnvState) for t in flat_transforms(env.transform)):
+        state[_INNER] = _env_state(env.base_env)  # TransformedEnv.state_dict() holds its transforms' only
+    return state
+
+
+def _load_env_state(env: EnvBase, state: Any) -> None:
+    if not isinstance(state, Mapping):
+        raise TypeError(
+            "BaseEnvState.load_state_dict: the extra state must be the base env's state_dict (a mapping), "
+            f"got {type(state).__name__}"
+        )
+    state = dict(state)
+    inner = state.pop(_INNER, None)
+    env.load_state_dict(state)
+    if inner is not None:
+        if not isinstance(env, TransformedEnv):
+            raise ValueError(
+                f"BaseEnvState.load_state_dict: the checkpoint holds the state of an env below the base env, but the "
+                f"base env is a {type(env).__name__}, not a TransformedEnv: load it into an env built as the saved one"
             )
-        base_env = self._base_env("load")
-        base_env.load_state_dict(dict(state))
+        _load_env_state(env.base_env, inner)
 
     # ------------------------------------------------------------------ no-op TorchRL hooks
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:

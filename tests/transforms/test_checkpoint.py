@@ -41,10 +41,13 @@ def base_env(kind: str, seed: int | None) -> EnvBase:
     return BatchedMujocoEnv("Hopper-v5", num_envs=BATCH, seed=seed, num_threads=1)
 
 
-def make_env(kind: str = "pendulum", seed: int | None = None, *, state: bool = True) -> TransformedEnv:
+def make_env(
+    kind: str = "pendulum", seed: int | None = None, *, state: bool = True, nested: bool = False
+) -> TransformedEnv:
     """A task on the first two observation entries, judged against goals of a GoalCommand (module level: spawn-safe).
 
-    ``state=False``: the same env without the BaseEnvState.
+    ``state=False``: the same env without the BaseEnvState. ``nested``: that env (without a BaseEnvState) inside
+    an outer TransformedEnv (``auto_unwrap=False``) whose only transform is the BaseEnvState.
     """
     env = base_env(kind, seed)
     spec = EnvSpec(env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1])
@@ -55,16 +58,21 @@ def make_env(kind: str = "pendulum", seed: int | None = None, *, state: bool = T
         TaskTransform(MaskedTask(spec, reach, [0, 1]), goal_key="goal"),
         GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), resample_steps=(2, 5)),
     ]
+    if nested:
+        inner = TransformedEnv(env, Compose(*transforms))
+        return TransformedEnv(inner, Compose(BaseEnvState()), auto_unwrap=False)
     return TransformedEnv(env, Compose(*transforms, *([BaseEnvState()] if state else [])))
 
 
-def make_collector(kind: str = "pendulum", *, parallel: bool = False, state: bool = True) -> Collector:
+def make_collector(
+    kind: str = "pendulum", *, parallel: bool = False, state: bool = True, nested: bool = False
+) -> Collector:
     """A freshly built collector (other generators each time) with a deterministic policy (saved in its state)."""
     if parallel:  # use_buffers=False: TorchRL 0.14.1's shared-buffer ParallelEnv reads stale data after loading
         factory = functools.partial(make_env, kind, state=state)
         env = ParallelEnv(2, factory, mp_start_method="fork", use_buffers=False)
     else:
-        env = make_env(kind, state=state)
+        env = make_env(kind, state=state, nested=nested)
     sizes = env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1]
     policy = TensorDictModule(
         torch.nn.Sequential(torch.nn.Linear(*sizes, dtype=torch.float64), torch.nn.Tanh()), ["observation"], ["action"]
@@ -81,9 +89,9 @@ def saved_and_loaded(state: dict) -> dict:
     return torch.load(buffer)
 
 
-def resume_check(kind: str, *, parallel: bool = False) -> dict:
+def resume_check(kind: str, *, parallel: bool = False, nested: bool = False) -> dict:
     """Run 3 batches, save, load into a fresh collector, reset both, compare the next 2 batches; the saved state."""
-    running = make_collector(kind, parallel=parallel)
+    running = make_collector(kind, parallel=parallel, nested=nested)
     try:
         running.set_seed(5)
         running.reset()
@@ -91,7 +99,7 @@ def resume_check(kind: str, *, parallel: bool = False) -> dict:
         for _ in range(3):
             next(batches)
         saved = saved_and_loaded(running.state_dict())
-        fresh = make_collector(kind, parallel=parallel)
+        fresh = make_collector(kind, parallel=parallel, nested=nested)
         try:
             fresh.load_state_dict(saved)
             for collector in (running, fresh):
@@ -113,6 +121,16 @@ def test_a_collector_checkpoint_restores_the_base_env_and_the_command(kind: str)
     saved = resume_check(kind)
     assert "transforms.3._extra_state" in saved["env_state_dict"]  # the base env's state, in the transforms'
     assert "transforms.2._extra_state" in saved["env_state_dict"]  # the command's generator
+
+
+def test_in_the_outer_env_of_a_nested_env_it_saves_every_env_below_it():
+    """TorchRL's Collector.state_dict() saves the outermost env's transforms only: a BaseEnvState there saves the
+    inner TransformedEnv's transforms (the task's command) and, the inner env holding none, the innermost base env."""
+    saved = resume_check("pendulum", nested=True)
+    (key,) = saved["env_state_dict"].keys()
+    inner = saved["env_state_dict"][key]
+    assert "transforms.2._extra_state" in inner  # the command's generator, in the inner env's transforms
+    assert "_inner_base_env" in inner  # the pendulum's reset generator
 
 
 def test_without_it_the_base_env_is_not_restored():
