@@ -146,3 +146,29 @@ def test_a_threshold_task_step_compiles_to_one_graph() -> None:
     for expected, value in zip(eager, got, strict=True):
         assert torch.equal(expected, value)
     assert got[1].tolist() == [True, False]
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"dims": 2}, ValueError, r"dims=2 is not an index of the error's 2 entries"),
+        ({"dims": -3}, ValueError, r"dims=-3 is not an index"),
+        ({"dims": [0, 5]}, ValueError, r"dims\[1\]=5 is not an index"),
+        ({"dims": [False, True]}, TypeError, r"dims\[0\] must be an int"),
+        ({"dims": "ab"}, TypeError, "dims must be an int, a non-empty list of ints or None"),
+        ({"dims": []}, TypeError, "dims must be an int, a non-empty list of ints or None"),
+        ({"threshold": -1.0}, ValueError, "threshold must be non-negative"),
+        ({"threshold": math.nan}, ValueError, "threshold must be finite"),
+    ],
+)
+def test_proximity_succeeded_refuses_dims_and_thresholds_that_mean_nothing(kwargs, error, match) -> None:
+    """An index past the error's entries used to select nothing: a norm of 0, a success far from the goal."""
+    arguments = {"threshold": 0.1, **kwargs}
+    with pytest.raises(error, match=match):
+        proximity_succeeded(torch.tensor([[5.0, 5.0]]), **arguments)
+    task = DesiredStateTask(
+        EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 1.0]), functools.partial(proximity_succeeded, **arguments)
+    )
+    state = torch.tensor([[5.0, 5.0]])
+    with pytest.raises(error, match=match):
+        task.transition(state, torch.zeros(1, 1), state, task.reset(state))

@@ -9,7 +9,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import torch
 
-from torchtasks._checks import check_finite_scalar, check_int
+from torchtasks._checks import check_finite_scalar, check_int, check_weight
 
 __all__ = ["never_succeeded", "proximity_succeeded"]  # the checks below are for task constructors
 
@@ -46,13 +46,26 @@ def proximity_succeeded(error: torch.Tensor, threshold: float, dims: int | Seque
         >>> proximity_succeeded(torch.tensor([[0.0, 5.0]]), threshold=0.1, dims=0)
         tensor([True])
     """
+    if not isinstance(threshold, torch.Tensor):
+        check_weight(threshold, "threshold")  # a distance: finite and >= 0
+    size = error.shape[-1]  # a static fact: the checks below are host checks on Python ints
     if isinstance(dims, (int, np.integer)):  # one index (bools refused), -1 meaning all entries
         index = check_int(dims, "dims")
         if index != -1:
+            _check_dim(index, size, "dims")
             error = error[..., index : index + 1]
     elif dims is not None:
-        error = error[..., list(dims)]
+        if isinstance(dims, (str, torch.Tensor, np.ndarray)) or not isinstance(dims, Sequence) or not dims:
+            raise TypeError(f"dims must be an int, a non-empty list of ints or None, got {dims!r}")
+        indices = [_check_dim(check_int(d, f"dims[{i}]"), size, f"dims[{i}]") for i, d in enumerate(dims)]
+        error = error[..., indices]
     return torch.linalg.vector_norm(error, dim=-1) < threshold
+
+
+def _check_dim(index: int, size: int, name: str) -> int:
+    if not -size <= index < size:
+        raise ValueError(f"{name}={index} is not an index of the error's {size} entries")
+    return index
 
 
 def _describe(fn: object) -> str:
