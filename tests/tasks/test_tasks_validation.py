@@ -893,6 +893,18 @@ def test_memory_of_another_float_dtype_is_refused_not_promoted(name):
         assert task.transition(state, action, next_state, memory, 3).reward.dtype == torch.float32
 
 
+@pytest.mark.parametrize("name", sorted(_ALL_CASES))
+def test_an_action_of_another_float_dtype_is_refused_not_promoted(name):
+    """A float64 action with float32 states promoted the reward (and a held reward in memory) to float64."""
+    task = _ALL_CASES[name]()
+    data = make_drive_data(task, 4, 1, 0)
+    state, next_state = data.states[0].float(), data.states[1].float()
+    memory = task.reset(state)
+    with pytest.raises(TypeError, match=r"action must have the dtype of state \(torch.float32\), got torch.float64"):
+        task.transition(state, data.actions[0].double(), next_state, memory, 3)
+    assert task.transition(state, data.actions[0].float(), next_state, memory, 3).reward.dtype == torch.float32
+
+
 @pytest.mark.parametrize("dtype", [torch.float16, torch.bfloat16])
 def test_half_precision_is_refused_by_tasks_rewards_and_the_transform(dtype):
     from torchrl.envs import Compose, DTypeCastTransform, TransformedEnv

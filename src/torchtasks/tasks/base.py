@@ -332,6 +332,11 @@ class Task(nn.Module):
     def _check_action(self, state: torch.Tensor, action: torch.Tensor) -> None:
         check_input(action, "action", self.action_size)
         check_same_batch(state, action, "state", "action")
+        if action.dtype != state.dtype:  # would promote the reward and the memory to the wider dtype
+            raise TypeError(
+                f"action must have the dtype of state ({state.dtype}), got {action.dtype}; cast it, e.g. "
+                "action.to(state.dtype) (a TaskTransform casts the env's action to the state's dtype)"
+            )
 
     @property
     def memory_layout(self) -> MemoryLayout:
