@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal
 
 import torch
@@ -14,7 +14,7 @@ from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs.transforms import RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
 
-from torchtasks._checks import SUPPORTED_FLOATS, check_positive_int
+from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
 from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.base import Task
@@ -232,6 +232,14 @@ class TaskTransform(EnvDerivedTransform):
             max_steps = check_positive_int(max_steps, "TaskTransform: max_steps")
         if reset_overrides is not None and not callable(reset_overrides):
             raise TypeError(f"reset_overrides must be callable, got {type(reset_overrides).__name__}")
+        for name, flag in (("log_terms", log_terms), ("compile", compile)):
+            if not isinstance(flag, bool):
+                raise TypeError(f"TaskTransform: {name} must be a bool, got {flag!r}")
+        if goal_name is not None and goal_key is None and achieved_goal_key is None:
+            raise ValueError(
+                f"TaskTransform: goal_name={goal_name!r} names the goal task that goal_key (or achieved_goal_key) "
+                "feeds; pass goal_key=... too"
+            )
         state_keys = _state_keys(state_key)
         reserved = {"step", "final"} & set(task.term_names)
         if log_terms and reserved:
@@ -607,7 +615,34 @@ class TaskTransform(EnvDerivedTransform):
 
     # ----------------------------------------------------------------------- helpers
     def _overrides(self, init_state: torch.Tensor) -> dict[str, Any]:
-        return {} if self.reset_overrides is None else dict(self.reset_overrides(init_state))
+        if self.reset_overrides is None:
+            return {}
+        overrides = self.reset_overrides(init_state)
+        if not isinstance(overrides, Mapping):
+            raise TypeError(
+                "TaskTransform: reset_overrides must return a mapping {name: per-env value}, got "
+                f"{type(overrides).__name__}"
+            )
+        self.task.check_reset_overrides(overrides, "TaskTransform: reset_overrides returned ")
+        return dict(overrides)
+
+    def _check_stored(
+        self, tensordict: TensorDictBase, state: torch.Tensor, next_state: torch.Tensor, action: torch.Tensor
+    ) -> None:
+        """Stored transitions must fit the task as an env's data does: sizes, float dtypes, the data's batch shape."""
+        keys = self.state_keys[0] if len(self.state_keys) == 1 else self.state_keys
+        batch = tuple(tensordict.batch_size)
+        for name, value, size in (
+            (f"the stored state {keys!r}", state, self.task.state_size),
+            (f"the stored next state ('next', {keys!r})", next_state, self.task.state_size),
+            (f"the stored action {self.action_key!r}", action, self.task.action_size),
+        ):
+            check_input(value, f"TaskTransform: {name}", size)
+            if tuple(value.shape[:-1]) != batch:
+                raise ValueError(
+                    f"TaskTransform: {name} must have shape {[*batch, size]} (the data's batch size {list(batch)}, "
+                    f"then the task's {size} entries), got {list(value.shape)}"
+                )
 
     def _read_state(self, tensordict: TensorDictBase) -> torch.Tensor:
         if len(self.state_keys) == 1:
@@ -770,6 +805,8 @@ class TaskTransform(EnvDerivedTransform):
         action = td_get(tensordict, self.action_key)
         if action is None:
             self._missing_action(tensordict)
+        if offline:  # stored data: no env spec was checked for it
+            self._check_stored(tensordict, state, next_state, action)
         if action.dtype != state.dtype:
             action = action.to(state.dtype)
         if self._has_memory:

@@ -223,3 +223,38 @@ def test_relabelled_goal_rejudges_an_end_the_task_caused() -> None:
     data["next", "truncated"] = flag(True)
     data["next", "success"] = flag(False)
     assert transform.reward_fn(data).tolist() == [[-32.0]]
+
+
+@pytest.mark.parametrize(
+    ("change", "error", "match"),
+    [
+        (lambda d: d.set("observation", d["observation"][..., :1]), ValueError, r"stored state 'observation' must"),
+        (lambda d: d.set(("next", "observation"), d["next", "observation"].repeat(1, 2)), ValueError, "next state"),
+        (lambda d: d.set("action", d["action"].repeat(1, 3)), ValueError, r"stored action 'action' must have"),
+        (lambda d: d.set("observation", d["observation"].long()), TypeError, "float32 or float64"),
+    ],
+    ids=["state-size", "next-state-size", "action-size", "integer-state"],
+)
+def test_stored_data_that_does_not_fit_the_task_is_refused(collected: TensorDictBase, change, error, match) -> None:
+    """Offline there is no env spec: a stored state or action of another size was broadcast against the task's
+    constants (a size-1 state gave plausible rewards), or evaluated on the wrong entries."""
+    transform = _offline_transform()
+    for call in (transform, transform.reward_fn):
+        with pytest.raises(error, match=match):
+            call(change(_stripped(collected[:4])))
+
+
+def test_reset_overrides_must_return_known_names() -> None:
+    """A misspelt override name was dropped: the episodes started with the default goal."""
+    task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 1.0]))
+    for overrides, match in (
+        (lambda s: {"goal": s}, r"reset_overrides returned unknown reset override\(s\) \['goal'\].*\['state_des'\]"),
+        (lambda s: [("state_des", s)], "reset_overrides must return a mapping"),
+    ):
+        env = TransformedEnv(PendulumEnv(batch_size=[2]), TaskTransform(task, reset_overrides=overrides))
+        with pytest.raises(TypeError, match=match):
+            env.reset()
+    with pytest.raises(TypeError, match="log_terms must be a bool"):
+        TaskTransform(task, log_terms="no")
+    with pytest.raises(ValueError, match="goal_name='goal' names the goal task that goal_key"):
+        TaskTransform(task, goal_name="goal")

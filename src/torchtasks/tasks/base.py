@@ -465,12 +465,32 @@ class Task(nn.Module):
         composite tasks forward them to their children. Unknown names raise ``TypeError``.
         """
         self._check_state(init_state, "init_state")
+        self.check_reset_overrides(overrides)
+        return self._reset(init_state, overrides)
+
+    def check_reset_overrides(self, overrides: Mapping[str, Any], source: str = "") -> None:
+        """Raise ``TypeError`` unless every name of ``overrides`` is a reset override of this tree.
+
+        ``source`` starts the message (e.g. ``"TaskTransform: reset_overrides returned "``).
+
+        Example:
+            >>> from torchtasks.rewards import ConstantReward
+            >>> from torchtasks.spaces import EnvSpec
+            >>> from torchtasks.tasks import DesiredStateTask
+            >>> task = DesiredStateTask(EnvSpec(1, 1), [0.0], ConstantReward(0.0))
+            >>> task.check_reset_overrides({"state_des": None})
+            >>> try:
+            ...     task.check_reset_overrides({"goal": None})
+            ... except TypeError as error:
+            ...     print(error)
+            unknown reset override(s) ['goal']; this task understands ['state_des']
+        """
         unknown = set(overrides) - self.all_reset_keys()
         if unknown:
             raise TypeError(
-                f"unknown reset override(s) {sorted(unknown)}; this task understands {sorted(self.all_reset_keys())}"
+                f"{source}unknown reset override(s) {sorted(unknown)}; this task understands "
+                f"{sorted(self.all_reset_keys())}"
             )
-        return self._reset(init_state, overrides)
 
     def step_reward(
         self,
