@@ -268,6 +268,13 @@ def test_errors_are_dm_controls() -> None:
         tolerance(x, (0.0, 1.0), 1.0, "logistic")
     with pytest.raises(ValueError, match=r"Unknown sigmoid type 'logistic'"):  # stricter: dm_control ignores it
         tolerance(x, (0.0, 1.0), 0.0, "logistic")
+    # stricter than dm_control, whose comparisons with a NaN bound give a number for a point inside the other bound
+    with pytest.raises(ValueError, match="bounds must not be NaN"):
+        tolerance(x, (math.nan, 1.0), 1.0)
+    with pytest.raises(ValueError, match="bounds must not be NaN"):
+        tolerance(x, (torch.tensor([0.0, math.nan, 0.0]), 1.0), 1.0)
+    with pytest.raises(TypeError, match="half precision is not supported"):
+        tolerance(x.half(), (0.0, 1.0), 1.0)
 
 
 @pytest.mark.parametrize("sigmoid", SIGMOIDS)

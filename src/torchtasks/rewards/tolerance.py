@@ -17,7 +17,7 @@ from collections.abc import Iterable, Sequence
 
 import torch
 
-from torchtasks._checks import as_constant, cast_like, check_finite_scalar, check_input, check_int
+from torchtasks._checks import SUPPORTED_FLOATS, as_constant, cast_like, check_finite_scalar, check_input, check_int
 from torchtasks.rewards.base import RewardFunction, check_ignored_action, index_problem
 from torchtasks.spaces import Box
 
@@ -121,6 +121,8 @@ def _check_bounds(lower: Bound, upper: Bound, margin: Bound) -> None:
     if torch.compiler.is_compiling():
         return
     lower_t, upper_t = torch.as_tensor(lower), torch.as_tensor(upper)
+    if bool(torch.isnan(lower_t).any()) or bool(torch.isnan(upper_t).any()):
+        raise ValueError(f"bounds must not be NaN, got bounds=({lower!r}, {upper!r}).")
     if bool((lower_t > upper_t).any()):
         raise ValueError(f"Lower bound must be <= upper bound, got bounds=({lower!r}, {upper!r}).")
     margin_t = torch.as_tensor(margin)
@@ -223,9 +225,9 @@ def tolerance(
         >>> tolerance(x, bounds=(0.0, 1.0), margin=1.0)[2]  # gaussian: 0.1 at one margin outside
         tensor(0.1000, dtype=torch.float64)
     """
-    if not isinstance(x, torch.Tensor) or not x.is_floating_point():
+    if not isinstance(x, torch.Tensor) or x.dtype not in SUPPORTED_FLOATS:
         got = x.dtype if isinstance(x, torch.Tensor) else type(x).__name__
-        raise TypeError(f"x must be a floating-point torch.Tensor, got {got}")
+        raise TypeError(f"x must be a float32 or float64 torch.Tensor (half precision is not supported), got {got}")
     if not (isinstance(bounds, (tuple, list)) and len(bounds) == 2):
         raise ValueError(f"bounds must be a (lower, upper) pair, got {bounds!r}")
     lower, upper = bounds
