@@ -516,6 +516,19 @@ def _count(minimum: int) -> Callable[[str], int]:
     return parse
 
 
+SEED_MAX = 2**63 - 1  # torch's generators take a signed 64-bit seed
+
+
+def _seed(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value <= SEED_MAX:
+        raise argparse.ArgumentTypeError(f"expected an integer from 0 to 2**63 - 1, got {text!r}")
+    return value
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="torchtasks",
@@ -541,7 +554,7 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument(
         "--output", default=DEMO_OUTPUT, metavar="DIR", help="folder of the JSON and PNG (default: %(default)s)"
     )
-    demo.add_argument("--seed", type=int, default=0, metavar="N", help="random seed (default: %(default)s)")
+    demo.add_argument("--seed", type=_seed, default=0, metavar="N", help="random seed (default: %(default)s)")
     demo.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     demo.set_defaults(run=_cmd_demo)
 
