@@ -38,6 +38,7 @@ def as_constant(value: object, name: str, *, ndim: Sequence[int] | None = None) 
 
     ``ndim`` lists the accepted numbers of dimensions.
     """
+    check_real_numbers(value, name)
     if isinstance(value, torch.Tensor):
         tensor = value.detach().to(dtype=FLOAT64).clone()
     else:
@@ -51,6 +52,21 @@ def as_constant(value: object, name: str, *, ndim: Sequence[int] | None = None) 
     if torch.isnan(tensor).any():
         raise ValueError(f"{name} must not contain NaN, got {tensor.tolist()}")
     return tensor
+
+
+def check_real_numbers(value: object, name: str) -> None:
+    """Refuse bools and complex numbers where real numbers are expected (a cast would turn them into 0/1 or drop
+    the imaginary part); anything else is left to the conversion that follows."""
+    if isinstance(value, torch.Tensor):
+        kind = "bool" if value.dtype == torch.bool else "complex" if value.is_complex() else None
+    else:
+        try:
+            array = np.asarray(value)
+        except (TypeError, ValueError):  # ragged or odd: the conversion that follows says what is wrong
+            return
+        kind = {"b": "bool", "c": "complex"}.get(array.dtype.kind)
+    if kind is not None:
+        raise TypeError(f"{name} must hold real numbers, got {kind} values: {value!r}")
 
 
 def _type_error(value: object, name: str, expected: str) -> TypeError:

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import torch
 
-from torchtasks._checks import check_finite_scalar, check_weight
+from torchtasks._checks import as_constant, check_finite_scalar, check_weight
 from torchtasks.rewards import (
     AbsoluteErrorReward,
     ConstantReward,
@@ -154,7 +154,7 @@ def lifting_task(
         tensor([True])
     """
     labels = _labels(state_labels, "state_labels")
-    height = torch.as_tensor(des_height, dtype=torch.float64).reshape(-1)
+    height = as_constant(des_height, "des_height").reshape(-1)
     reward = ExpQuadraticErrorReward(Q=600.0 * torch.ones(len(labels)), R=0.1 * torch.ones(spec.action_size))
     return _masked_desired_state(spec, labels, height, reward, _proximity(success_threshold))
 
@@ -187,7 +187,7 @@ def home_position_task(spec: EnvSpec, state_labels: Sequence[str | int], state_d
         tensor([1.])
     """
     labels = _labels(state_labels, "state_labels")
-    goal = torch.as_tensor(state_des, dtype=torch.float64).reshape(-1)
+    goal = as_constant(state_des, "state_des").reshape(-1)
     if goal.numel() != len(labels):
         raise ValueError(f"state_des must have {len(labels)} entries (one per label), got {goal.numel()}")
     reward = ExpQuadraticErrorReward(Q=10.0 * torch.ones(len(labels)), R=0.1 * torch.ones(spec.action_size))

@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 
 import torch
 
-from torchtasks._checks import check_non_negative_int
+from torchtasks._checks import check_non_negative_int, check_real_numbers
 
 __all__ = [
     "Box",
@@ -27,6 +27,7 @@ Index = int | str
 
 def _as_bound(value: object, name: str) -> torch.Tensor:
     """Return ``value`` as a 1-D float64 tensor, rejecting NaN."""
+    check_real_numbers(value, name)
     try:
         tensor = torch.as_tensor(value, dtype=torch.float64).detach().clone()
     except (TypeError, ValueError, RuntimeError) as error:
@@ -55,6 +56,11 @@ def rows_outside(x: torch.Tensor, low: torch.Tensor, high: torch.Tensor) -> torc
         ...              torch.tensor([-1.0, -1.0]), torch.tensor([1.0, 1.0]))
         tensor([False,  True,  True])
     """
+    if low.shape[-1:] != x.shape[-1:] or high.shape[-1:] != x.shape[-1:]:  # static shapes: no broadcast of a bound
+        raise ValueError(
+            f"low and high must have the {x.shape[-1]} entries of x's rows, got shapes {list(low.shape)} and "
+            f"{list(high.shape)} for x of shape {list(x.shape)}"
+        )
     return torch.clamp(x, low, high).ne(x).count_nonzero(dim=-1) != 0
 
 
@@ -116,6 +122,8 @@ class Box:
         self.low = low_t
         self.high = high_t
         if labels is not None:
+            if isinstance(labels, str):  # tuple("xv") would be ("x", "v")
+                raise TypeError(f"labels must be a sequence of strings (one per dimension), got the string {labels!r}")
             labels = tuple(labels)
             if len(labels) != low_t.numel():
                 raise ValueError(f"labels must have {low_t.numel()} entries (one per dimension), got {len(labels)}")

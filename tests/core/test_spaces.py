@@ -8,7 +8,7 @@ import pytest
 import torch
 from torchrl.data import Bounded, Unbounded
 
-from torchtasks.spaces import Box, EnvSpec
+from torchtasks.spaces import Box, EnvSpec, rows_outside
 
 INF, NAN = math.inf, math.nan
 
@@ -52,6 +52,23 @@ def test_invalid_boxes_raise(low: object, high: object, labels: list[str] | None
 def test_labels_must_be_strings() -> None:
     with pytest.raises(TypeError, match=r"\blabels\b"):
         Box([0.0, 0.0], [1.0, 1.0], labels=["a", 1])
+    with pytest.raises(TypeError, match=r"labels must be a sequence of strings .* got the string 'xv'"):
+        Box([0.0, 0.0], [1.0, 1.0], labels="xv")  # not split into ("x", "v")
+
+
+@pytest.mark.parametrize(
+    "value", [[True, False], torch.tensor([True, False]), [1 + 1j, 0.0], torch.tensor([1 + 1j, 0j])], ids=str
+)
+def test_bounds_of_bools_or_complex_numbers_are_refused(value: object) -> None:
+    with pytest.raises(TypeError, match="low must hold real numbers"):
+        Box(value, [2.0, 2.0])
+
+
+def test_rows_outside_does_not_broadcast_a_bound() -> None:
+    x = torch.zeros(4, 3)
+    with pytest.raises(ValueError, match=r"low and high must have the 3 entries of x's rows, got shapes \[1\]"):
+        rows_outside(x, torch.zeros(1), torch.ones(1))
+    assert not rows_outside(x, torch.full((3,), -1.0), torch.ones(3)).any()
 
 
 def test_equality_compares_bounds_and_labels() -> None:

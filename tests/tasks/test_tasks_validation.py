@@ -441,6 +441,21 @@ BAD_RESET = {
         ValueError,
         r"state_des override must have shape \[2\] or \[3, 2\]",
     ),
+    "bool state_des override": (
+        lambda: MaskedTask(full_spec(), _goal_task(_spec(2, 2)), ["c", "a"]).reset(S, state_des=torch.ones(2).bool()),
+        TypeError,
+        r"state_des override must be a float32 or float64 tensor",
+    ),
+    "complex state_des override": (
+        lambda: MaskedTask(full_spec(), _goal_task(_spec(2, 2)), ["c", "a"]).reset(S, state_des=[1 + 2j, 0.0]),
+        TypeError,
+        r"state_des override must hold real numbers, got complex values",
+    ),
+    "string state_des override": (
+        lambda: MaskedTask(full_spec(), _goal_task(_spec(2, 2)), ["c", "a"]).reset(S, state_des="far"),
+        TypeError,
+        r"state_des override must be a number or an array of numbers, got 'far'",
+    ),
     "start_index override too large (int)": (
         lambda: _sequence().reset(S, start_index=3),
         ValueError,
@@ -570,6 +585,16 @@ BAD_PREDEFINED = {
         lambda: predefined.goal_distance_velocity_task(PREDEFINED_SPEC, 0, _quadratic(2, None)),
         ValueError,
         r"unknown label 'GD_DS0d'",
+    ),
+    "lifting: a height that is not a number": (
+        lambda: predefined.lifting_task(EnvSpec(Box.unbounded(2, labels=["x", "z"]), 1), ["z"], des_height="x"),
+        TypeError,
+        r"des_height must be a number or an array of numbers, got 'x'",
+    ),
+    "home position: a bool goal": (
+        lambda: predefined.home_position_task(EnvSpec(Box.unbounded(2, labels=["x", "z"]), 1), ["x"], [True]),
+        TypeError,
+        r"state_des must hold real numbers, got bool values",
     ),
     "goal distance: non-positive threshold": (
         lambda: predefined.goal_distance_task(PREDEFINED_SPEC, 0, _quadratic(1, None), success_threshold=0.0),

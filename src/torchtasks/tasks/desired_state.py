@@ -9,7 +9,7 @@ from typing import Any
 import torch
 from tensordict import TensorDictBase
 
-from torchtasks._checks import as_constant, cast_like
+from torchtasks._checks import as_constant, cast_like, check_input
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
@@ -102,7 +102,11 @@ class DesiredStateTask(RewardTask):
         if goal is None:
             goal = self.state_des.to(device=init_state.device, dtype=init_state.dtype)
         else:
-            goal = torch.as_tensor(goal, device=init_state.device, dtype=init_state.dtype)
+            if isinstance(goal, torch.Tensor):  # as goal=...: a float tensor, cast to the state's dtype
+                check_input(goal, "state_des override")
+            else:
+                goal = as_constant(goal, "state_des override")
+            goal = goal.to(device=init_state.device, dtype=init_state.dtype)
             if goal.shape not in (torch.Size([self.state_size]), (*batch, self.state_size)):
                 raise ValueError(
                     f"state_des override must have shape [{self.state_size}] or "
