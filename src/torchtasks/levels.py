@@ -392,6 +392,10 @@ class DifficultyLevels(ResetWritingTransform):
                         f"DifficultyLevels: {argument}={key!r} is not an entry of the step's data under 'next' "
                         f"(its entries: {keys_text(next_tensordict.keys(True, True))})"
                     )
+                if flag.dtype != torch.bool:  # a float entry would be truncated to 0 or 1 per env
+                    raise TypeError(
+                        f"DifficultyLevels: {argument}={key!r} must name a bool flag, got an entry of {flag.dtype}"
+                    )
             return success.reshape(batch).to(torch.int64) - failure.reshape(batch).to(torch.int64)
         change = self.rule(tensordict, next_tensordict)
         if (

@@ -171,6 +171,10 @@ def test_a_misspelt_flag_key_names_the_argument_and_the_entries(argument: str) -
     env = TransformedEnv(WalkEnv([2]), Compose(StepCounter(4), TaskTransform(walk_task()), levels))
     with pytest.raises(ValueError, match=rf"{argument}='succes' is not an entry .* 'success'"):
         env.rollout(2, random_walk_policy)
+    levels = DifficultyLevels(3, **{argument: "reward"})  # a float entry, not a flag
+    env = TransformedEnv(WalkEnv([2]), Compose(StepCounter(4), TaskTransform(walk_task()), levels))
+    with pytest.raises(TypeError, match=rf"{argument}='reward' must name a bool flag, got an entry of torch.float32"):
+        env.rollout(2, random_walk_policy)
 
 
 def test_levels_without_a_curriculum_in_a_flat_batch_say_what_to_do():
