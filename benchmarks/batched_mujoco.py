@@ -75,13 +75,11 @@ import mujoco
 import numpy as np
 import torch
 from mujoco import rollout as mujoco_rollout
-from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEnv
 
-from torchtasks.envs import BatchedMujocoEnv
-from torchtasks.envs.locomotion import locomotion_state_layout, locomotion_task
-from torchtasks.transforms import TaskTransform
+from torchtasks.bench.collector import uniform_policy
+from torchtasks.envs import BatchedMujocoEnv, gymnasium_env
 
 DEFAULT_CASES = ["HalfCheetah-v5:16,64,256", "Hopper-v5:16,64,256", "Ant-v5:16,64,256", "Humanoid-v5:16,64,256"]
 #: frames per measurement (at least MIN_STEPS steps): about a second of physics for each case
@@ -188,33 +186,9 @@ def env_rollout(env_id: str, num_envs: int, steps: int, num_threads: int) -> flo
 
 
 def make_task_env(env_id: str, num_envs: int, num_threads: int) -> TransformedEnv:
-    """The measured pipeline: the batched env, StepCounter(1000), the locomotion task, RewardSum."""
-    base = BatchedMujocoEnv(env_id, num_envs, seed=0, num_threads=num_threads)
-    task = TaskTransform(locomotion_task(env_id), state_key=list(locomotion_state_layout(env_id)))
-    return TransformedEnv(base, Compose(StepCounter(1000), task, RewardSum()))
-
-
-class UniformActions(torch.nn.Module):
-    """The benchmarks' policy: actions drawn uniformly within the env's action bounds, one ``torch.rand`` per step.
-
-    Every Collector column uses it. ``policy=None`` (TorchRL's ``RandomPolicy``) would add ~0.3–0.5 ms per
-    step to every column: ``Composite.rand`` builds a TensorDict through ``from_dict``, which searches
-    the import path for pandas on every call (tensordict 0.14.3), a cost no user policy has.
-    """
-
-    def __init__(self, env: EnvBase) -> None:
-        super().__init__()
-        space = env.action_spec.space
-        self.register_buffer("low", torch.as_tensor(space.low).expand(env.action_spec.shape).clone())
-        self.register_buffer("width", torch.as_tensor(space.high).expand(env.action_spec.shape) - self.low)
-
-    def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        return torch.rand(self.low.shape, dtype=self.low.dtype) * self.width + self.low
-
-
-def uniform_policy(env: EnvBase) -> TensorDictModule:
-    """:class:`UniformActions` for ``env`` as a TensorDictModule reading ``"observation"``, writing ``"action"``."""
-    return TensorDictModule(UniformActions(env), in_keys=["observation"], out_keys=["action"])
+    """The measured pipeline, as users build it: ``gymnasium_env(env_id, num_envs, backend="batched")``
+    (the batched env, StepCounter(1000), the locomotion task, ZeroBrokenStepReward, RewardSum)."""
+    return gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
 
 
 def endless_collector(env: EnvBase, frames_per_batch: int) -> Collector:

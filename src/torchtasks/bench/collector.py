@@ -9,6 +9,7 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
+from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, StepCounter, Transform, TransformedEnv
@@ -20,7 +21,15 @@ from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
 from torchtasks.transforms import TaskTransform
 
-__all__ = ["FewestT1Transform", "IdentityTransform", "MinimalT1Transform", "run_collector_benchmark", "t1_for"]
+__all__ = [
+    "FewestT1Transform",
+    "IdentityTransform",
+    "MinimalT1Transform",
+    "UniformActions",
+    "run_collector_benchmark",
+    "t1_for",
+    "uniform_policy",
+]
 
 # The collector benchmark measures what the transform costs, not what shorter episodes cost: with
 # these bounds and this threshold the task's episodes end only by truncation (StepCounter), as with
@@ -218,8 +227,45 @@ class FewestT1Transform(Transform):
         return state_spec
 
 
+class UniformActions(torch.nn.Module):
+    """The benchmarks' policy: actions drawn uniformly within the env's action bounds, one ``torch.rand`` per step.
+
+    Every Collector of the benchmarks uses it (here and in ``benchmarks/batched_mujoco.py``).
+    ``policy=None`` (TorchRL's ``RandomPolicy``) would add ~0.3–0.5 ms per step to every column:
+    ``Composite.rand`` builds a TensorDict through ``from_dict``, which searches the import path for
+    pandas on every call (tensordict 0.14.3), a cost no user policy has.
+
+    Example:
+        >>> from torchtasks.envs import PendulumEnv
+        >>> env = PendulumEnv(batch_size=[4])
+        >>> policy = uniform_policy(env)
+        >>> bool(env.action_spec.is_in(policy(env.reset())["action"]))
+        True
+    """
+
+    def __init__(self, env: EnvBase) -> None:
+        super().__init__()
+        space = env.action_spec.space
+        self.register_buffer("low", torch.as_tensor(space.low).expand(env.action_spec.shape).clone())
+        self.register_buffer("width", torch.as_tensor(space.high).expand(env.action_spec.shape) - self.low)
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return torch.rand(self.low.shape, dtype=self.low.dtype) * self.width + self.low
+
+
+def uniform_policy(env: EnvBase) -> TensorDictModule:
+    """:class:`UniformActions` for ``env`` as a TensorDictModule reading ``"observation"``, writing ``"action"``."""
+    return TensorDictModule(UniformActions(env), in_keys=["observation"], out_keys=["action"])
+
+
 def _frames_per_second(env: EnvBase, frames_per_batch: int, batches: int) -> float:
-    collector = Collector(env, None, frames_per_batch=frames_per_batch, total_frames=frames_per_batch * (batches + 1))
+    collector = Collector(
+        env,
+        uniform_policy(env),
+        frames_per_batch=frames_per_batch,
+        total_frames=frames_per_batch * (batches + 1),
+        auto_register_policy_transforms=False,
+    )
     iterator = iter(collector)
     next(iterator)  # warm-up batch
     start = time.perf_counter()
