@@ -166,7 +166,7 @@ def format_markdown(results: dict[str, Any]) -> str:
     if "collector" in results:
         lines += [
             "",
-            "## Collector overhead (frames/s, random policy, StepCounter(1000) + transform)",
+            "## Collector overhead (frames/s, uniform random actions, StepCounter(1000) + transform)",
             "",
             "| setup | identity | TaskTransform(T1) | minimal T1 | task / identity | minimal / identity "
             "| task / minimal | TaskTransform(T1, log_terms=False) | fewest-entries T1 | no terms / fewest |",

@@ -231,7 +231,7 @@ class UniformActions(torch.nn.Module):
     """The benchmarks' policy: actions drawn uniformly within the env's action bounds, one ``torch.rand`` per step.
 
     Every Collector of the benchmarks uses it (here and in ``benchmarks/batched_mujoco.py``).
-    ``policy=None`` (TorchRL's ``RandomPolicy``) would add ~0.3–0.5 ms per step to every column:
+    ``policy=None`` (TorchRL's ``RandomPolicy``) would add a cost of its own per step to every column:
     ``Composite.rand`` builds a TensorDict through ``from_dict``, which searches the import path for
     pandas on every call (tensordict 0.14.3), a cost no user policy has.
 
