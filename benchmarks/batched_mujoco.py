@@ -14,9 +14,10 @@ ratio compares numbers taken under the same machine load:
   The floor is the faster of the two.
 - ``env``: ``BatchedMujocoEnv(...).rollout(steps, break_when_any_done=False)`` (random actions).
 - ``collector`` (the pipeline): a ``torchrl.collectors.Collector`` with uniform random actions
-  (:class:`UniformActions`, the policy of every Collector column) and one torch thread over
-  ``TransformedEnv(BatchedMujocoEnv(...), Compose(StepCounter(1000), TaskTransform(locomotion_task(env_id),
-  state_key=...), RewardSum()))``, the first batch not timed.
+  (``torchtasks.bench.collector.UniformActions``, the policy of every Collector column) and one torch
+  thread over the preset users build, ``gymnasium_env(env_id, num_envs=N, backend="batched")``
+  (BatchedMujocoEnv, StepCounter(1000), the locomotion task's TaskTransform, ZeroBrokenStepReward,
+  RewardSum), the first batch not timed.
 
 and the peers (each can be left out with ``--skip``; one that cannot be imported is reported as
 "not installed" instead of measured):
@@ -451,8 +452,9 @@ def legend(num_threads: int, preset_envs: int) -> str:
             "the same repeat as the row's other columns; every ratio to the floor divides by the floor of its "
             "own repeat (the median ratio is shown).",
             f"- BatchedMujocoEnv alone: `BatchedMujocoEnv(env_id, N, num_threads={num_threads}).rollout(steps)`.",
-            "- pipeline: a `Collector` (uniform random actions, one torch thread) over BatchedMujocoEnv + "
-            "`StepCounter(1000)` + `TaskTransform(locomotion_task(env_id))` + `RewardSum()`.",
+            "- pipeline: a `Collector` (uniform random actions, one torch thread) over the preset users build, "
+            '`gymnasium_env(env_id, num_envs=N, backend="batched")`: BatchedMujocoEnv + `StepCounter(1000)` + '
+            "`TaskTransform(locomotion_task(env_id))` + `ZeroBrokenStepReward` + `RewardSum()`.",
             f"- ParallelEnv preset: the same Collector over `gymnasium_env(env_id, num_envs={preset_envs}, "
             f'backend="gymnasium")` (a ParallelEnv of {preset_envs} spawned Gymnasium workers + StepCounter + '
             "TaskTransform + RewardSum), measured once per env id; the bracket is the row's pipeline frames/s "
