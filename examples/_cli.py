@@ -64,6 +64,33 @@ def shown(value: Any) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
+QUICK_FOLDER = "quick"  # a --quick run's default output folder, inside the example's own
+
+
+def add_output_argument(parser: argparse.ArgumentParser, default: Path, what: str) -> None:
+    """Add ``--output DIR`` (``what`` the run writes there), whose default is ``default``, ``default/quick`` for a
+    ``--quick`` run: a smoke run never overwrites a full run's results. :func:`output_folder` resolves it.
+
+    Example:
+        >>> parser = argparse.ArgumentParser()
+        >>> _ = parser.add_argument("--quick", action="store_true")
+        >>> add_output_argument(parser, Path("runs/demo"), "directory for the JSON")
+        >>> str(output_folder(parser.parse_args(["--quick"]), Path("runs/demo")))
+        'runs/demo/quick'
+    """
+    note = f"{default / QUICK_FOLDER} with --quick"
+    parser.add_argument(
+        "--output", type=Path, default=None, metavar="DIR", help=f"{what} {default_text(str(default), note)}"
+    )
+
+
+def output_folder(args: argparse.Namespace, default: Path) -> Path:
+    """The ``--output`` folder of parsed ``args``: the one given, else ``default`` (``default/quick`` with --quick)."""
+    if args.output is not None:
+        return args.output
+    return default / QUICK_FOLDER if args.quick else default
+
+
 def default_text(value: Any, note: str = "") -> str:
     """``(default: VALUE)``, or ``(default: VALUE; note)``: how every option of every example states its default.
 

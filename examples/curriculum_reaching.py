@@ -409,9 +409,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=Path("runs") / NAME, metavar="DIR", help="directory for the JSON and PNG"
-    )
+    add_output_argument(parser, Path("runs") / NAME, "directory for the JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of each variant")
     parser.add_argument(
         "--variants", nargs="+", choices=list(VARIANTS), default=["curriculum", "baseline"], metavar="NAME",
@@ -422,6 +420,7 @@ def main() -> None:
         "--effort-weight", type=float, help=f"the full task's effort weight w {default_text(EFFORT_WEIGHT)}"
     )
     args = parser.parse_args()
+    args.output = output_folder(args, Path("runs") / NAME)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else Config()
     if args.frames is not None:
@@ -473,7 +472,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import default_text, make_parser, quiet_torchrl
+    from _cli import add_output_argument, default_text, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

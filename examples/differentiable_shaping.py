@@ -59,7 +59,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
-from _cli import duration, frame_bar
+from _cli import QUICK_FOLDER, duration, frame_bar
 from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.envs.utils import step_mdp
@@ -181,10 +181,12 @@ def train(config: ShapingConfig, seed: int, max_iterations: int | None = None) -
     return record
 
 
-def default_ppo_json(output: Path) -> Path:
-    """``swingup_ppo_curve.json`` in ``output`` if it is there, else in ``train_swingup_ppo.py``'s default output."""
+def default_ppo_json(output: Path, quick: bool) -> Path:
+    """``swingup_ppo_curve.json`` in ``output`` if it is there, else in ``train_swingup_ppo.py``'s default output
+    (that of its ``--quick`` runs for a ``--quick`` run: a smoke run compares with a smoke run)."""
     beside = output / f"{PPO_CURVE_NAME}.json"
-    return beside if beside.is_file() else PPO_OUTPUT / f"{PPO_CURVE_NAME}.json"
+    ppo_output = PPO_OUTPUT / QUICK_FOLDER if quick else PPO_OUTPUT
+    return beside if beside.is_file() else ppo_output / f"{PPO_CURVE_NAME}.json"
 
 
 def compare(record: dict[str, Any], ppo_json: Path) -> dict[str, Any] | None:
@@ -211,9 +213,7 @@ def _frames_to_target(record: dict[str, Any]) -> str:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSON and PNG"
-    )
+    add_output_argument(parser, DEFAULT_OUTPUT, "directory for the JSON and PNG")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
         "--ppo-json",
@@ -238,6 +238,7 @@ def main() -> None:
         "--learning-rate", type=float, help=f"Adam's learning rate {default_text(ShapingConfig.learning_rate)}"
     )
     args = parser.parse_args()
+    args.output = output_folder(args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else ShapingConfig()
     overrides = {
@@ -247,7 +248,7 @@ def main() -> None:
     }
     config = replace(config, **overrides)
     record = train(config, args.seed, max_iterations=QUICK_ITERATIONS if args.quick else None)
-    ppo = compare(record, args.ppo_json or default_ppo_json(args.output))
+    ppo = compare(record, args.ppo_json or default_ppo_json(args.output, args.quick))
     if ppo is not None:
         record["ppo"] = {key: ppo[key] for key in ("seed", "config", "frames_to_target", "time_to_target_s")}
     title = f"Analytic policy gradients, {config.num_envs} envs, {config.horizon}-step windows, seed {args.seed}"
@@ -256,7 +257,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import default_text, make_parser, quiet_torchrl
+    from _cli import add_output_argument, default_text, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -284,9 +284,7 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=Path("runs/goal_reaching"), metavar="DIR", help="directory for the JSON and PNG"
-    )
+    add_output_argument(parser, Path("runs/goal_reaching"), "directory for the JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="seeds of each variant")
     parser.add_argument(
         "--variants", nargs="+", default=["her", "plain"], choices=["her", "plain"], metavar="NAME",
@@ -295,6 +293,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, help=f"frame budget per run {default_text(Config.total_frames)}")
     parser.add_argument("--target", type=float, help=f"stop a run at this success rate {default_text(Config.target)}")
     args = parser.parse_args()
+    args.output = output_folder(args, Path("runs/goal_reaching"))
     torch.set_num_threads(1)
     config = QUICK if args.quick else Config()
     if args.frames is not None:
@@ -333,7 +332,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import default_text, make_parser, quiet_torchrl
+    from _cli import add_output_argument, default_text, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

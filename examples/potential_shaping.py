@@ -269,9 +269,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=Path("runs") / NAME, metavar="DIR", help="directory for the JSON and PNG"
-    )
+    add_output_argument(parser, Path("runs") / NAME, "directory for the JSON and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", help=f"seeds of each variant {default_text(SEEDS)}")
     parser.add_argument(
         "--frames", type=int, help=f"frame budget per run, rounded up to whole batches {default_text(FRAMES)}"
@@ -288,6 +286,7 @@ def main() -> None:
         help=f"sparse and/or shaped {default_text(list(VARIANTS))}",
     )
     args = parser.parse_args()
+    args.output = output_folder(args, Path("runs") / NAME)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
     # the frame budget ends every run; the wall-clock limit is only a safety net on a very busy machine
@@ -310,7 +309,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import default_text, make_parser, quiet_torchrl, shown
+    from _cli import add_output_argument, default_text, make_parser, output_folder, quiet_torchrl, shown
 
     quiet_torchrl()
     main()

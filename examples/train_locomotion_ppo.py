@@ -449,13 +449,12 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSONs and PNG"
-    )
+    add_output_argument(parser, DEFAULT_OUTPUT, "directory for the JSONs and PNG")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
     defaults = LocomotionPPOConfig()
     config_arguments(parser, defaults, PPO_CONFIG_HELP, FLAGS)
     args = parser.parse_args()
+    args.output = output_folder(args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
@@ -486,7 +485,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import config_arguments, make_parser, quiet_torchrl
+    from _cli import add_output_argument, config_arguments, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -418,7 +418,7 @@ def file_name(variant: str, seed: int | str) -> str:
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument("--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory of the outputs")
+    add_output_argument(parser, DEFAULT_OUTPUT, "directory of the outputs")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
     parser.add_argument(
         "--variants",
@@ -432,6 +432,7 @@ def main() -> None:
     defaults = SafetyPPOConfig()
     config_arguments(parser, defaults, CONFIG_HELP)
     args = parser.parse_args()
+    args.output = output_folder(args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
@@ -461,7 +462,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import config_arguments, make_parser, quiet_torchrl
+    from _cli import add_output_argument, config_arguments, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -124,9 +124,7 @@ def train(config: PPOConfig, seed: int, max_iterations: int | None = None) -> di
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
-    parser.add_argument(
-        "--output", type=Path, default=DEFAULT_OUTPUT, metavar="DIR", help="directory for the JSON and PNG"
-    )
+    add_output_argument(parser, DEFAULT_OUTPUT, "directory for the JSON and PNG")
     parser.add_argument("--seed", type=int, default=0, help="random seed")
     parser.add_argument(
         "--max-minutes", type=float, help=f"wall-clock limit in minutes {default_text(PPOConfig.max_minutes)}"
@@ -142,6 +140,7 @@ def main() -> None:
         "--minibatch-size", type=int, help=f"frames per PPO minibatch {default_text(PPOConfig.minibatch_size)}"
     )
     args = parser.parse_args()
+    args.output = output_folder(args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
     overrides = {
@@ -166,7 +165,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    from _cli import default_text, make_parser, quiet_torchrl
+    from _cli import add_output_argument, default_text, make_parser, output_folder, quiet_torchrl
 
     quiet_torchrl()
     main()

@@ -190,7 +190,7 @@ def test_mujoco_locomotion(tmp_path: Path) -> None:
 
 def test_potential_shaping(tmp_path: Path) -> None:
     out = run_example("potential_shaping.py", tmp_path)
-    output = tmp_path / "runs" / "potential_shaping"  # the default --output
+    output = tmp_path / "runs" / "potential_shaping" / "quick"  # the default --output of a --quick run
     assert "frame budget 1,024 per run" in out
     for label in ("sparse", "sparse + shaping"):
         for seed in (0, 1):
@@ -215,7 +215,7 @@ def test_goal_reaching(tmp_path: Path) -> None:
     import json
 
     out = run_example("goal_reaching.py", tmp_path)
-    output = tmp_path / "runs" / "goal_reaching"  # the default --output
+    output = tmp_path / "runs" / "goal_reaching" / "quick"  # the default --output of a --quick run
     for variant in ("her", "plain"):
         assert re.search(
             rf"^{variant}, seed 0: 90% (after [\d,]+ frames|not reached); final success rate", out, re.MULTILINE
@@ -233,7 +233,7 @@ def test_goal_reaching(tmp_path: Path) -> None:
 
 def test_curriculum_reaching(tmp_path: Path) -> None:
     out = run_example("curriculum_reaching.py", tmp_path)
-    output = tmp_path / "runs" / "curriculum_reaching"  # the default --output
+    output = tmp_path / "runs" / "curriculum_reaching" / "quick"  # the default --output of a --quick run
     for variant in ("curriculum", "baseline"):
         assert re.search(rf"^{variant}, seed 0: 80% (after [\d,]+ frames|not reached)", out, re.MULTILINE)
     experiment = json.loads((output / "curriculum_reaching.json").read_text())

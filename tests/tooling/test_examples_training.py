@@ -67,10 +67,10 @@ def load_run(path: Path) -> dict[str, Any]:
 
 @pytest.fixture(scope="module")
 def ppo_output(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The output directory of one quick PPO run: its default, ``runs/train_swingup_ppo/``."""
+    """The output directory of one quick PPO run: its default, ``runs/train_swingup_ppo/quick/``."""
     cwd = tmp_path_factory.mktemp("ppo")
     run_example("train_swingup_ppo.py", cwd, "--seed", "1")
-    return cwd / "runs" / "train_swingup_ppo"
+    return cwd / "runs" / "train_swingup_ppo" / "quick"
 
 
 def test_ppo_quick_writes_curve_json_and_png(ppo_output: Path) -> None:
@@ -83,18 +83,19 @@ def test_ppo_quick_writes_curve_json_and_png(ppo_output: Path) -> None:
 
 
 def test_differentiable_shaping_quick_writes_curve_and_comparison(ppo_output: Path, tmp_path: Path) -> None:
-    """By default it compares with the PPO run where ``train_swingup_ppo.py`` writes it by default."""
-    ppo_json = tmp_path / "runs" / "train_swingup_ppo" / "swingup_ppo_curve.json"
+    """By default it compares with the PPO run where ``train_swingup_ppo.py`` writes it by default (a quick run
+    with a quick run)."""
+    ppo_json = tmp_path / "runs" / "train_swingup_ppo" / "quick" / "swingup_ppo_curve.json"
     ppo_json.parent.mkdir(parents=True)
     shutil.copy(ppo_output / "swingup_ppo_curve.json", ppo_json)
     result = run_example("differentiable_shaping.py", tmp_path)
-    output = tmp_path / "runs" / "differentiable_shaping"
+    output = tmp_path / "runs" / "differentiable_shaping" / "quick"
     record = load_run(output / "differentiable_shaping_curve.json")
     assert record["method"] == "analytic gradients"
     assert "loss" in record["curve"][-1]
     assert record["ppo"]["frames_to_target"] == json.loads(ppo_json.read_text())["frames_to_target"]
     assert (output / "differentiable_shaping_curve.png").stat().st_size > 0
-    assert "PPO (runs/train_swingup_ppo/swingup_ppo_curve.json)" in result.stdout
+    assert "PPO (runs/train_swingup_ppo/quick/swingup_ppo_curve.json)" in result.stdout
 
 
 def test_differentiable_shaping_quick_without_ppo_run(tmp_path: Path) -> None:
@@ -103,14 +104,14 @@ def test_differentiable_shaping_quick_without_ppo_run(tmp_path: Path) -> None:
     result = run_example("differentiable_shaping.py", tmp_path, "--output", str(output))
     record = load_run(tmp_path / output / "differentiable_shaping_curve.json")
     assert "ppo" not in record
-    assert "no PPO run at runs/train_swingup_ppo/swingup_ppo_curve.json" in result.stdout
+    assert "no PPO run at runs/train_swingup_ppo/quick/swingup_ppo_curve.json" in result.stdout
 
 
 def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     pytest.importorskip("mujoco")
     pytest.importorskip("gymnasium")
     result = run_example("train_locomotion_ppo.py", tmp_path, "--seeds", "3")
-    output = tmp_path / "runs" / "train_locomotion_ppo"  # the default --output
+    output = tmp_path / "runs" / "train_locomotion_ppo" / "quick"  # the default --output of a --quick run
     record = json.loads((output / "locomotion_ppo_seed3.json").read_text())
     assert record["seed"] == 3 and record["env_id"] == "HalfCheetah-v5" and record["method"] == "PPO"
     frames = [point["frames"] for point in record["curve"]]
@@ -139,7 +140,7 @@ def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None
     pytest.importorskip("mujoco")
     pytest.importorskip("gymnasium")
     result = run_example("train_safety_ppo_lagrangian.py", tmp_path, "--seeds", "3")
-    output = tmp_path / "runs" / "train_safety_ppo_lagrangian"  # the default --output
+    output = tmp_path / "runs" / "train_safety_ppo_lagrangian" / "quick"  # the default --output of a --quick run
     for variant, method in (("lagrangian", "PPO-Lagrangian"), ("ppo", "PPO (λ = 0)")):
         record = json.loads((output / f"{variant}_seed3.json").read_text())
         assert record["seed"] == 3 and record["variant"] == variant and record["method"] == method
