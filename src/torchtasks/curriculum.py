@@ -30,6 +30,8 @@ from torchtasks._checks import check_finite_scalar, check_non_negative_int, chec
 from torchtasks._memory import td_set
 from torchtasks._torchrl import ResetWritingTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
+from torchtasks.rewards import RewardFunction
+from torchtasks.rewards.base import check_written_value
 from torchtasks.transforms import TaskTransform
 
 __all__ = ["Curriculum", "GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
@@ -443,7 +445,9 @@ class Curriculum(ResetWritingTransform):
     key joined by ``"/"``) always; a short name with several GoalCommands is ambiguous. A scheduled
     GoalCommand must come after the Curriculum (the goal drawn in a step uses that step's range). A
     misspelt or ambiguous name is a ``ValueError`` listing every schedulable name when the env's
-    specs are built, and so is a value whose shape is neither ``()`` nor the buffer's, and a
+    specs are built, and so is a value whose shape is neither ``()`` nor the buffer's, a value the
+    buffer's reward refuses (:meth:`~torchtasks.rewards.RewardFunction.check_constant`, e.g. a negative
+    cost weight; checked at every breakpoint and stage), and a
     scheduled range that leaves the command's ``Box`` (the goal spec) or has ``low > high`` (checked
     at every breakpoint of constant, linear and staged schedules, where their extremes lie, and for
     every stage value of a gated schedule against every value the other bound can take).
@@ -673,6 +677,9 @@ class Curriculum(ResetWritingTransform):
                     f"Curriculum: the schedule of {target!r} has values of shape {tuple(received)}, but the target "
                     f"has shape {tuple(expected)}; give values of shape {tuple(expected)} or scalars"
                 )
+            if isinstance(module, RewardFunction):  # the values its constructor would accept, at every breakpoint
+                for value in _possible_values(schedule, module._buffers[leaf]):
+                    check_written_value(module, leaf, value.expand(expected), f"Curriculum: the schedule of {target!r}")
             slots.append((module, leaf))
         self._check_ranges(slots)
         self.__dict__["_slots"] = slots

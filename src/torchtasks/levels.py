@@ -30,6 +30,8 @@ from torchtasks._memory import td_set
 from torchtasks._torchrl import ResetWritingTransform, container_env, key_parts, keys_text, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum
+from torchtasks.rewards import RewardFunction
+from torchtasks.rewards.base import check_written_value
 from torchtasks.transforms import TaskTransform
 
 __all__ = ["DifficultyLevels", "LevelRule"]
@@ -269,6 +271,9 @@ class DifficultyLevels(ResetWritingTransform):
                 f"table's shape {list(table.shape[1:])} needs a buffer of shape {list(expected)} (the env batch "
                 f"{list(batch)} first); a value shared by all envs is scheduled with a Curriculum"
             )
+        if isinstance(owner, RewardFunction):  # every level's row, as the constructor would check the value
+            for level, row in enumerate(table):
+                check_written_value(owner, leaf, row, f"DifficultyLevels: level {level} of {target!r}")
         return owner, leaf
 
     def _command_slot(self, target: str, flat: list, position: int) -> tuple[GoalCommand, str]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import functools
 import io
 import math
+import re
 
 import pytest
 import torch
@@ -274,6 +275,23 @@ def test_a_misspelt_target_lists_the_schedulable_names():
     for name in (WEIGHT, "wrapped_task.reward.rewards.track.Q", "wrapped_task.state_des", "success_value"):
         assert repr(name) in message
     assert "no_remaining_steps" not in message  # an int buffer is not schedulable
+
+
+@pytest.mark.parametrize(
+    ("target", "schedule", "match"),
+    [
+        (WEIGHT, linear(0.0, -1.0, 0, 100), r"can write -[\d.]+ into the ControlCostReward's weight, which it refuses"),
+        (WEIGHT, staged({0: 0.5, 50: math.inf}), r"can write inf into the ControlCostReward's weight.*must be finite"),
+        ("wrapped_task.reward.rewards.track.Q", constant([-1.0, 0.1]), r"can write \[-1.0, 0.1\] into the Quad"),
+        (WEIGHT, gated([0.0, 1.0, -2.0], window=4), r"can write -2.0 into the ControlCostReward's weight"),
+    ],
+    ids=["linear-end", "staged-stage", "constant-Q", "gated-stage"],
+)
+def test_a_schedule_that_can_write_a_value_the_constructor_refuses_is_refused(target, schedule, match):
+    """A negative cost weight would turn a cost into a reward: refused at every value the schedule can take."""
+    with pytest.raises(ValueError, match=rf"Curriculum: the schedule of '{re.escape(target)}' {match}"):
+        make_env({target: schedule}).reset()
+    make_env({target: linear(0.0, 2.0, 0, 100)}).reset()  # values the constructor accepts
 
 
 def test_a_value_of_the_wrong_shape_names_target_and_shapes():

@@ -121,6 +121,27 @@ def test_a_transform_between_the_levels_and_their_command():
     assert (data["goal"][..., 0].abs() <= torch.tensor(high)[:, 0][level]).all() and (level > 0).any()
 
 
+def test_a_level_row_the_constructor_refuses_is_refused():
+    """Levels of a per-env reward weight: a negative row would turn the cost into a reward."""
+    from torchtasks.rewards import ControlCostReward
+
+    class PerEnvWeight(ControlCostReward):  # a user's control cost with one weight per env
+        def __init__(self, batch: int) -> None:
+            super().__init__(weight=1.0)
+            self._register_constant("weight", torch.ones(batch), check=check_weights)
+
+    def check_weights(value, name):
+        if (torch.as_tensor(value) < 0).any():
+            raise ValueError(f"{name} must be non-negative")
+        return torch.as_tensor(value, dtype=torch.float64)
+
+    task = DesiredStateTask(SPEC, [0.8], PerEnvWeight(4), functools.partial(proximity_succeeded, threshold=0.15))
+    levels = DifficultyLevels(3, {"reward.weight": [1.0, 0.5, -0.5]})
+    env = TransformedEnv(WalkEnv([4]), Compose(StepCounter(5), TaskTransform(task), levels))
+    with pytest.raises(ValueError, match=r"level 2 of 'reward.weight' can write -0.5 into the PerEnvWeight's weight"):
+        env.reset()
+
+
 def test_levels_persist_across_collector_batches():
     torch.manual_seed(2)
     env = make_walk_env(6)

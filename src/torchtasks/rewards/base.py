@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import torch
 from tensordict import TensorDict
 from torch import nn
 
 from torchtasks._checks import as_constant, check_input, check_same_batch
+
+#: ``check(value, name) -> value``: a constant's validation, at construction and for every value written later
+ConstantCheck = Callable[[Any, str], Any]
 
 __all__ = ["RewardFunction", "empty_memory", "sum_terms"]
 
@@ -55,6 +59,26 @@ def check_ignored_action(error_state: torch.Tensor, error_action: object, state_
 def empty_memory(reference: torch.Tensor) -> TensorDict:
     """Return an empty memory TensorDict whose batch size is ``reference.shape[:-1]``."""
     return TensorDict({}, batch_size=reference.shape[:-1])
+
+
+def check_written_value(module: RewardFunction, name: str, value: torch.Tensor, writer: str) -> None:
+    """Raise ``ValueError`` naming ``writer`` unless ``module`` accepts ``value`` for its constant ``name``.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> try:
+        ...     check_written_value(QuadraticErrorReward([1.0]), "Q", torch.tensor([-1.0]), "a schedule")
+        ... except ValueError as error:
+        ...     print(str(error).split(": ")[0])
+        a schedule can write [-1.0] into the QuadraticErrorReward's Q, which it refuses
+    """
+    try:
+        module.check_constant(name, value)
+    except (TypeError, ValueError) as error:
+        raise ValueError(
+            f"{writer} can write {value.tolist()} into the {type(module).__name__}'s {name}, which it refuses: {error}"
+        ) from None
 
 
 class RewardFunction(nn.Module):
@@ -145,16 +169,52 @@ but the task's state has 2 entries
         """
         return sum_terms(values)
 
-    def _register_constant(self, name: str, value: torch.Tensor, learnable: bool = False) -> None:
-        """Register ``value`` as a buffer, or as a parameter when ``learnable``."""
+    def _register_constant(
+        self, name: str, value: object, learnable: bool = False, check: ConstantCheck | None = None
+    ) -> None:
+        """Register ``value`` as a buffer, or as a parameter when ``learnable``.
+
+        ``check(value, name)`` validates the value and returns it as a tensor; it is kept, so that a value
+        written later (a Curriculum's schedule, a level's row) is checked by the same rule
+        (:meth:`check_constant`).
+        """
+        if check is not None:
+            value = check(value, name)
+            self.__dict__.setdefault("_constant_checks", {})[name] = check
         if learnable:
             self.register_parameter(name, nn.Parameter(value))
         else:
             self.register_buffer(name, value)
 
-    def _register_scalar(self, name: str, value: object, learnable: bool = False) -> None:
-        """Register a 0-d float64 constant (0-d tensors keep the input dtype in arithmetic)."""
+    def _register_scalar(
+        self, name: str, value: object, learnable: bool = False, check: ConstantCheck | None = None
+    ) -> None:
+        """Register a 0-d float64 constant (0-d tensors keep the input dtype in arithmetic); ``check`` as for
+        :meth:`_register_constant` (e.g. :func:`~torchtasks._checks.check_weight`)."""
+        if check is not None:
+            self.__dict__.setdefault("_constant_checks", {})[name] = check
+            value = check(value, name)
         self._register_constant(name, as_constant(value, name, ndim=(0,)), learnable)
+
+    def check_constant(self, name: str, value: torch.Tensor) -> None:
+        """Raise ``ValueError``/``TypeError`` unless ``value`` is one the constructor accepts for the constant ``name``.
+
+        Curricula and difficulty levels call it for every value they may write into the constant.
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.rewards import QuadraticErrorReward
+            >>> reward = QuadraticErrorReward([1.0, 1.0])
+            >>> reward.check_constant("Q", torch.tensor([2.0, 0.5]))
+            >>> try:
+            ...     reward.check_constant("Q", torch.tensor([-1.0, 0.5]))
+            ... except ValueError as error:
+            ...     print(error)
+            Q (a diagonal) must be non-negative, got [-1.0, 0.5]
+        """
+        check = self.__dict__.get("_constant_checks", {}).get(name)
+        if check is not None:
+            check(value, name)
 
     def _check_inputs(
         self,

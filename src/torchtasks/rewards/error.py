@@ -66,12 +66,12 @@ class _QuadraticCost(RewardFunction):
 
     def __init__(self, Q: object, R: object | None = None, *, learnable: bool = False) -> None:
         super().__init__()
-        self._register_constant("Q", _weight_matrix(Q, "Q"), learnable)
+        self._register_constant("Q", Q, learnable, check=_weight_matrix)
         if R is None:
             self.R = None
             self.uses_action = False
         else:
-            self._register_constant("R", _weight_matrix(R, "R"), learnable)
+            self._register_constant("R", R, learnable, check=_weight_matrix)
 
     @property
     def state_size(self) -> int:
@@ -247,12 +247,12 @@ class AbsoluteErrorReward(RewardFunction):
 
     def __init__(self, q: object, r: object | None = None, *, learnable: bool = False) -> None:
         super().__init__()
-        self._register_constant("q", _weight_vector(q, "q"), learnable)
+        self._register_constant("q", q, learnable, check=_weight_vector)
         if r is None:
             self.r = None
             self.uses_action = False
         else:
-            self._register_constant("r", _weight_vector(r, "r"), learnable)
+            self._register_constant("r", r, learnable, check=_weight_vector)
 
     @property
     def state_size(self) -> int:

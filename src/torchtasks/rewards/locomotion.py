@@ -43,7 +43,7 @@ class _ForwardProgressReward(RewardFunction):
         self._register_scalar(
             "forward_reward_weight", check_finite_scalar(forward_reward_weight, "forward_reward_weight")
         )
-        self._register_scalar("ctrl_cost_weight", check_weight(ctrl_cost_weight, "ctrl_cost_weight"))
+        self._register_scalar("ctrl_cost_weight", ctrl_cost_weight, check=check_weight)
 
     def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
         return index_problem(who, self._x_index_name, self.x_index, state_size)
@@ -171,7 +171,7 @@ class _HealthyForwardReward(_ForwardProgressReward):
         contact_forces_start: int,
     ) -> None:
         super().__init__(dt, x_index, forward_reward_weight, ctrl_cost_weight)
-        self._register_scalar("contact_cost_weight", check_weight(contact_cost_weight, "contact_cost_weight"))
+        self._register_scalar("contact_cost_weight", contact_cost_weight, check=check_weight)
         self._register_scalar("healthy_reward", check_finite_scalar(healthy_reward, "healthy_reward"))
         if not isinstance(terminate_when_unhealthy, bool):
             raise TypeError(f"terminate_when_unhealthy must be a bool, got {terminate_when_unhealthy!r}")

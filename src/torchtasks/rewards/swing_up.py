@@ -59,7 +59,7 @@ class SwingUpReward(RewardFunction):
             ("c_act", c_act),
             ("c_theta_sq", c_theta_sq),
         ):
-            self._register_scalar(name, check_weight(value, name))
+            self._register_scalar(name, value, check=check_weight)
         c_theta_log = check_finite_scalar(c_theta_log, "c_theta_log")
         if c_theta_log <= 0:
             raise ValueError(f"c_theta_log must be positive (it keeps the logarithm finite), got {c_theta_log}")

@@ -98,7 +98,7 @@ class ControlCostReward(RewardFunction):
 
     def __init__(self, weight: float = 0.1) -> None:
         super().__init__()
-        self._register_scalar("weight", check_weight(weight, "weight"))
+        self._register_scalar("weight", weight, check=check_weight)
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         self._check_inputs(error_state, error_action)
@@ -279,7 +279,7 @@ class ContactCostReward(RewardFunction):
         cost_range: tuple[float, float] = (-math.inf, math.inf),
     ) -> None:
         super().__init__()
-        self._register_scalar("weight", check_weight(weight, "weight"))
+        self._register_scalar("weight", weight, check=check_weight)
         self.start = check_int(start, "start")
         self.stop = None if stop is None else check_int(stop, "stop")
         if self.start < 0 or (self.stop is not None and self.stop <= self.start):
