@@ -37,8 +37,10 @@ from torchtasks.tasks import (
     PotentialShapingTask,
     SequentialTasks,
     Task,
+    all_tasks,
     proximity_succeeded,
 )
+from torchtasks.tasks.base import Task as BaseTask
 from torchtasks.tasks.memory import where_memory
 from torchtasks.transforms import TaskTransform
 
@@ -75,6 +77,17 @@ WRAPPERS: dict[str, Callable[[Task], Task]] = {
     "parallel": lambda t: ParallelTasks([t]),
     "sequential": lambda t: SequentialTasks([t]),
 }
+
+
+def _own_final_only(task: Task) -> bool:
+    """Whether at most one task of ``task``'s wrapper chain pays a final reward of its own.
+
+    A composite pays a sub-task that did not finish by itself its own final reward at the episode end
+    (Pyrado's ``compute_final_rew`` over the immediate sub-tasks; masks, constraints and shaping pass it
+    through); for such a chain that is all of it.
+    """
+    payers = [t for t in all_tasks(task) if type(t)._compute_final_reward is not BaseTask._compute_final_reward]
+    return len(payers) <= 1
 
 
 def _wrapped_state(name: str, state: torch.Tensor) -> torch.Tensor:
@@ -129,7 +142,8 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         assert torch.equal(wrapped_out.terms["shaping"], shaping)
     elif name in ("parallel", "sequential"):
         # the sub-task's final reward is paid in the step where it finishes by itself; at an episode end
-        # by the env's flags alone, the composite pays it then: the same final reward either way
+        # by the env's flags alone, the composite pays its own final reward then (through the wrappers that
+        # change no number), as Pyrado's compute_final_rew
         same(wrapped_out.step_reward, out.step_reward + torch.where(own_end, out.final_reward, zero), "step reward")
         same(wrapped_out.success, out.success, "success")
         if name == "parallel":
@@ -137,7 +151,11 @@ def _check_rule(name: str, task: Task, wrapped_out, out, context: dict) -> None:
         else:  # a failed sub-task does not end a sequence; leaving the first sub-task's box does
             box = task.spec.state_space
             same(wrapped_out.failure, rows_outside(context["next_state"], box.low, box.high), "failure")
-        same(wrapped_out.reward, out.reward, "reward")
+        env_end = out.done & ~own_end
+        if _own_final_only(task):
+            same(wrapped_out.reward, out.reward, "reward")
+        else:
+            same(wrapped_out.reward[~env_end], out.reward[~env_end], "reward where the sub-task ended itself")
 
 
 def _run(task_name: str, wrapper_name: str, seed: int, reward_on: str) -> None:
@@ -244,6 +262,21 @@ def test_a_composite_pays_a_wrapped_sub_task_what_it_pays_the_bare_one(
         state = torch.where(out.done.unsqueeze(-1), draws["resets"][t], draws["states"][t + 1])
         memory = where_memory(out.done, bare.reset(state), out.memory)
         wrapped_memory = where_memory(out.done, wrapped.reset(state), wrapped_out.memory)
+
+
+def test_a_wrapper_chain_sub_task_is_judged_by_its_own_final_reward_at_the_episode_end() -> None:
+    """Pyrado's rule, kept: an unfinished ``FinalRewardTask(BestStateFinalRewardTask(T))`` sub-task pays the outer
+    task's own final reward at a time limit (0: neither success nor failure), not the inner best-state reward,
+    which it pays when it ends by itself (here the sub-task alone pays 10 at the same time limit)."""
+    spec = EnvSpec(Box(-5.0, 5.0), 1)
+    chain = FinalRewardTask(BestStateFinalRewardTask(GoallessTask(spec, ConstantReward(1.0)), 10.0), factor=3.0)
+    state, action = torch.zeros(1, 1), torch.zeros(1, 1)
+    truncated = torch.tensor([True])
+    alone = chain.transition(state, action, state, chain.reset(state), truncated=truncated)
+    assert alone.final_reward.tolist() == [10.0]
+    for composite in (ParallelTasks([chain]), SequentialTasks([chain])):
+        out = composite.transition(state, action, state, composite.reset(state), truncated=truncated)
+        assert (out.step_reward.tolist(), out.final_reward.tolist()) == ([1.0], [0.0]), type(composite).__name__
 
 
 # ----------------------------------------------------------------------------------- regressions

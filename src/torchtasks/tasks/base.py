@@ -764,6 +764,14 @@ class Task(nn.Module):
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return self._compute_final_reward(state, memory, remaining_steps, done, flags)
 
+    def _unfinished_final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        """What a composite pays this sub-task at the episode end if it did not finish by itself: its own final
+        reward (Pyrado's ``compute_final_rew`` of the sub-task). A wrapper that changes no number (a mask, a
+        constraint, shaping) passes the question to the task it wraps."""
+        return self._compute_final_reward(state, memory, remaining_steps, done)
+
 
 class TaskWrapper(Task):
     """A task that wraps another one and forwards everything it does not change.
@@ -995,6 +1003,11 @@ class ForwardingTask(Task):
         flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return self.wrapped_task._final_reward(self._state(state), memory, remaining_steps, done, flags)
+
+    def _unfinished_final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        return self.wrapped_task._unfinished_final_reward(self._state(state), memory, remaining_steps, done)
 
 
 def all_tasks(task: Task) -> Iterator[Task]:

@@ -108,16 +108,17 @@ class CompositeTask(Task):
         done: torch.Tensor,
         flags: tuple[torch.Tensor, torch.Tensor] | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
-        """Sum of the sub-tasks' final rewards, judged on the final state (Pyrado's order).
+        """Sum of the sub-tasks' own final rewards, judged on the final state (Pyrado's order).
 
-        Each sub-task pays what it pays when it finishes by itself: its whole final reward, the tasks it
-        wraps included (Pyrado paid only the sub-task's own, so a wrapper around a sub-task hid the final
-        rewards inside it). Sub-tasks that already paid give 0 (their final rewards are paid once).
+        A sub-task pays its own final reward (Pyrado's ``compute_final_rew``); a wrapper that changes no
+        number (a mask, a constraint, shaping) passes the judgement to the task it wraps, so wrapping a
+        sub-task in one changes nothing (Pyrado's mask hid the final reward inside it). Sub-tasks that
+        already paid give 0 (their final rewards are paid once).
         """
         total = state.new_zeros(state.shape[:-1])
         entries = copy_entries(memory)
         for key, task in zip(self._keys, self.tasks, strict=True):
-            value, entries[key] = task._final_reward(state, read(memory, key), remaining_steps, done)
+            value, entries[key] = task._unfinished_final_reward(state, read(memory, key), remaining_steps, done)
             total = total + value
         return total, make_memory(entries, memory.batch_size)
 

@@ -45,9 +45,10 @@ class SequentialTasks(CompositeTask):
     ``γ·Φ(s') − Φ(s)`` from where it took over, a forward-velocity reward measures from there, a
     :class:`BestStateFinalRewardTask` tracks the best of its own steps and a :class:`FlippingTask`
     counts flips from 0, as at an episode start. Where the episode ends, every sub-task that has not
-    finished is judged on the final state, as in Pyrado: its final reward (e.g. a
+    finished is judged on the final state, as in Pyrado: its own final reward (e.g. a
     :class:`FinalRewardTask`'s success or failure value, if the final state meets its goal or leaves
-    its box, and those of the tasks it wraps) is paid then, whether or not it was current; a
+    its box; through a mask, a constraint or shaping, that of the task inside) is paid then, whether or
+    not it was current; a
     :class:`BestStateFinalRewardTask` that never became current pays 0. The task succeeds when every
     sub-task succeeded; it fails when the state leaves the first sub-task's state box (a failed
     sub-task does not end the episode by itself).

@@ -154,3 +154,12 @@ class PotentialShapingTask(TaskWrapper):
         terminated: torch.Tensor | None = None,
     ) -> tuple[dict[str, torch.Tensor], torch.Tensor, TensorDictBase]:
         return self._shaped_step(state, action, memory, remaining_steps, terminated)
+
+    def _unfinished_final_reward(
+        self, state: torch.Tensor, memory: TensorDictBase, remaining_steps: torch.Tensor, done: torch.Tensor
+    ) -> tuple[torch.Tensor, TensorDictBase]:
+        # shaping pays no final reward of its own: at the episode end a composite judges the shaped task
+        reward, inner = self.wrapped_task._unfinished_final_reward(
+            state, read(memory, "wrapped"), remaining_steps, done
+        )
+        return reward, self._with_inner(memory, inner)
