@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -46,8 +47,9 @@ def proximity_succeeded(error: torch.Tensor, threshold: float, dims: int | Seque
         >>> proximity_succeeded(torch.tensor([[0.0, 5.0]]), threshold=0.1, dims=0)
         tensor([True])
     """
-    if not isinstance(threshold, torch.Tensor):
-        check_weight(threshold, "threshold")  # a distance: finite and >= 0
+    # a distance: finite and >= 0; a valid float passes with one comparison (this runs at every step)
+    if not (type(threshold) is float and 0.0 <= threshold < math.inf) and not isinstance(threshold, torch.Tensor):
+        check_weight(threshold, "threshold")
     size = error.shape[-1]  # a static fact: the checks below are host checks on Python ints
     if isinstance(dims, (int, np.integer)):  # one index (bools refused), -1 meaning all entries
         index = check_int(dims, "dims")
