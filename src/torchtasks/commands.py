@@ -16,6 +16,7 @@ from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, Unbounded
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_non_negative_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
 from torchtasks.seeding import SeededTransform
@@ -27,7 +28,7 @@ __all__ = ["GoalCommand"]
 Sampler = Callable[[torch.Size, torch.Generator | None], torch.Tensor]
 
 
-class GoalCommand(SeededTransform):
+class GoalCommand(CheckedLoad, SeededTransform):
     """Sample per-env goals into the observation; resample at reset, on a per-env timer, or after a success.
 
     The goal lives under ``goal_key`` (observation AND state spec, so ``ParallelEnv``, ``SerialEnv``,
@@ -244,6 +245,14 @@ class GoalCommand(SeededTransform):
                 self._buffers[name] = buffer.expand(target).clone()
 
     def _load_from_state_dict(self, state_dict: Mapping[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+        saved_range = prefix + "low" in state_dict or prefix + "high" in state_dict
+        strict = bool(args[1]) if len(args) > 1 else True
+        if saved_range != isinstance(self.space, Box) and (saved_range or strict):
+            saved, here = ("a Box range", "a sampler callable") if saved_range else ("a sampler", "a Box range")
+            raise ValueError(
+                f"GoalCommand.load_state_dict: the checkpoint is of a command drawing goals from {saved}, this one "
+                f"(writing {self.goal_key!r}) draws from {here}: build the command as saved"
+            )
         # a saved range of one shape ([k] or [*B, k]) loads into buffers of the other: the buffers take the saved shape
         if isinstance(self.space, Box):
             for name in ("low", "high"):
@@ -257,6 +266,23 @@ class GoalCommand(SeededTransform):
                     )
                 self._buffers[name] = torch.empty(saved.shape, dtype=own.dtype, device=own.device)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def _check_loaded(self) -> None:
+        """Refuse a loaded range that leaves the goal space (the goal spec) or has ``low > high``."""
+        if not isinstance(self.space, Box):
+            return
+        low, high = self._buffers["low"], self._buffers["high"]
+        space_low = self.space.low.to(low.device, torch.float64)
+        space_high = self.space.high.to(low.device, torch.float64)
+        low64, high64 = low.to(torch.float64), high.to(torch.float64)
+        inside = (low64 >= space_low) & (high64 <= space_high) & (low64 <= high64)  # False for NaN too
+        if not bool(inside.all()):
+            raise ValueError(
+                f"GoalCommand.load_state_dict: the saved sampling range (low={low.tolist()}, high={high.tolist()}) "
+                f"must lie in this command's goal space (low={self.space.low.tolist()}, "
+                f"high={self.space.high.tolist()}) with low <= high: goals drawn from it would leave the goal spec; "
+                "build the command with a Box that holds the saved range"
+            )
 
     # --------------------------------------------------------------------------- sampling
     def _sample_goals(self, batch: torch.Size, dtype: torch.dtype, device: torch.device) -> torch.Tensor:

@@ -26,6 +26,7 @@ from torch import nn
 from torchrl.data import Composite, Unbounded
 from torchrl.envs.transforms import Transform
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
 from torchtasks._torchrl import ResetWritingTransform, key_parts, nested_key
@@ -398,6 +399,19 @@ def gated(
     return GatedSchedule(values, metric, threshold, window)
 
 
+_KINDS = {  # a schedule's kind, from the names of its saved entries
+    frozenset({"value"}): "constant",
+    frozenset({"start_value", "end_value", "_extra_state"}): "linear",
+    frozenset({"boundaries", "values"}): "staged",
+    frozenset({"values", "stage", "average", "episodes", "_extra_state"}): "gated",
+}
+
+
+def _kind(state: Mapping[str, Any]) -> str:
+    """The kind of schedule (``"linear"``, ...) whose ``state_dict()`` is ``state``; its entries if none matches."""
+    return _KINDS.get(frozenset(state), f"unknown ({sorted(state)})")
+
+
 def _entry_name(target: str) -> str:
     return target.replace(".", "/")
 
@@ -433,7 +447,7 @@ def _value_at(schedule: Schedule, count: int) -> torch.Tensor:
     return schedule(torch.tensor(count, dtype=torch.int64)).detach().to("cpu", torch.float64)
 
 
-class Curriculum(ResetWritingTransform):
+class Curriculum(CheckedLoad, ResetWritingTransform):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
@@ -539,21 +553,27 @@ class Curriculum(ResetWritingTransform):
         entries = [_entry_name(target) for target in self.targets]
         if FRAMES in entries:
             raise ValueError(f"Curriculum: a target may not be named {FRAMES!r}: that entry is the frame count")
+        if len(set(entries)) < len(entries):
+            raise ValueError(
+                f"Curriculum: targets {list(self.targets)} give the same entry name twice (entries {entries}: '.' "
+                "becomes '/'); name each buffer once"
+            )
         self._prefix = key_parts(self.curriculum_key)
         self._value_keys = [(*key_parts(self.curriculum_key), name) for name in entries]
         self._frames_key = (*key_parts(self.curriculum_key), FRAMES)
         metrics = [s.metric_key for s in schedules.values() if s.metric_key is not None]
         super().__init__(in_keys=[], out_keys=[self._frames_key, *self._value_keys])
         self._metric_keys = metrics
-        self.schedules = nn.ModuleList(schedules.values())
+        # keyed by target (its entry name: a module name may not hold "."), so a checkpoint is keyed by meaning
+        self.schedules = nn.ModuleDict(zip(entries, schedules.values(), strict=True))
         self.register_buffer("frames", torch.zeros((), dtype=torch.int64))
         # construction-time facts for the step (plain attributes: a submodule's lookup costs ~1 µs a step): per
         # target its entry's name and shape and its schedule, and the schedules that observe episodes
         self.__dict__["_plan"] = [
             (name, s.value_shape if s.value_shape != torch.Size(()) else torch.Size([1]), s)
-            for name, s in zip(entries, self.schedules, strict=True)
+            for name, s in self.schedules.items()
         ]
-        self.__dict__["_observing"] = [s for s in self.schedules if s.metric_key is not None]
+        self.__dict__["_observing"] = [s for s in self.schedules.values() if s.metric_key is not None]
         self._forget_written()
 
     # ------------------------------------------------------------------ host mirrors
@@ -587,9 +607,52 @@ class Curriculum(ResetWritingTransform):
         self.__dict__["_count_of"] = (frames, frames._version, count)
         return count
 
-    def _load_from_state_dict(self, *args, **kwargs) -> None:
-        super()._load_from_state_dict(*args, **kwargs)
+    def _load_from_state_dict(self, state_dict: Mapping[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+        self._check_saved_schedules(state_dict, prefix, strict=bool(args[1]) if len(args) > 1 else True)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._forget_written()  # the schedules' parameters may change with it (loaded after this call)
+
+    def _check_saved_schedules(self, state_dict: Mapping[str, Any], prefix: str, strict: bool) -> None:
+        """Refuse a checkpoint whose schedules are not this Curriculum's: other targets, kinds or shapes.
+
+        The saved keys say it all: ``schedules.<target entry>.<buffer>`` (the buffers name the kind).
+        """
+        head = prefix + "schedules."
+        saved: dict[str, dict[str, Any]] = {}
+        for key, value in state_dict.items():
+            if key.startswith(head):
+                entry, _, name = key[len(head) :].partition(".")
+                saved.setdefault(entry, {})[name] = value
+        own = {entry: dict(schedule.state_dict()) for entry, schedule in self.schedules.items()}
+        missing, unknown = sorted(set(own) - set(saved)), sorted(set(saved) - set(own))
+        if strict and (missing or unknown):
+            raise ValueError(
+                "Curriculum.load_state_dict: the checkpoint schedules other targets than this Curriculum: saved "
+                f"{sorted(saved)}, here {sorted(own)} (entry names: the targets with '/' for '.'; a checkpoint is "
+                "loaded by target, in any order, never by position). Build the Curriculum with the saved targets, or "
+                "load with strict=False to restore the targets both have"
+            )
+        for entry in sorted(set(own) & set(saved)):
+            own_kind, saved_kind = _kind(own[entry]), _kind(saved[entry])
+            if own_kind != saved_kind:
+                raise ValueError(
+                    f"Curriculum.load_state_dict: the schedule of {entry!r} is {own_kind} here, but the checkpoint "
+                    f"holds a {saved_kind} schedule (its entries {sorted(saved[entry])})"
+                )
+            for name, value in saved[entry].items():
+                mine = own[entry].get(name)
+                if isinstance(value, torch.Tensor) and isinstance(mine, torch.Tensor) and value.shape != mine.shape:
+                    raise ValueError(
+                        f"Curriculum.load_state_dict: the {own_kind} schedule of {entry!r} has {name!r} of shape "
+                        f"{list(mine.shape)} here, but {list(value.shape)} in the checkpoint (another value shape or "
+                        "number of stages): build the schedule as saved"
+                    )
+
+    def _check_loaded(self) -> None:
+        """Run the checks of spec building on the loaded schedules (values a target refuses, ranges out of a Box)."""
+        self._forget_setup()
+        if self.home_transforms() is not None:  # in an env: check now; else when the env's specs are built
+            self._resolve()
 
     def _apply(self, fn, *args, **kwargs):
         self._forget_written()
@@ -665,7 +728,7 @@ class Curriculum(ResetWritingTransform):
                 f"are {names}"
             )
         slots = []
-        for target, schedule in zip(self.targets, self.schedules, strict=True):
+        for target, schedule in zip(self.targets, self.schedules.values(), strict=True):
             if target in commands:
                 module, leaf = commands[target]
             else:
@@ -690,7 +753,7 @@ class Curriculum(ResetWritingTransform):
         """Refuse a scheduled GoalCommand range that leaves its Box or has ``low > high``; check the command's order."""
         flat, position = self._flat()
         scheduled: dict[int, dict[str, tuple[str, Schedule]]] = {}
-        for target, (module, leaf), schedule in zip(self.targets, slots, self.schedules, strict=True):
+        for target, (module, leaf), schedule in zip(self.targets, slots, self.schedules.values(), strict=True):
             if isinstance(module, GoalCommand):
                 scheduled.setdefault(id(module), {})[leaf] = (target, schedule)
         for command in (t for t in flat if isinstance(t, GoalCommand) and id(t) in scheduled):
@@ -757,7 +820,7 @@ class Curriculum(ResetWritingTransform):
                     "Curriculum after the transform that writes it, e.g. the TaskTransform or a RewardSum)"
                 )
         observation_spec[self._frames_key] = Unbounded(shape=(*batch, 1), dtype=torch.int64, device=device)
-        for key, (module, leaf), schedule in zip(self._value_keys, slots, self.schedules, strict=True):
+        for key, (module, leaf), schedule in zip(self._value_keys, slots, self.schedules.values(), strict=True):
             shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
             dtype = module._buffers[leaf].dtype
             observation_spec[key] = Unbounded(shape=(*batch, *shape), dtype=dtype, device=device)

@@ -25,6 +25,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Bounded, Composite
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
 from torchtasks._memory import td_set
 from torchtasks._torchrl import ResetWritingTransform, container_env, key_parts, keys_text, nested_key
@@ -67,7 +68,7 @@ def _table(values: object, num_levels: int, name: str) -> torch.Tensor:
     return table
 
 
-class DifficultyLevels(ResetWritingTransform):
+class DifficultyLevels(CheckedLoad, ResetWritingTransform):
     """Keep an integer difficulty level per env, moved at that env's episode ends; set per-env values from it.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env and before the
@@ -170,12 +171,24 @@ class DifficultyLevels(ResetWritingTransform):
         self._level_key = (*key_parts(self.curriculum_key), LEVEL)
         super().__init__(in_keys=[], out_keys=[self._level_key])
         self.targets = tuple(values)
-        for i, target in enumerate(self.targets):
-            self.register_buffer(f"table_{i}", _table(values[target], self.num_levels, target))
+        # one buffer per target, named by its entry ("." -> "/"): a checkpoint is keyed by target, not by position
+        self._entries = [target.replace(".", "/") for target in self.targets]
+        if len(set(self._entries)) < len(self._entries):
+            raise ValueError(
+                f"DifficultyLevels: targets {list(self.targets)} give the same entry name twice ('.' becomes '/')"
+            )
+        self.tables = nn.Module()
+        for target, entry in zip(self.targets, self._entries, strict=True):
+            self.tables.register_buffer(entry, _table(values[target], self.num_levels, target))
         self.register_buffer("level", torch.zeros(0, dtype=torch.int64))
+
+    def _table(self, index: int) -> torch.Tensor:
+        """The table of the ``index``-th target, ``[num_levels, *value_shape]``."""
+        return self.tables._buffers[self._entries[index]]
 
     # ------------------------------------------------------------------ state
     def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: object, **kwargs: object) -> None:
+        self._check_saved_tables(state_dict, prefix, strict=bool(args[1]) if len(args) > 1 else True)
         saved = state_dict.get(prefix + "level")
         if isinstance(saved, torch.Tensor):  # levels saved by an env of batch B load before this one's specs exist
             if saved.dtype != torch.int64 or (saved.numel() > 0 and bool((saved < 0).any())):
@@ -191,6 +204,31 @@ class DifficultyLevels(ResetWritingTransform):
                 self.level = torch.zeros_like(saved, device=self.level.device)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
         self._forget_setup()
+
+    def _check_saved_tables(self, state_dict: dict, prefix: str, strict: bool) -> None:
+        """Refuse a checkpoint whose tables are not this one's: other targets or shapes (levels, value shape)."""
+        head = prefix + "tables."
+        saved = {key[len(head) :]: value for key, value in state_dict.items() if key.startswith(head)}
+        own = dict(self.tables.named_buffers())
+        if strict and set(saved) != set(own):
+            raise ValueError(
+                "DifficultyLevels.load_state_dict: the checkpoint sets other targets than this DifficultyLevels: "
+                f"saved {sorted(saved)}, here {sorted(own)} (the targets with '/' for '.'; loaded by target, "
+                "in any order, never by position). Build it with the saved targets, or load with strict=False"
+            )
+        for entry in sorted(set(saved) & set(own)):
+            if isinstance(saved[entry], torch.Tensor) and saved[entry].shape != own[entry].shape:
+                raise ValueError(
+                    f"DifficultyLevels.load_state_dict: the table of {entry!r} has shape {list(own[entry].shape)} here "
+                    f"([num_levels={self.num_levels}, *value_shape]), but {list(saved[entry].shape)} in the checkpoint"
+                )
+
+    def _check_loaded(self) -> None:
+        """Run the set-up checks on the loaded tables and levels (ranges in the goal space, values a target refuses)."""
+        self._forget_setup()
+        env = container_env(self)
+        if env is not None and self.home_transforms() is not None:  # else checked when the env's specs are built
+            self._setup(env.batch_size)
 
     # ------------------------------------------------------------------ setup
     def _forget_setup(self) -> None:
@@ -234,7 +272,7 @@ class DifficultyLevels(ResetWritingTransform):
     def _resolve(
         self, target: str, index: int, flat: list, position: int, task_transform: TaskTransform, batch: torch.Size
     ) -> tuple[nn.Module, str]:
-        table = self._buffers[f"table_{index}"]
+        table = self._table(index)
         if target.startswith(COMMAND + "."):
             command, leaf = self._command_slot(target, flat, position)
             expected = command._buffers[leaf].shape[-1:]
@@ -331,7 +369,7 @@ class DifficultyLevels(ResetWritingTransform):
         commands: dict[int, GoalCommand] = {}
         for i, (module, leaf) in enumerate(slots):
             if isinstance(module, GoalCommand):
-                ranges.setdefault(id(module), {})[leaf] = self._buffers[f"table_{i}"]
+                ranges.setdefault(id(module), {})[leaf] = self._table(i)
                 commands[id(module)] = module
         for key, bounds in ranges.items():
             command = commands[key]
@@ -374,7 +412,7 @@ class DifficultyLevels(ResetWritingTransform):
         level = self.level
         for i, (module, leaf) in enumerate(slots):
             buffer = module._buffers[leaf]
-            table = self._buffers[f"table_{i}"]
+            table = self._table(i)
             if table.dtype != buffer.dtype or table.device != buffer.device:
                 table = table.to(device=buffer.device, dtype=buffer.dtype)
             value = table[level.to(table.device)]

@@ -198,9 +198,11 @@ def test_a_command_on_the_global_generator_has_nothing_to_restore():
     seeded.load_state_dict(unseeded.state_dict())
     assert seeded.generator is None  # it draws from torch's global generator, as the saved one did
     with pytest.raises(ValueError, match="extra state must be a dict"):
-        seeded.load_state_dict({"_extra_state": {"seed": 3}})
+        seeded.load_state_dict({**seeded.state_dict(), "_extra_state": {"seed": 3}})
     with pytest.raises(ValueError, match="uint8 tensor"):
-        seeded.load_state_dict({"_extra_state": {"own_generator": True, "generator_state": [1, 2]}})
+        seeded.load_state_dict(
+            {**seeded.state_dict(), "_extra_state": {"own_generator": True, "generator_state": [1, 2]}}
+        )
 
 
 def test_a_collector_checkpoint_restores_the_command():

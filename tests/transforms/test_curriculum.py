@@ -219,7 +219,7 @@ def test_gated_stage_advances_only_after_the_success_average_passes():
     td = env.reset()
     for _ in range(20):  # failures only (episodes truncated every 2 steps): the average stays 0
         td = env.step_and_maybe_reset(policy()(td))[1]
-    assert int(curriculum.schedules[0].stage) == 0 and float(curriculum.schedules[0].average) == 0.0
+    assert int(curriculum.schedules["reward/Q"].stage) == 0 and float(curriculum.schedules["reward/Q"].average) == 0.0
     switch.fill_(True)  # from now on every step ends every episode with a success
     keep = 1.0 - 1.0 / window
     failures = batch * 10  # the episodes that ended (truncated) before: they stay in the average, weighted less
@@ -231,17 +231,17 @@ def test_gated_stage_advances_only_after_the_success_average_passes():
     assert needed > 1
     for n in range(1, needed + 1):
         td = env.step_and_maybe_reset(policy()(td))[1]
-        stage = int(curriculum.schedules[0].stage)
+        stage = int(curriculum.schedules["reward/Q"].stage)
         assert stage == (1 if n == needed else 0), n
         if n < needed:
-            assert float(curriculum.schedules[0].average) == pytest.approx(average(batch * n), rel=1e-12)
-    assert float(curriculum.schedules[0].average) == 0.0  # restarted in the new stage
-    assert int(curriculum.schedules[0].episodes) == 0
+            assert float(curriculum.schedules["reward/Q"].average) == pytest.approx(average(batch * n), rel=1e-12)
+    assert float(curriculum.schedules["reward/Q"].average) == 0.0  # restarted in the new stage
+    assert int(curriculum.schedules["reward/Q"].episodes) == 0
     assert torch.equal(task.reward.Q, torch.tensor([2.0, 0.0]))  # the stage's value is in the task
     assert torch.equal(td["curriculum", "reward/Q"], torch.tensor([[2.0, 0.0]] * batch))
     for _ in range(2 * needed):
         td = env.step_and_maybe_reset(policy()(td))[1]
-    assert int(curriculum.schedules[0].stage) == 2  # the last stage, where it stays
+    assert int(curriculum.schedules["reward/Q"].stage) == 2  # the last stage, where it stays
     assert math.isclose(float(task.reward.Q[0]), 3.0)
 
 
@@ -322,8 +322,9 @@ def test_state_dict_round_trip():
     env.rollout(6, policy(), break_when_any_done=False)
     state = env.transform[-1].state_dict()
     assert int(state["frames"]) == 6 * BATCH
-    assert {"frames", "schedules.1.stage", "schedules.1.average", "schedules.1.episodes"} <= set(state)
-    assert int(state["schedules.1.episodes"]) == 6 * BATCH and int(state["schedules.1.stage"]) == 0
+    gate = "schedules.success_value."  # keyed by target, not by position
+    assert {"frames", gate + "stage", gate + "average", gate + "episodes"} <= set(state)
+    assert int(state[gate + "episodes"]) == 6 * BATCH and int(state[gate + "stage"]) == 0
     fresh = build()
     fresh.transform[-1].load_state_dict(state)
     assert torch.equal(fresh.transform[-1].frames, torch.tensor(6 * BATCH))
@@ -333,8 +334,9 @@ def test_state_dict_round_trip():
         assert torch.equal(a[("next", *key)], b[("next", *key)]), key
         assert torch.equal(a[key], b[key]), key
     # the gated schedule moved after 60 episodes (step 8), and equally in both
-    assert int(env.transform[-1].schedules[1].stage) == 1 == int(fresh.transform[-1].schedules[1].stage)
-    assert torch.equal(env.transform[-1].schedules[1].average, fresh.transform[-1].schedules[1].average)
+    gates = env.transform[-1].schedules["success_value"], fresh.transform[-1].schedules["success_value"]
+    assert int(gates[0].stage) == 1 == int(gates[1].stage)
+    assert torch.equal(gates[0].average, gates[1].average)
 
 
 def test_a_checkpoint_restores_each_schedule_whole():
@@ -346,7 +348,7 @@ def test_a_checkpoint_restores_each_schedule_whole():
     edited = {WEIGHT: linear(0.0, 200.0, 0, 4000), "success_value": gated([5.0, 6.0], threshold=0.9, window=7)}
     resumed = make_env(edited, task=weighted_task(success_threshold=100.0))
     resumed.transform[-1].load_state_dict(torch.load(_saved(env.transform[-1].state_dict()), weights_only=True))
-    ramp, gate = resumed.transform[-1].schedules
+    ramp, gate = resumed.transform[-1].schedules.values()
     assert (float(ramp.end_value), ramp.start_frame, ramp.end_frame) == (100.0, 0, 400)
     assert (gate.values.tolist(), gate.threshold, gate.window) == ([1.0, 2.0], 0.3, 60)
     assert float(gate.keep) == 1.0 - 1.0 / 60
@@ -386,7 +388,7 @@ def test_a_collector_checkpoint_resumes_the_curriculum():
     buffer.seek(0)
     saved = torch.load(buffer)
     assert int(saved["env_state_dict"]["transforms.2.frames"]) == 12 * 4 * BATCH
-    assert "transforms.2.schedules.1.stage" in saved["env_state_dict"]
+    assert "transforms.2.schedules.success_value.stage" in saved["env_state_dict"]
     fresh = collector()  # a new collector and env, as in a new process
     fresh.load_state_dict(saved)
     fresh.reset()  # a loaded collector starts fresh trajectories: the reset writes the restored values at the root
@@ -455,7 +457,8 @@ def test_whatever_else_writes_the_counter_or_a_buffer_is_written_over():
     assert bool((data["next", "curriculum", "frames"] == 1000 + BATCH).all())
     state = curriculum.state_dict()
     state["frames"] = torch.tensor(5000)
-    state["schedules.0.value"] = torch.tensor(0.25, dtype=torch.float64)  # a different constant, same host state
+    # a different constant, same host state
+    state[f"schedules.{WEIGHT.replace('.', '/')}.value"] = torch.tensor(0.25, dtype=torch.float64)
     curriculum.load_state_dict(state)
     data, td = env.step_and_maybe_reset(policy()(td))
     assert bool((data["next", "curriculum", "frames"] == 5000 + BATCH).all())

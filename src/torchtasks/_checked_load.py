@@ -1,0 +1,54 @@
+"""Loads that pass the checks construction ran: :class:`CheckedLoad`, a mixin for modules with run state.
+
+``nn.Module.load_state_dict`` copies saved tensors into buffers of the same shape and nothing more: a
+checkpoint of another configuration (targets listed in another order, a wider goal space, a cost weight
+a constructor refuses) loads without a word. A module that mixes in :class:`CheckedLoad` runs its
+``_check_loaded()`` once the module and its children are loaded; if the check raises, the state from
+before the load is put back and the error propagates, so a refused load changes nothing.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+from torch import nn
+
+_BEFORE = "_state_before_load"  # the module's state_dict() as it was when a load began
+_RESTORING = "_restoring_state"  # set while a refused load puts the earlier state back
+
+
+class CheckedLoad(nn.Module):
+    """A module whose loaded state passes :meth:`_check_loaded`; a refused load leaves the module as it was.
+
+    Mix it in before the torch base class (``class Curriculum(CheckedLoad, Transform)``) and implement
+    :meth:`_check_loaded`. A subclass overriding ``_load_from_state_dict`` calls ``super()``'s. The state
+    is copied at the start of every load (a load is rare: a resume, not a step).
+    """
+
+    def _check_loaded(self) -> None:
+        """Raise ``ValueError`` if the loaded state is one the module's constructor or set-up would refuse."""
+        raise NotImplementedError
+
+    def _load_from_state_dict(self, state_dict: Any, prefix: str, *args: Any, **kwargs: Any) -> None:
+        if not self.__dict__.get(_RESTORING, False):
+            self.__dict__[_BEFORE] = copy.deepcopy(self.state_dict())
+            if _after_load not in self._load_state_dict_post_hooks.values():
+                self.register_load_state_dict_post_hook(_after_load)
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+
+def _after_load(module: nn.Module, incompatible_keys: Any) -> None:
+    """The post-load hook of a :class:`CheckedLoad` module: check, and put the earlier state back on a refusal."""
+    before = module.__dict__.pop(_BEFORE, None)
+    if before is None or module.__dict__.get(_RESTORING, False):
+        return
+    try:
+        module._check_loaded()
+    except Exception:
+        module.__dict__[_RESTORING] = True
+        try:
+            module.load_state_dict(before)
+        finally:
+            module.__dict__[_RESTORING] = False
+        raise
