@@ -92,24 +92,28 @@ def _required(frames: _Frames, key: tuple[str, ...], name: str, *, flag: bool = 
     return value
 
 
-def _term_names(batch: TensorDictBase, terms_key: tuple[str, ...]) -> list[tuple[str, ...]]:
-    """The reward terms under ``("next", *terms_key)``, without RewardSum's running sums (``episode_<term>``)."""
-    terms = batch.get(("next", *terms_key), None)
-    if terms is None:
-        raise KeyError(
-            f"episode_statistics: terms_key={terms_key if len(terms_key) > 1 else terms_key[0]!r} is not in the "
-            f"data (looked under 'next'); available keys are {keys_text(batch.keys(True, True))}. Pass the key of "
-            "the task's reward breakdown (TaskTransform's terms_key), or None when the data has none (log_terms=False)."
+def _named_entries(
+    frames: _Frames, key: tuple[str, ...] | None, name: str, *, flag: bool = False
+) -> dict[str, torch.Tensor]:
+    """The entries under ``("next", *key)`` as ``{name joined by "/": [F] values}``, without RewardSum's running sums
+    (``episode_<term>``); ``{}`` when ``key`` is None or the data has no such entry."""
+    if key is None:
+        return {}
+    entries = frames.batch.get(("next", *key), None)
+    if entries is None:
+        return {}
+    if not isinstance(entries, TensorDictBase):
+        raise TypeError(
+            f"episode_statistics: ('next', *{key!r}) must hold named entries (a TensorDict), got a "
+            f"{type(entries).__name__}; pass the TaskTransform's {name}, or {name}=None"
         )
-    if not isinstance(terms, TensorDictBase):
-        raise TypeError(f"episode_statistics: ('next', *{terms_key!r}) must hold the reward breakdown (a TensorDict)")
-    names = [(key,) if isinstance(key, str) else tuple(key) for key in terms.keys(True, True)]
-    leaf_names = {name[-1] for name in names}
-    return [
-        name
-        for name in names
-        if not (name[-1].startswith(EPISODE_SUM_PREFIX) and name[-1][len(EPISODE_SUM_PREFIX) :] in leaf_names)
-    ]
+    names = [(part,) if isinstance(part, str) else tuple(part) for part in entries.keys(True, True)]
+    leaf_names = {parts[-1] for parts in names}
+    return {
+        "/".join(parts): _required(frames, (*key, *parts), name, flag=flag)
+        for parts in names
+        if not (parts[-1].startswith(EPISODE_SUM_PREFIX) and parts[-1][len(EPISODE_SUM_PREFIX) :] in leaf_names)
+    }
 
 
 def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
@@ -188,7 +192,9 @@ def episode_statistics(
       the data has neither ``terminated`` nor ``truncated``.
     - ``episode_length_mean``: transitions per episode.
     - ``return_mean`` and ``return_mean/<term>`` for every entry of the breakdown (TaskTransform writes
-      ``step``, ``final`` and one per named reward term; nested names are joined with ``/``).
+      ``step`` and ``final`` for a tree that pays a final reward and one per named reward term; nested
+      names are joined with ``/``). Data without a breakdown (a task with neither, e.g. a
+      :class:`~torchtasks.tasks.DesiredStateTask` with one reward) give ``return_mean`` only.
     - ``final_goal_distance_mean`` (with ``goal_key`` and ``achieved_goal_key``): the mean over the
       ended episodes of the L2 distance between the goal that judged the episode's last step and the
       goal achieved by it. The goal is read at the root of the last frame: the goal of step ``t``,
@@ -224,8 +230,12 @@ def episode_statistics(
 
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
-        reward_key, success_key, failure_key, terms_key: entries under ``"next"``; ``None`` skips the
-            statistics that need one. A key that is given but missing raises ``KeyError``.
+        reward_key, success_key, failure_key: entries under ``"next"``; ``None`` skips the statistics that
+            need one. A key that is given but missing raises ``KeyError``.
+        terms_key: the TaskTransform's ``terms_key`` (the reward breakdown under ``"next"``); data without
+            it report no per-term returns, as for the other optional entries below (a TaskTransform writes
+            a breakdown only for a tree that has terms or a final reward): check the returned keys when you
+            pass your own key. ``None`` skips them.
         goal_key, achieved_goal_key: entries ``[*B, k]`` holding the goal (read at the root) and the
             achieved goal (read under ``"next"``). A key that starts with ``"next"`` is read as
             written: a goal carried in the task memory is the one the step was judged with in the
@@ -314,17 +324,11 @@ def _statistics(
     returns: dict[str, torch.Tensor] = {}
     if keys["reward_key"] is not None:
         returns["return_mean"] = _required(frames, keys["reward_key"], "reward_key")
-    if keys["terms_key"] is not None:
-        for name in _term_names(batch, keys["terms_key"]):
-            returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
-    end_flags: dict[str, torch.Tensor] = {}  # per named end condition: its flag at every frame
-    if keys["ended_by_key"] is not None and batch.get(("next", *keys["ended_by_key"]), None) is not None:
-        for name in _term_names(batch, keys["ended_by_key"]):
-            end_flags["/".join(name)] = _required(frames, (*keys["ended_by_key"], *name), "ended_by_key", flag=True)
-    costs: dict[str, torch.Tensor] = {}  # per constraint: the cost of every frame
-    if keys["cost_terms_key"] is not None and batch.get(("next", *keys["cost_terms_key"]), None) is not None:
-        for name in _term_names(batch, keys["cost_terms_key"]):
-            costs["/".join(name)] = _required(frames, (*keys["cost_terms_key"], *name), "cost_terms_key")
+    for name, value in _named_entries(frames, keys["terms_key"], "terms_key").items():
+        returns["return_mean/" + name] = value
+    # per named end condition: its flag at every frame; per constraint: the cost of every frame
+    end_flags = _named_entries(frames, keys["ended_by_key"], "ended_by_key", flag=True)
+    costs = _named_entries(frames, keys["cost_terms_key"], "cost_terms_key")
     unknown = sorted(set(limits) - set(costs))
     if unknown:
         raise KeyError(
