@@ -174,8 +174,9 @@ def episode_statistics(
     - flat ``[N]`` with ``("collector", "traj_ids")`` (``batch.reshape(-1)`` of a collector's batch, a
       replay-buffer sample): frames are grouped by trajectory id (one id per episode, frames in any
       order); padded frames (``mask_key``) are left out. A sample reports the episodes whose done
-      frame it holds; one of them is complete when the sample holds all its frames. Without
-      trajectory ids a 1-D batch is one env's time series.
+      frame it holds; one of them is complete when the sample holds all its frames. A frame held twice
+      (a sample drawn with replacement) is a ``ValueError`` when the data has step counts (without
+      them it cannot be told). Without trajectory ids a 1-D batch is one env's time series.
 
     **Episodes that started before the batch.** Every episode that ends in the batch is counted in
     ``episodes`` and in the outcome rates, so consecutive batches count each episode exactly once. Its
@@ -393,6 +394,8 @@ def _statistics(
         done, start = done & valid, start & valid
         ids = torch.where(valid, ids, slots)
         slots += 1
+    if time_dim is None and step_count is not None:
+        _check_frames_once(ids if valid is None else ids[valid], step_count if valid is None else step_count[valid])
 
     ends = torch.nonzero(done).squeeze(-1)  # the last frame of every ended episode
     episode = ids[ends]
@@ -489,6 +492,18 @@ def _valid_frames(frames: _Frames, key: tuple[str, ...]) -> torch.Tensor | None:
                 "and its padding after them"
             )
     return valid
+
+
+def _check_frames_once(ids: torch.Tensor, step_count: torch.Tensor) -> None:
+    """Refuse a flat batch that holds a frame twice (one trajectory id, one step count), e.g. a replay-buffer sample
+    drawn with replacement: its episodes' frames would be counted twice."""
+    pairs = torch.stack([ids, step_count.to(ids.dtype)])
+    if torch.unique(pairs, dim=1).shape[1] < ids.numel():
+        raise ValueError(
+            "episode_statistics: a flat batch holds some frame twice (the same collector trajectory id and "
+            "('next', 'step_count')), e.g. a replay-buffer sample drawn with replacement; statistics count each "
+            "frame once: sample without replacement (SamplerWithoutReplacement) or pass distinct frames"
+        )
 
 
 def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None) -> dict[str, torch.Tensor]:

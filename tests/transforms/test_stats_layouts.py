@@ -407,6 +407,10 @@ def test_replay_buffer_sample(config: str) -> None:
     stats = statistics(config, sample)
     assert_same(stats, reference(config, sample))
     assert 0 < stats["complete_episodes"] < stats["episodes"]  # the sample misses frames of some ended episodes
+    # a frame held twice (a sample drawn with replacement) would be counted twice: refused
+    middle = sample[~sample["next", "done"][:, 0]][:1]
+    with pytest.raises(ValueError, match="holds some frame twice"):
+        statistics(config, torch.cat([sample, middle]))
 
 
 # --------------------------------------------------------------------------------------------------
