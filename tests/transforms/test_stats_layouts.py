@@ -284,7 +284,7 @@ def test_the_data_holds_every_ending_and_partial_episodes(config: str) -> None:
     nxt = data["next"]
     assert nxt["done"].sum() >= 10 and nxt["success"].any()
     assert (nxt["truncated"] & ~nxt["terminated"]).any()
-    if config != "terms_and_final" and config != "curriculum_and_levels":  # swing_up_task cannot fail
+    if config not in ("terms_and_final", "curriculum_and_levels"):  # swing_up_task cannot fail
         assert nxt["failure"].any()
     for batch in batches(config)[1:]:  # episodes that started before the batch, and padding when split
         stats = statistics(config, batch, curriculum_key=None)
