@@ -22,6 +22,8 @@ __all__ = ["episode_statistics"]
 
 #: where TorchRL collectors write the trajectory id of every frame
 TRAJ_IDS_KEY = ("collector", "traj_ids")
+#: where TorchRL's split_trajectories (a collector's ``split_trajs=True``) marks the valid frames of a padded batch
+MASK_KEY = ("collector", "mask")
 #: StepCounter's entry: steps since the env's last reset (0 at the reset, L after the L-th step)
 STEP_COUNT_KEY = "step_count"
 #: InitTracker's entry: True on the first frame of an episode
@@ -92,24 +94,28 @@ def _required(frames: _Frames, key: tuple[str, ...], name: str, *, flag: bool = 
     return value
 
 
-def _term_names(batch: TensorDictBase, terms_key: tuple[str, ...]) -> list[tuple[str, ...]]:
-    """The reward terms under ``("next", *terms_key)``, without RewardSum's running sums (``episode_<term>``)."""
-    terms = batch.get(("next", *terms_key), None)
-    if terms is None:
-        raise KeyError(
-            f"episode_statistics: terms_key={terms_key if len(terms_key) > 1 else terms_key[0]!r} is not in the "
-            f"data (looked under 'next'); available keys are {keys_text(batch.keys(True, True))}. Pass the key of "
-            "the task's reward breakdown (TaskTransform's terms_key), or None when the data has none (log_terms=False)."
+def _named_entries(
+    frames: _Frames, key: tuple[str, ...] | None, name: str, *, flag: bool = False
+) -> dict[str, torch.Tensor]:
+    """The entries under ``("next", *key)`` as ``{name joined by "/": [F] values}``, without RewardSum's running sums
+    (``episode_<term>``); ``{}`` when ``key`` is None or the data has no such entry."""
+    if key is None:
+        return {}
+    entries = frames.batch.get(("next", *key), None)
+    if entries is None:
+        return {}
+    if not isinstance(entries, TensorDictBase):
+        raise TypeError(
+            f"episode_statistics: ('next', *{key!r}) must hold named entries (a TensorDict), got a "
+            f"{type(entries).__name__}; pass the TaskTransform's {name}, or {name}=None"
         )
-    if not isinstance(terms, TensorDictBase):
-        raise TypeError(f"episode_statistics: ('next', *{terms_key!r}) must hold the reward breakdown (a TensorDict)")
-    names = [(key,) if isinstance(key, str) else tuple(key) for key in terms.keys(True, True)]
-    leaf_names = {name[-1] for name in names}
-    return [
-        name
-        for name in names
-        if not (name[-1].startswith(EPISODE_SUM_PREFIX) and name[-1][len(EPISODE_SUM_PREFIX) :] in leaf_names)
-    ]
+    names = [(part,) if isinstance(part, str) else tuple(part) for part in entries.keys(True, True)]
+    leaf_names = {parts[-1] for parts in names}
+    return {
+        "/".join(parts): _required(frames, (*key, *parts), name, flag=flag)
+        for parts in names
+        if not (parts[-1].startswith(EPISODE_SUM_PREFIX) and parts[-1][len(EPISODE_SUM_PREFIX) :] in leaf_names)
+    }
 
 
 def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
@@ -147,6 +153,7 @@ def episode_statistics(
     ended_by_key: NestedKey | None = "ended_by",
     cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
+    mask_key: NestedKey | None = MASK_KEY,
 ) -> dict[str, float]:
     """Return statistics of the episodes that end in ``batch``: outcome rates, mean length and returns per term.
 
@@ -155,12 +162,21 @@ def episode_statistics(
     returns are sums of ``("next", reward_key)`` and of every entry of the reward breakdown
     ``("next", terms_key)`` over the episode's frames. Nothing is recomputed or re-thresholded.
 
-    **Layouts.** ``[*envs, time]`` batches (``env.rollout(..., break_when_any_done=False)``, a
-    ``Collector``'s batches, ``split_trajs=True`` padded batches): each row along ``time_dim`` (default:
-    the last batch dim, TorchRL's convention) holds one env's consecutive frames, and the env resets
-    after every ``done`` frame. A flat ``[N]`` batch with ``("collector", "traj_ids")`` (e.g.
-    ``batch.reshape(-1)`` of a collector's batch) is grouped by trajectory id (one id per episode,
-    frames in any order); without trajectory ids a 1-D batch is one env's time series.
+    **Layouts.** The same collection gives the same numbers in each of these:
+
+    - ``[*envs, time]`` (``env.rollout(..., break_when_any_done=False)``, a ``Collector``'s batch): each
+      row along ``time_dim`` (default: the last batch dim, TorchRL's convention) holds one env's
+      consecutive frames, and the env resets after every ``done`` frame.
+    - padded ``[trajectories, time]`` (a ``Collector``'s ``split_trajs=True`` batch, TorchRL's
+      ``split_trajectories``): each row is one trajectory followed by padding, marked False in
+      ``mask_key``. Padded frames are in no episode: never counted in ``episodes``, lengths, returns
+      or rates, never read as a latest frame; a row of padding only contributes nothing.
+    - flat ``[N]`` with ``("collector", "traj_ids")`` (``batch.reshape(-1)`` of a collector's batch, a
+      replay-buffer sample): frames are grouped by trajectory id (one id per episode, frames in any
+      order); padded frames (``mask_key``) are left out. A sample reports the episodes whose done
+      frame it holds; one of them is complete when the sample holds all its frames. A frame held twice
+      (a sample drawn with replacement) is a ``ValueError`` when the data has step counts (without
+      them it cannot be told). Without trajectory ids a 1-D batch is one env's time series.
 
     **Episodes that started before the batch.** Every episode that ends in the batch is counted in
     ``episodes`` and in the outcome rates, so consecutive batches count each episode exactly once. Its
@@ -170,6 +186,8 @@ def episode_statistics(
     episodes whose start is in the batch. The start is known from the step count (frames in the batch
     equal the episode's length), from a ``done`` frame just before it in the same row, or from
     InitTracker's ``is_init``; without any of these the first episode of each row is not complete.
+    In a padded or flat batch the done frame before an episode is in another row, or in no known
+    place: there the start is known from the step count or ``is_init`` only.
     RewardSum's running sums are not used (and its ``episode_*`` entries are not taken for terms): the
     results are the same with and without it.
 
@@ -188,7 +206,9 @@ def episode_statistics(
       the data has neither ``terminated`` nor ``truncated``.
     - ``episode_length_mean``: transitions per episode.
     - ``return_mean`` and ``return_mean/<term>`` for every entry of the breakdown (TaskTransform writes
-      ``step``, ``final`` and one per named reward term; nested names are joined with ``/``).
+      ``step`` and ``final`` for a tree that pays a final reward and one per named reward term; nested
+      names are joined with ``/``). Data without a breakdown (a task with neither, e.g. a
+      :class:`~torchtasks.tasks.DesiredStateTask` with one reward) give ``return_mean`` only.
     - ``final_goal_distance_mean`` (with ``goal_key`` and ``achieved_goal_key``): the mean over the
       ended episodes of the L2 distance between the goal that judged the episode's last step and the
       goal achieved by it. The goal is read at the root of the last frame: the goal of step ``t``,
@@ -203,10 +223,13 @@ def episode_statistics(
       the values the step after the batch will use. ``<target>`` is the entry's name (the target with
       ``"/"`` for ``"."``, e.g. ``curriculum/wrapped_task/reward/rewards/effort/R``); a tensor-valued
       target gives one key per entry, ``curriculum/<target>/<i>`` (row-major index, e.g.
-      ``curriculum/command/high/0``). The latest frame is the last one of every row along
-      ``time_dim`` (flat layout: the frames with the largest frame count); the values are means over
-      those frames, i.e. over the envs, which hold the same values when they share one Curriculum.
-      Data without the entries give none of these keys.
+      ``curriculum/command/high/0``). The latest frames are the last frame of every row of an
+      ``[*envs, time]`` batch; in a flat or padded batch, whose rows are not envs, the valid frames
+      with the largest frame count (the last frame of each env, when the envs share one count), so
+      these layouts need the Curriculum's ``frames`` entry (a ``ValueError`` says so without it, e.g.
+      for a :class:`~torchtasks.levels.DifficultyLevels` alone). The values are means over those
+      frames, i.e. over the envs, which hold the same values when they share one Curriculum. Data
+      without the entries give none of these keys.
     - ``ended_by/<name>`` (when the data holds a task's named end conditions ``("next", ended_by_key, name)``,
       as a :class:`~torchtasks.transforms.TaskTransform` writes them for a tree that names its failures,
       e.g. ``out_of_bounds`` and ``unhealthy``): the fraction of the ended episodes whose last frame has
@@ -224,8 +247,12 @@ def episode_statistics(
 
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
-        reward_key, success_key, failure_key, terms_key: entries under ``"next"``; ``None`` skips the
-            statistics that need one. A key that is given but missing raises ``KeyError``.
+        reward_key, success_key, failure_key: entries under ``"next"``; ``None`` skips the statistics that
+            need one. A key that is given but missing raises ``KeyError``.
+        terms_key: the TaskTransform's ``terms_key`` (the reward breakdown under ``"next"``); data without
+            it report no per-term returns, as for the other optional entries below (a TaskTransform writes
+            a breakdown only for a tree that has terms or a final reward): check the returned keys when you
+            pass your own key. ``None`` skips them.
         goal_key, achieved_goal_key: entries ``[*B, k]`` holding the goal (read at the root) and the
             achieved goal (read under ``"next"``). A key that starts with ``"next"`` is read as
             written: a goal carried in the task memory is the one the step was judged with in the
@@ -241,6 +268,9 @@ def episode_statistics(
             data without it report no scheduled values; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
+        mask_key: the padding mask of a padded batch (bool, at the root, False on padding; TorchRL writes
+            ``("collector", "mask")``, or ``"mask"`` beside a ``split_trajectories(trajectory_key=...)``);
+            data without it hold no padding; ``None``: every frame is a collected one.
 
     Example:
         >>> import torch
@@ -276,6 +306,7 @@ def episode_statistics(
             ("curriculum_key", curriculum_key),
             ("cost_terms_key", cost_terms_key),
             ("ended_by_key", ended_by_key),
+            ("mask_key", mask_key),
         )
     }
     limits = _cost_limits(cost_limits)
@@ -311,20 +342,15 @@ def _statistics(
     truncated = frames.flag(("truncated",), "truncated")
     step_count = frames.scalar((STEP_COUNT_KEY,), STEP_COUNT_KEY)
     is_init = frames.flag((IS_INIT_KEY,), IS_INIT_KEY, where="root")
+    valid = None if keys["mask_key"] is None else _valid_frames(frames, keys["mask_key"])
     returns: dict[str, torch.Tensor] = {}
     if keys["reward_key"] is not None:
         returns["return_mean"] = _required(frames, keys["reward_key"], "reward_key")
-    if keys["terms_key"] is not None:
-        for name in _term_names(batch, keys["terms_key"]):
-            returns["return_mean/" + "/".join(name)] = _required(frames, (*keys["terms_key"], *name), "terms_key")
-    end_flags: dict[str, torch.Tensor] = {}  # per named end condition: its flag at every frame
-    if keys["ended_by_key"] is not None and batch.get(("next", *keys["ended_by_key"]), None) is not None:
-        for name in _term_names(batch, keys["ended_by_key"]):
-            end_flags["/".join(name)] = _required(frames, (*keys["ended_by_key"], *name), "ended_by_key", flag=True)
-    costs: dict[str, torch.Tensor] = {}  # per constraint: the cost of every frame
-    if keys["cost_terms_key"] is not None and batch.get(("next", *keys["cost_terms_key"]), None) is not None:
-        for name in _term_names(batch, keys["cost_terms_key"]):
-            costs["/".join(name)] = _required(frames, (*keys["cost_terms_key"], *name), "cost_terms_key")
+    for name, value in _named_entries(frames, keys["terms_key"], "terms_key").items():
+        returns["return_mean/" + name] = value
+    # per named end condition: its flag at every frame; per constraint: the cost of every frame
+    end_flags = _named_entries(frames, keys["ended_by_key"], "ended_by_key", flag=True)
+    costs = _named_entries(frames, keys["cost_terms_key"], "cost_terms_key")
     unknown = sorted(set(limits) - set(costs))
     if unknown:
         raise KeyError(
@@ -344,7 +370,7 @@ def _statistics(
                 "episode_statistics: goal_key and achieved_goal_key hold different sizes per frame "
                 f"({list(goals[0].shape[1:])} and {list(goals[1].shape[1:])})"
             )
-    schedule = {} if keys["curriculum_key"] is None else _schedule(frames, keys["curriculum_key"])
+    schedule = {} if keys["curriculum_key"] is None else _schedule(frames, keys["curriculum_key"], valid)
     device = done.device
 
     # ------------------------------------------------------------- episode id of every frame
@@ -364,6 +390,12 @@ def _statistics(
         start = start.reshape(-1)
     if is_init is not None:
         start = start | is_init
+    if valid is not None:  # padding: in no episode (a slot of its own), never an end or a start
+        done, start = done & valid, start & valid
+        ids = torch.where(valid, ids, slots)
+        slots += 1
+    if time_dim is None and step_count is not None:
+        _check_frames_once(ids if valid is None else ids[valid], step_count if valid is None else step_count[valid])
 
     ends = torch.nonzero(done).squeeze(-1)  # the last frame of every ended episode
     episode = ids[ends]
@@ -440,7 +472,41 @@ def _mean(values: torch.Tensor) -> torch.Tensor:
     return values.to(torch.float64).mean()
 
 
-def _schedule(frames: _Frames, key: tuple[str, ...]) -> dict[str, torch.Tensor]:
+def _valid_frames(frames: _Frames, key: tuple[str, ...]) -> torch.Tensor | None:
+    """The padding mask at the root as ``[F]`` bool (True: a collected frame), None without one; padding must come
+    after the valid frames of each row, as TorchRL pads trajectories."""
+    valid = frames.scalar(key, "mask_key", where="root")
+    if valid is None:
+        return None
+    if valid.dtype != torch.bool:
+        raise TypeError(
+            f"episode_statistics: mask_key={key if len(key) > 1 else key[0]!r} must hold a bool mask (True on the "
+            f"collected frames, False on padding), got dtype {valid.dtype}"
+        )
+    if frames.time_dim is not None and frames.count:
+        rows = valid.reshape(frames.rows, frames.steps)
+        if (rows[:, 1:] & ~rows[:, :-1]).any():
+            raise ValueError(
+                f"episode_statistics: the mask mask_key={key if len(key) > 1 else key[0]!r} has a valid frame after "
+                "padding in a row along time_dim; a padded batch (split_trajs=True) holds each row's frames first "
+                "and its padding after them"
+            )
+    return valid
+
+
+def _check_frames_once(ids: torch.Tensor, step_count: torch.Tensor) -> None:
+    """Refuse a flat batch that holds a frame twice (one trajectory id, one step count), e.g. a replay-buffer sample
+    drawn with replacement: its episodes' frames would be counted twice."""
+    pairs = torch.stack([ids, step_count.to(ids.dtype)])
+    if torch.unique(pairs, dim=1).shape[1] < ids.numel():
+        raise ValueError(
+            "episode_statistics: a flat batch holds some frame twice (the same collector trajectory id and "
+            "('next', 'step_count')), e.g. a replay-buffer sample drawn with replacement; statistics count each "
+            "frame once: sample without replacement (SamplerWithoutReplacement) or pass distinct frames"
+        )
+
+
+def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None) -> dict[str, torch.Tensor]:
     """The Curriculum's entries ``("next", *key, ...)`` at the latest frame as ``curriculum/<name>``; {} if none."""
     entries = frames.batch.get(("next", *key), None)
     if entries is None or frames.count == 0:
@@ -451,18 +517,24 @@ def _schedule(frames: _Frames, key: tuple[str, ...]) -> dict[str, torch.Tensor]:
             "Curriculum's curriculum_key, or curriculum_key=None"
         )
     names = [(name,) if isinstance(name, str) else tuple(name) for name in entries.keys(True, True)]
-    if frames.time_dim is not None:  # the last frame of every row
+    if frames.time_dim is not None and valid is None:  # rows of env frames: the last frame of every row
         latest = torch.arange(frames.rows) * frames.steps + frames.steps - 1
-    else:  # flat: the frames with the largest frame count
+    else:  # flat, or rows of padded trajectories: the valid frames with the largest frame count
         count = frames.get((*key, CURRICULUM_FRAMES))
-        if count is None:  # e.g. DifficultyLevels without a Curriculum: nothing orders the frames of a flat batch
+        if count is None:  # e.g. DifficultyLevels without a Curriculum: nothing tells which frames are the latest
+            layout = "a flat batch" if frames.time_dim is None else "a padded batch (rows are trajectories, not envs)"
             raise ValueError(
-                f"episode_statistics: the entries ('next', *{key!r}) of a flat batch are read at its latest frames, "
+                f"episode_statistics: the entries ('next', *{key!r}) of {layout} are read at its latest frames, "
                 f"found by a Curriculum's frame count ('next', *{key!r}, {CURRICULUM_FRAMES!r}), which this batch "
-                "does not hold; pass the batch time-major ([*E, T], as a collector returns it), add a Curriculum to "
-                "the env, or pass curriculum_key=None to leave these statistics out"
+                "does not hold; pass the batch time-major and unpadded ([*E, T], as a collector returns it with "
+                "split_trajs=False), add a Curriculum to the env, or pass curriculum_key=None to leave these "
+                "statistics out"
             )
         count = count.reshape(frames.count, -1)[:, 0]
+        if valid is not None:
+            if not valid.any():  # nothing but padding: no latest frame
+                return {}
+            count = torch.where(valid, count, count.min() - 1)
         latest = torch.nonzero(count == count.max()).squeeze(-1)
     schedule: dict[str, torch.Tensor] = {}
     for name in names:

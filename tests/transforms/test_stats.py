@@ -472,10 +472,12 @@ def test_outcome_flags() -> None:
 def test_keys_and_arguments(data: TensorDictBase) -> None:
     with pytest.raises(KeyError, match="success_key='won'"):
         episode_statistics(data, success_key="won")
-    with pytest.raises(KeyError, match="terms_key"):
-        episode_statistics(data.exclude(("next", "task_reward")))
+    # the breakdown is optional, as a TaskTransform writes none for a tree without terms and final reward
     stats = episode_statistics(data.exclude(("next", "task_reward")), terms_key=None)
     assert "return_mean" in stats and not any(key.startswith("return_mean/") for key in stats)
+    assert episode_statistics(data.exclude(("next", "task_reward"))) == stats
+    with pytest.raises(TypeError, match=r"named entries .* terms_key=None"):
+        episode_statistics(data, terms_key="reward")
     stats = episode_statistics(data, reward_key=None, success_key=None)
     assert "return_mean" not in stats and "success_rate" not in stats and "return_mean/track" in stats
     with pytest.raises(ValueError, match="both goal_key and achieved_goal_key"):
