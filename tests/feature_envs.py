@@ -1,0 +1,180 @@
+"""The combinations users build, one env factory per feature, for the invariant suite (``test_invariants.py``).
+
+Every factory is a module-level function of ``(batch, seed)`` (picklable: multi-process collectors and
+``ParallelEnv`` workers build their envs from it) returning a ``TransformedEnv`` with a ``StepCounter`` first,
+the feature's ``TaskTransform``, its run-state transforms (command, curriculum, levels) and a ``RewardSum``
+over the reward, the breakdown and the costs last, as the docs build them. Each feature comes with a
+deterministic policy (module-level, picklable) that makes episodes end in every way the feature can end them.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from tensordict.nn import TensorDictModule
+from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
+
+from torchtasks.commands import GoalCommand
+from torchtasks.curriculum import Curriculum, linear
+from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
+from torchtasks.levels import DifficultyLevels
+from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward
+from torchtasks.rewards.terms import HealthyReward
+from torchtasks.spaces import Box, EnvSpec
+from torchtasks.tasks import (
+    ConstrainedTask,
+    Constraint,
+    DesiredStateTask,
+    GoallessTask,
+    MaskedTask,
+    PotentialShapingTask,
+    proximity_succeeded,
+)
+from torchtasks.transforms import TaskTransform
+
+MAX_STEPS = 12
+SCHEDULED = "wrapped_task.reward.rewards.effort.R"  # swing_up_task's effort weight, ramped by the curriculum feature
+
+
+def _finish(env, task_transform: TaskTransform, *run_state) -> TransformedEnv:
+    sums = RewardSum(in_keys=["reward", *task_transform.term_keys, *task_transform.cost_keys])
+    return TransformedEnv(env, Compose(StepCounter(MAX_STEPS), task_transform, *run_state, sums))
+
+
+def plain(batch: int, seed: int) -> TransformedEnv:
+    """The README's first task: no named terms, no final reward (TaskTransform writes no breakdown)."""
+    near = functools.partial(proximity_succeeded, threshold=0.6)
+    task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [1e-3]), near)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), TaskTransform(task))
+
+
+def terms_and_final(batch: int, seed: int) -> TransformedEnv:
+    """Named terms (track, effort) and a final reward on success."""
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), TaskTransform(swing_up_task(success_threshold=0.6)))
+
+
+def _height(state: torch.Tensor) -> torch.Tensor:
+    return torch.cos(state[..., 0])
+
+
+def shaping(batch: int, seed: int) -> TransformedEnv:
+    """Potential-based shaping over the swing-up task."""
+    task = PotentialShapingTask(swing_up_task(success_threshold=0.6), _height, gamma=0.99)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), TaskTransform(task))
+
+
+def _reach_task() -> DesiredStateTask:
+    spec = EnvSpec(Box([-1.0, -1.0, -10.0, -10.0], [1.0, 1.0, 10.0, 10.0], labels=PointMassEnv.labels), 2)
+    near = functools.partial(proximity_succeeded, threshold=0.3)
+    return DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], QuadraticErrorReward([1.0, 1.0]), near)
+
+
+def _masked_reach() -> MaskedTask:
+    spec = EnvSpec(Box([-1.0, -1.0, -10.0, -10.0], [1.0, 1.0, 10.0, 10.0], labels=PointMassEnv.labels), 2)
+    return MaskedTask(spec, _reach_task(), ["x", "y"])
+
+
+def goal_command(batch: int, seed: int) -> TransformedEnv:
+    """Goals drawn per env by a GoalCommand, redrawn on a timer; the task judges the goal the policy saw."""
+    command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), resample_steps=(3, 5), seed=seed)
+    return _finish(
+        PointMassEnv(batch_size=[batch], seed=seed), TaskTransform(_masked_reach(), goal_key="goal"), command
+    )
+
+
+def curriculum(batch: int, seed: int) -> TransformedEnv:
+    """A Curriculum ramping the effort weight and the success reward over the first frames."""
+    schedules = {SCHEDULED: linear(0.0, 1.0, 0, 200), "success_value": linear(10.0, 100.0, 0, 200)}
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, Curriculum(schedules))
+
+
+def levels(batch: int, seed: int) -> TransformedEnv:
+    """Per-env difficulty levels setting the GoalCommand's range, moved at each env's episode ends."""
+    tables = {
+        "command.low": [[-0.1, -0.1], [-0.3, -0.3], [-0.5, -0.5]],
+        "command.high": [[0.1, 0.1], [0.3, 0.3], [0.5, 0.5]],
+    }
+    command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), seed=seed)
+    task = TaskTransform(_masked_reach(), goal_key="goal")
+    return _finish(PointMassEnv(batch_size=[batch], seed=seed), task, DifficultyLevels(3, tables), command)
+
+
+def _fast(state: torch.Tensor) -> torch.Tensor:
+    return (state[..., 1].abs() > 1.0).to(state.dtype)
+
+
+def _far(state: torch.Tensor) -> torch.Tensor:
+    return state[..., 0].abs()
+
+
+def constraints(batch: int, seed: int) -> TransformedEnv:
+    """Two named costs beside the swing-up reward (a ConstrainedTask)."""
+    costs = {
+        "speed": Constraint(StateFunctionReward(_fast, negate=False), limit=2.0),
+        "angle": StateFunctionReward(_far, negate=False),
+    }
+    task = ConstrainedTask(swing_up_task(success_threshold=0.6), costs)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), TaskTransform(task))
+
+
+def end_conditions(batch: int, seed: int) -> TransformedEnv:
+    """Two named failures (out of bounds, unhealthy) written under ended_by."""
+    spec = EnvSpec(Box([-0.9, -0.9, -10.0, -10.0], [0.9, 0.9, 10.0, 10.0], labels=PointMassEnv.labels), 2)
+    alive = HealthyReward(1.0, index=[2], low=-0.8, high=0.8, terminate_when_unhealthy=True)
+    env = PointMassEnv(batch_size=[batch], seed=seed, max_force=2.0)
+    return _finish(env, TaskTransform(GoallessTask(spec, alive)))
+
+
+class _Torque(torch.nn.Module):
+    """A torque against the angle, with a per-env gain: some pendulums reach the top, some do not."""
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        gain = torch.linspace(-2.0, 2.0, observation.shape[-2], dtype=observation.dtype).unsqueeze(-1)
+        return (-gain * observation[..., :1] - 0.3 * observation[..., 1:2]).clamp(-2.0, 2.0)
+
+
+class _Push(torch.nn.Module):
+    """A force towards the goal (or the origin) for some point masses, a fast push for others."""
+
+    def forward(self, observation: torch.Tensor, goal: torch.Tensor | None = None) -> torch.Tensor:
+        target = torch.zeros_like(observation[..., :2]) if goal is None else goal.to(observation.dtype)
+        toward = 3.0 * (target - observation[..., :2]) - 1.5 * observation[..., 2:]
+        rows = torch.arange(observation.shape[-2]).unsqueeze(-1)
+        push = torch.tensor([2.0, 0.6], dtype=observation.dtype).expand_as(toward)
+        return torch.where(rows % 3 == 0, push, toward).clamp(-2.0, 2.0)
+
+
+def pendulum_policy() -> TensorDictModule:
+    return TensorDictModule(_Torque(), ["observation"], ["action"])
+
+
+def point_policy(goal: bool) -> TensorDictModule:
+    return TensorDictModule(_Push(), ["observation", "goal"] if goal else ["observation"], ["action"])
+
+
+@dataclass(frozen=True)
+class Feature:
+    """An env factory ``(batch, seed) -> env`` and the policy that drives it."""
+
+    make_env: Callable[[int, int], TransformedEnv]
+    make_policy: Callable[[], TensorDictModule]
+
+
+FEATURES: dict[str, Feature] = {
+    "plain": Feature(plain, pendulum_policy),
+    "terms_and_final": Feature(terms_and_final, pendulum_policy),
+    "shaping": Feature(shaping, pendulum_policy),
+    "goal_command": Feature(goal_command, functools.partial(point_policy, True)),
+    "curriculum": Feature(curriculum, pendulum_policy),
+    "levels": Feature(levels, functools.partial(point_policy, True)),
+    "constraints": Feature(constraints, pendulum_policy),
+    "end_conditions": Feature(end_conditions, functools.partial(point_policy, False)),
+}
+
+
+def task_transform(env: TransformedEnv) -> TaskTransform:
+    return next(t for t in env.transform if isinstance(t, TaskTransform))

@@ -1,0 +1,281 @@
+"""Every feature holds in every layout: one invariant suite over the combinations users build.
+
+Features (``feature_envs.FEATURES``): a plain task without terms, named terms with a final reward, shaping, a
+GoalCommand, a Curriculum, DifficultyLevels, constraints and named end conditions. Layouts: ``env.rollout``
+``[B, T]``, a Collector's batch ``[B, T]``, the same flattened to ``[N]`` (grouped by trajectory ids),
+``split_trajs`` (padded rows with a mask), a replay-buffer sample (random frames of a flat batch), and data
+collected through a ``ParallelEnv`` or by a ``MultiSyncCollector`` (worker processes). Invariants:
+
+- offline == online: the TaskTransform of a freshly built env of the same configuration (its buffers at their
+  initial values, so a schedule's values must come from the data) re-judges the stored transitions and writes
+  exactly what the online step wrote: reward, flags, breakdown, costs and end conditions;
+- statistics == an independent count: ``episode_statistics`` on every layout equals a plain loop over the frames
+  of the time-major collection, written here (episodes, outcome rates, lengths, returns per entry, costs, end
+  conditions, the schedule and the levels at the end of the batch).
+
+A defect that holds for one layout only (padding read as a frame, today's buffers used offline, the first
+episode of a row taken as complete) fails here.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+
+import pytest
+import torch
+from tensordict import TensorDictBase
+from torchrl.collectors import Collector, MultiSyncCollector
+from torchrl.collectors.utils import split_trajectories
+from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer, SamplerWithoutReplacement
+from torchrl.envs import ParallelEnv
+
+from feature_envs import FEATURES, task_transform
+from torchtasks.stats import episode_statistics
+
+BATCH = 6
+STEPS = 20  # frames per env and batch: episodes of up to MAX_STEPS start before the batch and run past it
+SEED = 3
+
+
+# ------------------------------------------------------------------------------------------------ layouts
+def _collector(make: Callable, policy, workers: int = 0) -> Collector | MultiSyncCollector:
+    kwargs = {"frames_per_batch": BATCH * STEPS, "total_frames": -1}
+    if workers:
+        return MultiSyncCollector([make] * workers, policy, **kwargs)
+    return Collector(make(), policy, auto_register_policy_transforms=False, **kwargs)
+
+
+def _second_batch(collector) -> TensorDictBase:
+    """The second batch of a run (its rows start inside episodes), time-major ``[B, T]``."""
+    try:
+        collector.set_seed(SEED)
+        batches = iter(collector)
+        next(batches)
+        batch = next(batches).clone()
+    finally:
+        collector.shutdown()
+    if batch.batch_dims != 2:  # a ParallelEnv's [workers, b, T]; rows of envs, time last
+        batch = batch.reshape(-1, STEPS)
+    return batch
+
+
+def rollout(name: str) -> TensorDictBase:
+    feature = FEATURES[name]
+    env = feature.make_env(BATCH, SEED)
+    return env.rollout(STEPS, feature.make_policy(), break_when_any_done=False)
+
+
+def collected(name: str) -> TensorDictBase:
+    feature = FEATURES[name]
+    return _second_batch(_collector(functools.partial(feature.make_env, BATCH, SEED), feature.make_policy()))
+
+
+def parallel(name: str) -> TensorDictBase:
+    feature = FEATURES[name]
+    make = functools.partial(feature.make_env, BATCH // 2, SEED)
+
+    def parallel_env() -> ParallelEnv:
+        return ParallelEnv(2, make, use_buffers=False)
+
+    return _second_batch(_collector(parallel_env, feature.make_policy()))
+
+
+def multi_sync(name: str) -> TensorDictBase:
+    feature = FEATURES[name]
+    make = functools.partial(feature.make_env, BATCH // 2, SEED)
+    return _second_batch(_collector(make, feature.make_policy(), workers=2))
+
+
+def flat(data: TensorDictBase) -> TensorDictBase:
+    return data.reshape(-1)
+
+
+def padded(data: TensorDictBase) -> TensorDictBase:
+    """``split_trajs=True``: one trajectory per row, padded with zeros, ``("collector", "mask")`` marks frames."""
+    return split_trajectories(data.clone())
+
+
+def sampled(data: TensorDictBase, *, replacement: bool = True) -> TensorDictBase:
+    """A replay buffer's sample: half of the frames, drawn at random (by default with replacement, as TorchRL's)."""
+    frames = data.reshape(-1)
+    sampler = RandomSampler() if replacement else SamplerWithoutReplacement()
+    buffer = ReplayBuffer(storage=LazyTensorStorage(frames.numel()), sampler=sampler, batch_size=frames.numel() // 2)
+    buffer.extend(frames)
+    torch.manual_seed(SEED)
+    return buffer.sample()
+
+
+LAYOUTS: dict[str, Callable[[TensorDictBase], TensorDictBase]] = {
+    "time_major": lambda data: data,
+    "flat": flat,
+    "split_trajs": padded,
+    "replay_sample": sampled,
+}
+
+
+# ------------------------------------------------------------------------------------------------ offline == online
+def _judged_keys(data: TensorDictBase, name: str) -> list:
+    transform = task_transform(FEATURES[name].make_env(BATCH, SEED))
+    keys = [transform.reward_key, transform.success_key, transform.failure_key, "terminated", "done"]
+    keys += transform.term_keys + transform.cost_keys + list(transform._ended_by_keys)
+    return [key for key in keys if ("next", *((key,) if isinstance(key, str) else key)) in data.keys(True, True)]
+
+
+def _offline_matches_online(name: str, data: TensorDictBase) -> None:
+    env = FEATURES[name].make_env(BATCH, SEED)
+    env.reset()  # a fresh env of the same configuration: set up, its run state at its start
+    transform = task_transform(env)
+    mask = data.get(("collector", "mask"), None)
+    keys = _judged_keys(data, name)
+    stored = data.clone()
+    recomputed = data.clone()
+    transform.relabel(recomputed)
+    for key in keys:
+        expected, actual = stored["next", key], recomputed["next", key]
+        if mask is not None:
+            expected, actual = expected[mask], actual[mask]
+        assert torch.equal(actual, expected), (
+            f"{name}: {key!r} recomputed offline differs from the online step: max |diff| "
+            f"{(actual.double() - expected.double()).abs().max().item()}"
+        )
+
+
+@pytest.mark.parametrize("layout", list(LAYOUTS))
+@pytest.mark.parametrize("name", list(FEATURES))
+def test_offline_recomputation_equals_the_online_step(name: str, layout: str):
+    data = collected(name) if layout != "time_major" else rollout(name)
+    _offline_matches_online(name, LAYOUTS[layout](data))
+
+
+# ------------------------------------------------------------------------------------------------ statistics == count
+def count_statistics(data: TensorDictBase) -> dict[str, float]:
+    """The statistics of a time-major ``[B, T]`` batch counted frame by frame, as the docs define them.
+
+    An episode ends at a done frame; its length is its ``step_count`` there; it is complete when all those frames
+    are in its row; returns sum the reward (and each entry of the breakdown and the costs) over its frames. The
+    schedule and the levels are read at the last frame of every row (the end of the batch) and averaged over rows.
+    """
+    nxt = data["next"]
+    rows, steps = data.batch_size
+    entries = {"return_mean": nxt["reward"]}
+    for group, prefix in (("task_reward", "return_mean/"), ("task_cost", "cost_mean/")):
+        if group in nxt.keys():
+            for leaf in nxt[group].keys():
+                others = set(nxt[group].keys())
+                if not (leaf.startswith("episode_") and leaf[len("episode_") :] in others):
+                    entries[prefix + leaf] = nxt[group, leaf]
+    ended_by = list(nxt["ended_by"].keys()) if "ended_by" in nxt.keys() else []
+    ends, complete_sums = [], {stat: [] for stat in entries}
+    for row in range(rows):
+        for t in range(steps):
+            if not bool(nxt["done"][row, t]):
+                continue
+            length = int(nxt["step_count"][row, t])
+            ends.append((row, t, length))
+            if t - length + 1 >= 0:  # every frame of the episode is in the row
+                for stat, value in entries.items():
+                    complete_sums[stat].append(sum(float(value[row, s]) for s in range(t - length + 1, t + 1)))
+    stats = {"episodes": float(len(ends)), "complete_episodes": float(len(complete_sums["return_mean"]))}
+
+    def rate(flag) -> float:
+        return sum(bool(flag[row, t]) for row, t, _ in ends) / len(ends)
+
+    if ends:
+        stats["success_rate"] = rate(nxt["success"])
+        stats["failure_rate"] = rate(nxt["failure"])
+        task_end = nxt["success"] | nxt["failure"]
+        stats["timeout_rate"] = rate(nxt["truncated"] & ~nxt["terminated"] & ~task_end)
+        stats["env_termination_rate"] = rate(nxt["terminated"] & ~task_end)
+        stats["episode_length_mean"] = sum(length for _, _, length in ends) / len(ends)
+        for name in ended_by:
+            stats[f"ended_by/{name}"] = rate(nxt["ended_by", name])
+        if complete_sums["return_mean"]:
+            for stat, sums in complete_sums.items():
+                stats[stat] = sum(sums) / len(sums)
+    if "curriculum" in nxt.keys():
+        for name in nxt["curriculum"].keys():
+            last = nxt["curriculum", name][:, -1].reshape(rows, -1)
+            if name == "level":
+                levels = [int(level) for level in last[:, 0]]
+                stats["curriculum/level"] = sum(levels) / rows
+                for k in range(max(levels) + 1):
+                    stats[f"curriculum/level_fraction/{k}"] = levels.count(k) / rows
+            elif last.shape[1] == 1:
+                stats[f"curriculum/{name}"] = sum(float(v) for v in last[:, 0]) / rows
+            else:
+                for i in range(last.shape[1]):
+                    stats[f"curriculum/{name}/{i}"] = sum(float(v) for v in last[:, i]) / rows
+    return stats
+
+
+def _statistics_match(actual: dict[str, float], expected: dict[str, float], what: str) -> None:
+    assert set(actual) == set(expected), f"{what}: keys differ: {sorted(set(actual) ^ set(expected))}"
+    for key, value in expected.items():
+        assert math.isclose(actual[key], value, rel_tol=1e-9, abs_tol=1e-9), (
+            f"{what}: {key} = {actual[key]}, counted {value}"
+        )
+
+
+STATISTICS_LAYOUTS = ["time_major", "flat", "split_trajs", "shuffled"]
+
+
+def _statistics_layout(data: TensorDictBase, layout: str) -> TensorDictBase:
+    if layout == "shuffled":  # a replay buffer holding the whole batch, frames in random order
+        frames = data.reshape(-1)
+        return frames[torch.randperm(frames.numel(), generator=torch.Generator().manual_seed(SEED))]
+    return LAYOUTS[layout](data)
+
+
+def _statistics_hold(name: str, data: TensorDictBase, layout: str) -> None:
+    """``episode_statistics`` of ``data`` in ``layout`` equals the count; levels alone have no order in a layout that
+    is not time-major (no frame count says which frame is an env's latest): refused there, with a way out."""
+    expected = count_statistics(data)
+    assert expected["episodes"] > 0 and expected["complete_episodes"] > 0
+    arranged = _statistics_layout(data, layout)
+    schedule = set(data["next", "curriculum"].keys()) if "curriculum" in data["next"].keys() else set()
+    if "level" in schedule and "frames" not in schedule and layout != "time_major":
+        with pytest.raises(ValueError, match="curriculum_key=None"):
+            episode_statistics(arranged)
+        expected = {k: v for k, v in expected.items() if not k.startswith("curriculum/")}
+        _statistics_match(episode_statistics(arranged, curriculum_key=None), expected, f"{name}, {layout}")
+        return
+    _statistics_match(episode_statistics(arranged), expected, f"{name}, {layout}")
+
+
+@pytest.mark.parametrize("layout", STATISTICS_LAYOUTS)
+@pytest.mark.parametrize("name", list(FEATURES))
+def test_statistics_equal_an_independent_count(name: str, layout: str):
+    _statistics_hold(name, collected(name), layout)
+
+
+def test_a_replay_sample_counts_the_episodes_it_holds_whole():
+    """A random sample holds some episodes whole: their returns are the full batch's for the same episodes."""
+    data = collected("constraints")
+    sample = sampled(data, replacement=False)  # a frame held twice is refused (it would fake a complete episode)
+    stats = episode_statistics(sample)
+    ids = sample["collector", "traj_ids"]
+    assert stats["episodes"] == float(sample["next", "done"].sum())
+    whole = [
+        int(i)
+        for i in ids.unique()
+        if int((ids == i).sum()) == int(sample["next", "step_count"][(ids == i) & sample["next", "done"][..., 0]].sum())
+    ]
+    assert stats["complete_episodes"] == float(len(whole))
+
+
+# ------------------------------------------------------------------------------------------------ worker processes
+PROCESS_FEATURES = ["curriculum", "levels", "constraints"]
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+@pytest.mark.parametrize("collect", [parallel, multi_sync], ids=["parallel_env", "multi_sync"])
+@pytest.mark.parametrize("name", PROCESS_FEATURES)
+def test_worker_processes_keep_the_invariants(name: str, collect, fork_start_method):
+    data = collect(name)
+    _offline_matches_online(name, data)
+    _offline_matches_online(name, flat(data))
+    for layout in STATISTICS_LAYOUTS:
+        _statistics_hold(name, data, layout)
