@@ -49,6 +49,24 @@ def _overlap(a: NestedKey, b: NestedKey) -> bool:
     return a[:n] == b[:n]
 
 
+def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: NestedKey) -> None:
+    """Refuse a name ``episode_<x>`` beside a name ``<x>`` among the entries written under ``key``.
+
+    TorchRL's ``RewardSum`` writes the running sum of an entry it sums as ``episode_<name>`` beside it: that sum
+    would overwrite the entry named ``episode_<x>`` after every step, and the statistics would drop it.
+    """
+    written = set(names)
+    for name in names:
+        summed = name.removeprefix("episode_")
+        if summed != name and summed in written:
+            raise ValueError(
+                f"TaskTransform: the {what} {name!r} is written beside {summed!r} under {argument}={key!r}, and "
+                f"TorchRL's RewardSum writes the episode sum of {summed!r} there as {name!r} (it writes "
+                f"episode_<name> beside each entry it sums): the sum would overwrite the {what} and the statistics "
+                f"would drop it. Rename one of them."
+            )
+
+
 def _has_leaves(layout: MemoryLayout) -> bool:
     """Whether a memory layout holds any tensor (a memory of only empty sub-memories holds none)."""
     return any(key not in layout.nested or _has_leaves(layout.nested[key]) for key in layout.keys)
@@ -291,6 +309,9 @@ class TaskTransform(EnvDerivedTransform):
         parts = ("step", "final") if task.pays_final_reward else ()
         self._term_keys = [self._key(name) for name in (*parts, *self._term_names)] if log_terms else []
         self._writes_step_final = bool(parts)
+        if log_terms:
+            _refuse_episode_sums([*parts, *self._term_names], "reward term", "terms_key", self.terms_key)
+        _refuse_episode_sums(self.cost_names, "cost", "cost_terms_key", self.cost_terms_key)
 
     def _check_key_collisions(self) -> None:
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
