@@ -1,34 +1,52 @@
-"""Offline recomputation puts one value per frame in a task buffer's place: every kernel must take it.
+"""Offline recomputation uses the values each step used, not today's buffers (issue 30, defect 5).
 
-Every float buffer of every task tree takes one value per row (what recomputation of stored data puts in
-the buffers' places), checked against an independent loop that evaluates the batch once per row with that
-row's value in the buffer's own shape.
+Data is collected while a :class:`~torchtasks.curriculum.Curriculum` ramps a task buffer (a scalar reward
+weight, the final reward's ``success_value``, a vector weight, a scalar filling a vector weight).
+Recomputing the stored transitions (``forward``, ``reward_fn``, ``relabel`` with the original goal)
+must give the rewards and flags the env paid, on the rollout's ``[B, T]``, flattened ``[N]`` and a replay
+buffer's random sample, with the env's own TaskTransform and with one outside any env (a replay buffer's
+transform). Expected values: the rewards and flags recorded online. The buffers' values of today (the
+ramp's end) give other rewards: each case checks that they do. Data
+lacking the recorded values, recorded values of the wrong shape and a reward that cannot take one value
+per frame are refused.
+
+The first test checks the kernels themselves: every float buffer of every task tree takes one value per
+row (what recomputation puts in the buffers' places), against an independent loop that evaluates the
+batch once per row with that row's value in the buffer's own shape.
 """
 
 from __future__ import annotations
 
 import functools
+import math
+import re
 from collections.abc import Callable
 
 import pytest
 import torch
 from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
+from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from task_trees import all_task_cases, example_trees, predefined_cases, random_transitions
-from torchtasks.envs import swing_up_task
+from torchtasks.curriculum import Curriculum, linear
+from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.envs.locomotion import safety_velocity_task
 from torchtasks.rewards import (
     AbsoluteErrorReward,
     CompoundReward,
     ExpQuadraticErrorReward,
     QuadraticErrorReward,
+    RewardFunction,
     ScaledExpQuadraticErrorReward,
     ToleranceReward,
 )
 from torchtasks.rewards.terms import AboveThresholdIndicator, ContactCostReward, HealthyReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
+from torchtasks.transforms import TaskTransform
 
 # ------------------------------------------------------------------------------------------------------------------
 # Kernels: one value per row of every float buffer
@@ -127,3 +145,240 @@ def test_every_float_buffer_takes_one_value_per_row(case: str) -> None:
                 assert (got == want).all(), (row, i)
             else:
                 assert torch.equal(got, want), (row, i)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Collected data
+# ------------------------------------------------------------------------------------------------------------------
+ENVS, STEPS, MAX_STEPS = 8, 60, 20
+FRAMES = ENVS * STEPS
+GOAL, RADIUS, SPEED_LIMIT = (math.pi, 0.0), 0.7, 4.5
+
+
+def reach_task() -> FinalRewardTask:
+    """Reach hanging still (success within RADIUS), fail above the speed limit; weighted track and effort terms."""
+    spec = EnvSpec(Box([-3 * math.pi, -SPEED_LIMIT], [3 * math.pi, SPEED_LIMIT]), Box([-2.0], [2.0]))
+    reward = CompoundReward(
+        {"track": QuadraticErrorReward([1.0, 0.1], None), "effort": QuadraticErrorReward([0.0, 0.0], [0.01])},
+        weights={"effort": 1.0},
+    )
+    near = functools.partial(proximity_succeeded, threshold=RADIUS)
+    return FinalRewardTask(DesiredStateTask(spec, list(GOAL), reward, near), factor=10.0)
+
+
+#: case -> (task builder, the Curriculum after the TaskTransform, the buffers it sets)
+CASES = {
+    "scalar weight": (
+        reach_task,
+        lambda: Curriculum({"wrapped_task.reward.weights.effort": linear(0.0, 8.0, 0, FRAMES)}),
+        ["wrapped_task.reward.weights.effort"],
+    ),
+    "success_value": (
+        reach_task,
+        lambda: Curriculum({"success_value": linear(0.0, 100.0, 0, FRAMES)}),
+        ["success_value"],
+    ),
+    "vector weight": (
+        reach_task,
+        lambda: Curriculum({"wrapped_task.reward.rewards.track.Q": linear([1.0, 0.1], [0.25, 1.0], 0, FRAMES)}),
+        ["wrapped_task.reward.rewards.track.Q"],
+    ),
+    "scalar over a vector": (  # one value filling the buffer: recorded as [*B, 1]
+        reach_task,
+        lambda: Curriculum({"wrapped_task.reward.rewards.track.Q": linear(0.25, 2.0, 0, FRAMES)}),
+        ["wrapped_task.reward.rewards.track.Q"],
+    ),
+}
+
+
+class _Policy(nn.Module):
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return 0.3 * observation[..., 0:1] + 0.8 * observation[..., 1:2]
+
+
+def make_env(case: str) -> TransformedEnv:
+    make_task, make_setter, _ = CASES[case]
+    return TransformedEnv(
+        PendulumEnv([ENVS], seed=3),
+        Compose(StepCounter(MAX_STEPS), TaskTransform(make_task()), make_setter(), RewardSum()),
+    )
+
+
+@pytest.fixture(scope="module", params=list(CASES))
+def collected(request) -> tuple[str, TransformedEnv, TensorDictBase]:
+    """A rollout ``[ENVS, STEPS]`` with its env (whose buffers now hold the values of the last step)."""
+    case = request.param
+    env = make_env(case)
+    policy = TensorDictModule(_Policy(), in_keys=["observation"], out_keys=["action"])
+    with torch.no_grad():
+        data = env.rollout(STEPS, policy, break_when_any_done=False)
+    nxt = data["next"]
+    assert nxt["success"].any() and nxt["failure"].any() and nxt["truncated"].any()
+    return case, env, data
+
+
+def _layout(data: TensorDictBase, layout: str) -> TensorDictBase:
+    if layout == "rollout":
+        return data.clone()
+    flat = data.reshape(-1)
+    if layout == "flat":
+        return flat.clone()
+    # every frame once, in a random order (a random sample of some frames may hold no success)
+    buffer = ReplayBuffer(storage=LazyTensorStorage(FRAMES), sampler=SamplerWithoutReplacement(), batch_size=FRAMES)
+    buffer.extend(flat)
+    torch.manual_seed(7)
+    sample = buffer.sample().clone()
+    assert not torch.equal(sample["observation"], flat["observation"])
+    return sample
+
+
+def _transform(case: str, env: TransformedEnv, where: str) -> TaskTransform:
+    if where == "env":
+        return env.transform[1]
+    return TaskTransform(CASES[case][0](), max_steps=MAX_STEPS)  # a replay buffer's transform: no env
+
+
+RECOMPUTED = [("next", key) for key in ("reward", "success", "failure", "terminated", "done")] + [
+    ("next", "task_reward", term) for term in ("step", "final")
+]
+
+
+def _stripped(data: TensorDictBase) -> TensorDictBase:
+    """The transitions with the task's outputs zeroed (done = the truncation): recomputation must write them."""
+    data = data.clone()
+    nxt = data["next"]
+    for key in ("reward", "success", "failure", "terminated"):
+        nxt[key].zero_()
+    nxt["done"].copy_(nxt["truncated"])
+    nxt["task_reward"].zero_()
+    return data
+
+
+def _recompute(transform: TaskTransform, data: TensorDictBase, method: str) -> dict:
+    stripped = _stripped(data)
+    if method == "forward":
+        out = transform(stripped)
+        return {key: out[key] for key in RECOMPUTED}
+    if method == "reward_fn":
+        return {("next", "reward"): transform.reward_fn(stripped)}
+    reward = transform.relabel(stripped)  # the goal in the data is the original one: a relabelling that changes nothing
+    assert torch.equal(reward, stripped["next", "reward"])
+    return {key: stripped[key] for key in [*RECOMPUTED, ("next", "task")]}
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# Recomputation equals what the env paid
+# ------------------------------------------------------------------------------------------------------------------
+def _with_todays_values(case: str, env: TransformedEnv, data: TensorDictBase) -> TensorDictBase:
+    """``data`` whose recorded values are replaced by the buffers' values of today (after the last step)."""
+    data = data.clone()
+    task = env.transform[1].task
+    buffers = dict(task.named_buffers())
+    for name in CASES[case][2]:
+        key, buffer = ("curriculum", name.replace(".", "/")), buffers[name]
+        if buffer.dim() and data[key].shape[-1:] != buffer.shape[-1:]:  # a scalar schedule filling the buffer
+            buffer = buffer[:1]
+        data[key] = buffer.to(data[key].dtype).expand_as(data[key]).clone()
+    return data
+
+
+def test_the_data_records_values_that_changed_and_todays_values_pay_other_rewards(collected) -> None:
+    case, env, data = collected
+    for name in CASES[case][2]:  # one value per frame, and not one value for the whole rollout
+        values = data["curriculum", name.replace(".", "/")].reshape(ENVS * STEPS, -1)
+        assert (values != values[:1]).any(-1).any(), name
+    # the buffers' values of today (after the last step) give other rewards than the env paid
+    today = _with_todays_values(case, env, data)
+    recomputed = TaskTransform(CASES[case][0](), max_steps=MAX_STEPS)(_stripped(today))["next", "reward"]
+    assert (recomputed - data["next", "reward"]).abs().max() > 0.05
+
+
+def test_without_a_curriculum_key_a_transform_outside_the_env_uses_todays_buffers(collected) -> None:
+    case, env, data = collected
+    today = TaskTransform(env.transform[1].task, curriculum_key=None)(_stripped(data))
+    expected = TaskTransform(CASES[case][0](), max_steps=MAX_STEPS)(_stripped(_with_todays_values(case, env, data)))
+    assert torch.equal(today["next", "reward"], expected["next", "reward"])
+
+
+@pytest.mark.parametrize("where", ["env", "standalone"])
+@pytest.mark.parametrize("method", ["forward", "reward_fn", "relabel"])
+@pytest.mark.parametrize("layout", ["rollout", "flat", "replay sample"])
+def test_offline_recomputation_equals_what_the_env_paid(collected, layout: str, method: str, where: str) -> None:
+    case, env, data = collected
+    data = _layout(data, layout)
+    recomputed = _recompute(_transform(case, env, where), data, method)
+    for key, value in recomputed.items():
+        assert value.shape == data[key].shape, key
+        assert (value == data[key]).all(), (key, (value.double() - data[key].double()).abs().max())
+
+
+@pytest.mark.parametrize("method", ["forward", "reward_fn", "relabel"])
+def test_data_without_the_recorded_values_is_refused_by_the_envs_transform(collected, method: str) -> None:
+    case, env, data = collected
+    missing = ("curriculum", CASES[case][2][0].replace(".", "/"))
+    lacking = data.exclude(missing)
+    with pytest.raises(
+        ValueError,
+        match=re.escape(f"the data lacks {missing!r}, the value") + " of the task buffer .*sets at every step",
+    ):
+        _recompute(env.transform[1], lacking, method)
+
+
+def test_the_buffers_are_back_after_recomputation(collected) -> None:
+    _, env, data = collected
+    task = env.transform[1].task
+    before = {name: (buffer, buffer.clone()) for name, buffer in task.named_buffers()}
+    _recompute(env.transform[1], data, "forward")
+    for name, buffer in task.named_buffers():
+        assert buffer is before[name][0] and torch.equal(buffer, before[name][1]), name
+
+
+def test_recorded_values_of_the_wrong_shape_are_refused() -> None:
+    env = make_env("vector weight")
+    data = env.rollout(3)
+    data["curriculum", "wrapped_task/reward/rewards/track/Q"] = torch.zeros(ENVS, 3, 3)
+    with pytest.raises(
+        ValueError,
+        match=r"task buffer 'wrapped_task.reward.rewards.track.Q' \(shape \[2\]\) must have shape \[8, 3, 2\]",
+    ):
+        TaskTransform(reach_task(), max_steps=MAX_STEPS)(data)
+
+
+class _Unbroadcast(RewardFunction):
+    """A reward whose weight meets the state in a way that ignores leading dims of the weight."""
+
+    uses_action = False
+
+    def __init__(self, how: str) -> None:
+        super().__init__()
+        self.how = how
+        self.register_buffer("w", torch.tensor([1.0, 0.5], dtype=torch.float64))
+        self.register_buffer("s", torch.tensor(1.0, dtype=torch.float64))
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        squares = error_state * error_state
+        if self.how == "matmul":  # [N, 2] @ [N, 2] does not multiply
+            return -squares @ self.w.to(error_state.dtype)
+        # [N, 1] * [N] broadcasts to [N, N]: the squeeze leaves it so
+        return (-squares.sum(-1, keepdim=True) * self.s.to(error_state.dtype)).squeeze(-1)
+
+
+@pytest.mark.parametrize(
+    ("how", "schedule", "message"),
+    [
+        ("matmul", {"reward.w": linear([1.0, 0.5], [2.0, 1.0], 0, 40)}, "failed to evaluate stored transitions"),
+        ("keepdim", {"reward.s": linear(1.0, 2.0, 0, 40)}, "returned rewards of shape [48, 48] for a batch [48]"),
+    ],
+)
+def test_a_reward_that_cannot_take_one_value_per_frame_is_refused(how: str, schedule: dict, message: str) -> None:
+    spec = EnvSpec(Box([-10.0, -10.0], [10.0, 10.0]), Box([-2.0], [2.0]))
+    task = DesiredStateTask(spec, [0.0, 0.0], _Unbroadcast(how))
+    env = TransformedEnv(
+        PendulumEnv([ENVS], seed=0), Compose(StepCounter(MAX_STEPS), TaskTransform(task), Curriculum(schedule))
+    )
+    data = env.rollout(6)
+    with pytest.raises(ValueError, match=re.escape(message)):
+        env.transform[1](data.reshape(-1))
