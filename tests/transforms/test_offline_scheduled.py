@@ -1,12 +1,13 @@
 """Offline recomputation uses the values each step used, not today's buffers (issue 30, defect 5).
 
 Data is collected while a :class:`~torchtasks.curriculum.Curriculum` ramps a task buffer (a scalar reward
-weight, the final reward's ``success_value``, a vector weight, a scalar filling a vector weight).
-Recomputing the stored transitions (``forward``, ``reward_fn``, ``relabel`` with the original goal)
+weight, the final reward's ``success_value``, a vector weight, a scalar filling a vector weight) or
+:class:`~torchtasks.levels.DifficultyLevels` sets per-env buffers (a scalar and a vector per env) from its
+tables. Recomputing the stored transitions (``forward``, ``reward_fn``, ``relabel`` with the original goal)
 must give the rewards and flags the env paid, on the rollout's ``[B, T]``, flattened ``[N]`` and a replay
 buffer's random sample, with the env's own TaskTransform and with one outside any env (a replay buffer's
 transform). Expected values: the rewards and flags recorded online. The buffers' values of today (the
-ramp's end) give other rewards: each case checks that they do. Data
+ramp's end, the levels after the last step) give other rewards: each case checks that they do. Data
 lacking the recorded values, recorded values of the wrong shape and a reward that cannot take one value
 per frame are refused.
 
@@ -29,11 +30,13 @@ from tensordict.nn import TensorDictModule
 from torch import nn
 from torchrl.data import LazyTensorStorage, ReplayBuffer, SamplerWithoutReplacement
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
+from torchrl.envs.utils import check_env_specs
 
 from task_trees import all_task_cases, example_trees, predefined_cases, random_transitions
 from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.envs.locomotion import safety_velocity_task
+from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import (
     AbsoluteErrorReward,
     CompoundReward,
@@ -166,7 +169,40 @@ def reach_task() -> FinalRewardTask:
     return FinalRewardTask(DesiredStateTask(spec, list(GOAL), reward, near), factor=10.0)
 
 
-#: case -> (task builder, the Curriculum after the TaskTransform, the buffers it sets)
+class PerEnvDistance(RewardFunction):
+    """``-scale · Σ_i q_i e_i²`` with one ``scale`` (``[B]``) and one ``q`` (``[B, 2]``) per env, set by levels."""
+
+    uses_action = False
+
+    def __init__(self, envs: int) -> None:
+        super().__init__()
+        self.register_buffer("scale", torch.ones(envs, dtype=torch.float64))
+        self.register_buffer("q", torch.ones(envs, 2, dtype=torch.float64))
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        q = self.q.to(error_state.dtype)
+        return -self.scale.to(error_state.dtype) * (error_state * error_state * q).sum(-1)
+
+
+def levelled_task() -> FinalRewardTask:
+    spec = EnvSpec(Box([-3 * math.pi, -SPEED_LIMIT], [3 * math.pi, SPEED_LIMIT]), Box([-2.0], [2.0]))
+    near = functools.partial(proximity_succeeded, threshold=RADIUS)
+    return FinalRewardTask(DesiredStateTask(spec, list(GOAL), PerEnvDistance(ENVS), near), factor=10.0)
+
+
+def _up_at_every_end(tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> torch.Tensor:
+    return torch.ones(next_tensordict.batch_size, dtype=torch.int64)  # every episode end moves its env up a level
+
+
+LEVEL_TABLES = {
+    "wrapped_task.reward.scale": [1.0, 2.0, 4.0],
+    "wrapped_task.reward.q": [[1.0, 0.1], [0.5, 1.0], [2.0, 0.25]],
+}
+
+#: case -> (task builder, the transform after the TaskTransform, the buffers it sets)
 CASES = {
     "scalar weight": (
         reach_task,
@@ -187,6 +223,11 @@ CASES = {
         reach_task,
         lambda: Curriculum({"wrapped_task.reward.rewards.track.Q": linear(0.25, 2.0, 0, FRAMES)}),
         ["wrapped_task.reward.rewards.track.Q"],
+    ),
+    "levels": (
+        levelled_task,
+        lambda: DifficultyLevels(3, LEVEL_TABLES, rule=_up_at_every_end),
+        list(LEVEL_TABLES),
     ),
 }
 
@@ -276,7 +317,9 @@ def _with_todays_values(case: str, env: TransformedEnv, data: TensorDictBase) ->
     buffers = dict(task.named_buffers())
     for name in CASES[case][2]:
         key, buffer = ("curriculum", name.replace(".", "/")), buffers[name]
-        if buffer.dim() and data[key].shape[-1:] != buffer.shape[-1:]:  # a scalar schedule filling the buffer
+        if case == "levels":  # one value per env: env i's row in all of its frames
+            buffer = buffer.unsqueeze(1)
+        elif buffer.dim() and data[key].shape[-1:] != buffer.shape[-1:]:  # a scalar schedule filling the buffer
             buffer = buffer[:1]
         data[key] = buffer.to(data[key].dtype).expand_as(data[key]).clone()
     return data
@@ -293,8 +336,9 @@ def test_the_data_records_values_that_changed_and_todays_values_pay_other_reward
     assert (recomputed - data["next", "reward"]).abs().max() > 0.05
 
 
+@pytest.mark.parametrize("collected", [case for case in CASES if case != "levels"], indirect=True)
 def test_without_a_curriculum_key_a_transform_outside_the_env_uses_todays_buffers(collected) -> None:
-    case, env, data = collected
+    case, env, data = collected  # (today's per-env buffers of levels do not broadcast over a rollout's frames)
     today = TaskTransform(env.transform[1].task, curriculum_key=None)(_stripped(data))
     expected = TaskTransform(CASES[case][0](), max_steps=MAX_STEPS)(_stripped(_with_todays_values(case, env, data)))
     assert torch.equal(today["next", "reward"], expected["next", "reward"])
@@ -382,3 +426,21 @@ def test_a_reward_that_cannot_take_one_value_per_frame_is_refused(how: str, sche
     data = env.rollout(6)
     with pytest.raises(ValueError, match=re.escape(message)):
         env.transform[1](data.reshape(-1))
+
+
+def test_levels_record_each_envs_row_at_the_root_of_every_step() -> None:
+    env = make_env("levels")
+    check_env_specs(env)
+    data = env.rollout(STEPS, break_when_any_done=False)
+    level = data["curriculum", "level"][..., 0]  # the level each step was played at
+    assert level.unique().numel() == 3
+    for name, table in LEVEL_TABLES.items():  # the row of that level, of the buffer's dtype
+        recorded = data["curriculum", name.replace(".", "/")]
+        assert torch.equal(recorded, torch.tensor(table, dtype=recorded.dtype)[level])
+        assert recorded.shape == (ENVS, STEPS, *torch.tensor(table).shape[1:])
+
+
+@pytest.mark.parametrize("target", ["level", "frames"])
+def test_a_level_target_named_like_an_entry_of_the_key_is_refused(target: str) -> None:
+    with pytest.raises(ValueError, match=f"a target may not be named {target!r}"):
+        DifficultyLevels(2, {target: [0.0, 1.0]})
