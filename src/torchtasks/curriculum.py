@@ -33,7 +33,7 @@ from torchtasks._torchrl import ResetWritingTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import RecordedValue, TaskTransform
 
 __all__ = ["Curriculum", "GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
 
@@ -483,7 +483,9 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
     Written entries (observation spec): ``(curriculum_key, "frames")`` (int64 ``[*B, 1]``) and
     ``(curriculum_key, <target with "." replaced by "/">)`` (the buffer's dtype, ``[*B, *value_shape]``,
     ``[*B, 1]`` for a scalar value). As observations, the entries at the root of a step are the
-    frame count and the values that step's reward was computed with.
+    frame count and the values that step's reward was computed with; offline recomputation
+    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
+    every stored frame with them.
 
     The frame counter (``frames``) and each gated schedule's stage and moving average are
     registered buffers: ``state_dict()``/``load_state_dict()`` restore them, also through TorchRL's
@@ -521,7 +523,7 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
         >>> from torchtasks.curriculum import Curriculum, linear
         >>> from torchtasks.envs import PendulumEnv, swing_up_task
-        >>> from torchtasks.transforms import TaskTransform
+        >>> from torchtasks.transforms import RecordedValue, TaskTransform
         >>> curriculum = Curriculum({"success_value": linear(0.0, 100.0, 0, 40)})  # the final reward on success
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
         ...     StepCounter(50), TaskTransform(swing_up_task()), curriculum))
@@ -800,6 +802,16 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
                         f"can have low > high (a gated stage may be reached at any frame): low takes "
                         f"{lows.tolist()}, high takes {highs.tolist()}"
                     )
+
+    def _recorded_task_values(self) -> list[RecordedValue]:
+        """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by
+        all envs); offline recomputation with the env's TaskTransform reads them (a GoalCommand's range needs none:
+        the goal drawn is in the data)."""
+        return [
+            RecordedValue(target, key, None)
+            for target, key in zip(self.targets, self._value_keys, strict=True)
+            if not target.startswith(COMMAND + ".")
+        ]
 
     def _get_slots(self) -> list[tuple[nn.Module, str]]:
         slots = self.__dict__.get("_slots")

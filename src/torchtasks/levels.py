@@ -23,7 +23,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torch import nn
-from torchrl.data import Bounded, Composite
+from torchrl.data import Bounded, Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
@@ -33,7 +33,7 @@ from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import RecordedValue, TaskTransform
 
 __all__ = ["DifficultyLevels", "LevelRule"]
 
@@ -92,10 +92,14 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
     A misspelt target, a table of the wrong shape, a range that leaves the goal space and a target a
     Curriculum also schedules are ``ValueError``\\ s when the env's specs are built.
 
-    Written entry (observation spec): ``(curriculum_key, "level")``, int64 ``[*B, 1]``: at the root of
+    Written entries (observation spec): ``(curriculum_key, "level")``, int64 ``[*B, 1]``: at the root of
     a step the level the step was played at, under ``"next"`` the level after it (changed at an
     episode's last step). :func:`~torchtasks.stats.episode_statistics` reports its mean and the
-    fraction of envs at each level.
+    fraction of envs at each level. For every task-tree and base-env target, ``(curriculum_key, <target
+    with "." replaced by "/">)``, the target's dtype, ``[*B, *value_shape]`` (``[*B]`` for a scalar
+    value): each env's row, at the root of a step the one the step used, so that offline recomputation
+    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
+    every frame with it. A GoalCommand's range is not written (the goal drawn is in the data).
 
     State: ``level`` (int64 ``[*B]``, created when the env's specs are built) is a registered buffer;
     ``state_dict()``/``load_state_dict()`` restore it, also before the specs are built.
@@ -119,7 +123,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         >>> from torchtasks.rewards import ConstantReward
         >>> from torchtasks.spaces import Box, EnvSpec
         >>> from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-        >>> from torchtasks.transforms import TaskTransform
+        >>> from torchtasks.transforms import RecordedValue, TaskTransform
         >>> spec = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
         >>> near = functools.partial(proximity_succeeded, threshold=0.1)
         >>> reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), near)
@@ -169,7 +173,19 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         self.failure_key = None if failure_key is None else nested_key(failure_key, "DifficultyLevels: failure_key")
         self.curriculum_key = nested_key(curriculum_key, "DifficultyLevels: curriculum_key")
         self._level_key = (*key_parts(self.curriculum_key), LEVEL)
-        super().__init__(in_keys=[], out_keys=[self._level_key])
+        # the entries recording the per-env value of each task-tree and base-env target ("/" for "."), by target index
+        self.__dict__["_value_keys"] = {
+            i: (*key_parts(self.curriculum_key), target.replace(".", "/"))
+            for i, target in enumerate(values)
+            if not target.startswith(COMMAND + ".")
+        }
+        for key in self._value_keys.values():
+            if key[-1] in (LEVEL, "frames"):
+                raise ValueError(
+                    f"DifficultyLevels: a target may not be named {key[-1]!r}: its per-env values would be written "
+                    f"over the entry {key!r} (the levels, or a Curriculum's frame count)"
+                )
+        super().__init__(in_keys=[], out_keys=[self._level_key, *self._value_keys.values()])
         self.targets = tuple(values)
         # one buffer per target, named by its entry ("." -> "/"): a checkpoint is keyed by target, not by position
         self._entries = [target.replace(".", "/") for target in self.targets]
@@ -348,6 +364,15 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
             )
         return command, leaf
 
+    def _recorded_task_values(self) -> list[RecordedValue]:
+        """The task-tree targets, each with the entry recording every env's value of the step (one row of its
+        table); offline recomputation with the env's TaskTransform reads them."""
+        return [
+            RecordedValue(self.targets[i], key, self._buffers[f"table_{i}"].shape[1:])
+            for i, key in self._value_keys.items()
+            if not self.targets[i].startswith(ENV + ".")
+        ]
+
     def _refuse_scheduled(self, flat: list, slots: list[tuple[nn.Module, str]]) -> None:
         """One owner per buffer: refuse a target that a Curriculum of the env also schedules."""
         mine = {(id(module), leaf): target for target, (module, leaf) in zip(self.targets, slots, strict=True)}
@@ -399,17 +424,23 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
     # ------------------------------------------------------------------ specs
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch, device = observation_spec.shape, observation_spec.device
-        self._setup(batch)
+        slots = self._setup(batch)
         observation_spec[self._level_key] = Bounded(
             low=0, high=self.num_levels - 1, shape=(*batch, 1), dtype=torch.int64, device=device
         )
+        for i, key in self._value_keys.items():
+            module, leaf = slots[i]
+            shape = (*batch, *self._buffers[f"table_{i}"].shape[1:])
+            observation_spec[key] = Unbounded(shape=shape, dtype=module._buffers[leaf].dtype, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ TorchRL hooks
     def _write_levels(self, tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
-        """Write each env's row of every table into its target, and the levels into ``tensordict``."""
+        """Write each env's row of every table into its target, and the levels and the rows set (but a GoalCommand's
+        range: the goal drawn is in the data) into ``tensordict``."""
         slots = self._setup(tensordict.batch_size)  # first: it creates the levels at the first call
         level = self.level
+        value_keys = self._value_keys
         for i, (module, leaf) in enumerate(slots):
             buffer = module._buffers[leaf]
             table = self._table(i)
@@ -420,6 +451,8 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
                 module._buffers[leaf] = value
             else:
                 buffer.copy_(value)
+            if i in value_keys:  # a new tensor: never written into afterwards (the buffer is, or is replaced)
+                td_set(tensordict, value_keys[i], value.clone() if replace else value)
         td_set(tensordict, self._level_key, level.unsqueeze(-1).clone())
         return tensordict
 

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
 from tensordict.utils import NestedKey, unravel_key
+from torch import nn
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs.transforms import RewardSum, StepCounter, Transform, TransformedEnv
 from torchrl.envs.utils import make_composite_from_td
@@ -47,6 +48,74 @@ def _overlap(a: NestedKey, b: NestedKey) -> bool:
     a, b = key_parts(a), key_parts(b)
     n = min(len(a), len(b))
     return a[:n] == b[:n]
+
+
+def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: NestedKey) -> None:
+    """Refuse a name ``episode_<x>`` beside a name ``<x>`` among the entries written under ``key``.
+
+    TorchRL's ``RewardSum`` writes the running sum of an entry it sums as ``episode_<name>`` beside it: that sum
+    would overwrite the entry named ``episode_<x>`` after every step, and the statistics would drop it.
+    """
+    written = set(names)
+    for name in names:
+        summed = name.removeprefix("episode_")
+        if summed != name and summed in written:
+            raise ValueError(
+                f"TaskTransform: the {what} {name!r} is written beside {summed!r} under {argument}={key!r}, and "
+                f"TorchRL's RewardSum writes the episode sum of {summed!r} there as {name!r} (it writes "
+                f"episode_<name> beside each entry it sums): the sum would overwrite the {what} and the statistics "
+                f"would drop it. Rename one of them."
+            )
+
+
+class RecordedValue(NamedTuple):
+    """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
+
+    A :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels` after the
+    :class:`TaskTransform` names these (``_recorded_task_values()``), and offline recomputation evaluates each
+    frame with the value recorded for it, never with the buffer's value of today.
+    """
+
+    #: the buffer's name in ``task.named_buffers()``
+    buffer: str
+    #: the root entry holding, for every frame, the value the step's task used
+    key: tuple[str, ...]
+    #: the shape of one env's value for a buffer holding one value per env (``[*B_env, *row_shape]``, set by
+    #: levels); ``None`` for a value shared by all envs (a schedule's value: the buffer's shape, or a scalar)
+    row_shape: torch.Size | None
+
+
+def _buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
+    """The module holding the buffer ``name`` of ``task.named_buffers()`` and the buffer's name in it.
+
+    Walks the submodules by key: ``get_submodule`` reads attributes, and a reward term may be named like a method
+    of ``nn.Module`` (``forward``).
+    """
+    *path, leaf = name.split(".")
+    module = task
+    for part in path:
+        module = module._modules[part]
+    return module, leaf
+
+
+def _frame_values(entry: torch.Tensor, buffer: torch.Tensor, batch: torch.Size, record: RecordedValue) -> torch.Tensor:
+    """The recorded values of a buffer as one value per frame: ``[*B, *buffer.shape]`` for a value shared by all
+    envs (``[*B]`` for a scalar buffer), ``[*B, *row_shape]`` for one env's value, in the buffer's dtype."""
+    trailing, same_batch = entry.shape[len(batch) :], entry.shape[: len(batch)] == batch
+    if record.row_shape is None:  # a schedule's value: of the buffer's shape, or a scalar (written [*B, 1])
+        expected, fits = [*batch, *buffer.shape], same_batch and trailing in (buffer.shape, (1,))
+        if fits and trailing != buffer.shape:  # the scalar filled the buffer
+            entry = entry.reshape(*batch, *[1] * buffer.dim()).expand(*batch, *buffer.shape)
+    else:  # one env's row of a per-env buffer
+        expected, fits = [*batch, *record.row_shape], same_batch and trailing == record.row_shape
+    if not fits:
+        kind = " (or [*batch, 1] for a scalar)" if record.row_shape is None else " (one env's value per frame)"
+        raise ValueError(
+            f"TaskTransform: the recorded values {record.key!r} of the task buffer {record.buffer!r} (shape "
+            f"{list(buffer.shape)}) must have shape {expected}{kind} for the data's batch {list(batch)}, got "
+            f"{list(entry.shape)}"
+        )
+    return entry if entry.dtype == buffer.dtype and entry.device == buffer.device else entry.to(buffer)
 
 
 def _has_leaves(layout: MemoryLayout) -> bool:
@@ -180,6 +249,12 @@ class TaskTransform(EnvDerivedTransform):
             ``RewardSum`` over :attr:`cost_keys` and for :func:`~torchtasks.stats.episode_statistics`);
             both are reward-spec entries, so they are not carried to the next step's root. A tree
             without costs writes neither.
+        curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
+            values of task buffers that a :class:`~torchtasks.curriculum.Curriculum` or
+            :class:`~torchtasks.levels.DifficultyLevels` set at each step, when this transform is not in their env
+            (e.g. a replay buffer's transform): every entry under it that names a float buffer of the task
+            (``"/"`` for ``"."``) is read. In their env the transform reads their entries and refuses data without
+            them. ``None``: look for none (outside such an env, the task's buffers as they are now).
 
     Example:
         >>> import torch
@@ -219,6 +294,7 @@ class TaskTransform(EnvDerivedTransform):
         cost_key: NestedKey = "cost",
         cost_terms_key: NestedKey = "task_cost",
         ended_by_key: NestedKey = "ended_by",
+        curriculum_key: NestedKey | None = "curriculum",
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -256,6 +332,9 @@ class TaskTransform(EnvDerivedTransform):
         self.cost_names = tuple(task.cost_names)
         self._cost_keys = [unravel_key((*key_parts(self.cost_terms_key), name)) for name in self.cost_names]
         self.ended_by_key = nested_key(ended_by_key, "TaskTransform: ended_by_key")
+        self.curriculum_key = (
+            None if curriculum_key is None else nested_key(curriculum_key, "TaskTransform: curriculum_key")
+        )
         # the named end conditions, written when a kind has two or more (else success and failure say it)
         names = task.termination_names
         self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
@@ -291,6 +370,9 @@ class TaskTransform(EnvDerivedTransform):
         parts = ("step", "final") if task.pays_final_reward else ()
         self._term_keys = [self._key(name) for name in (*parts, *self._term_names)] if log_terms else []
         self._writes_step_final = bool(parts)
+        if log_terms:
+            _refuse_episode_sums([*parts, *self._term_names], "reward term", "terms_key", self.terms_key)
+        _refuse_episode_sums(self.cost_names, "cost", "cost_terms_key", self.cost_terms_key)
 
     def _check_key_collisions(self) -> None:
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
@@ -755,6 +837,112 @@ class TaskTransform(EnvDerivedTransform):
             self.__dict__["_compiled_transition"] = compiled
         return compiled
 
+    # ----------------------------------------------------------- recorded buffer values (offline)
+    def _recorded_in_env(self) -> dict[str, tuple[RecordedValue, str]]:
+        """The task buffers that transforms after this one in its env set at every step (a Curriculum's schedules,
+        levels' per-env values), each with its record and the name of the transform that sets it."""
+        home = self.home_transforms()
+        if home is None:
+            return {}
+        flat, position = home
+        found = {}
+        for transform in flat[position + 1 :]:
+            recorded = getattr(transform, "_recorded_task_values", None)
+            if recorded is not None:
+                found.update((record.buffer, (record, type(transform).__name__)) for record in recorded())
+        return found
+
+    def _recorded_in_data(self, tensordict: TensorDictBase, batch: torch.Size) -> dict[str, RecordedValue]:
+        """The entries under ``curriculum_key`` that name a float buffer of the task (``"/"`` for ``"."``).
+
+        Whether a buffer held one value shared by all envs or one per env is read from the shapes: an entry of the
+        buffer's shape, or ``[*B, 1]``, is a shared value; a per-env buffer ``[*B_env, *row]`` has entries
+        ``[*B, *row]``.
+        """
+        node = None if self.curriculum_key is None else td_get(tensordict, self.curriculum_key)
+        if not isinstance(node, TensorDictBase):
+            return {}
+        buffers = dict(self.task.named_buffers())
+        found = {}
+        for name in node.keys():
+            buffer = buffers.get(name.replace("/", "."))
+            if buffer is None or not buffer.is_floating_point():
+                continue  # e.g. the frame count, the levels, a GoalCommand's range or an env field
+            trailing, shape = node.get(name).shape[len(batch) :], buffer.shape
+            per_env = (
+                trailing not in (shape, (1,))
+                and len(shape) > len(trailing)
+                and shape[len(shape) - len(trailing) :] == trailing
+            )
+            record = RecordedValue(
+                name.replace("/", "."), (*key_parts(self.curriculum_key), name), trailing if per_env else None
+            )
+            found[record.buffer] = record
+        return found
+
+    def _recorded_values(
+        self, tensordict: TensorDictBase, batch: torch.Size
+    ) -> list[tuple[nn.Module, str, torch.Tensor]]:
+        """``(module, buffer name, values)`` for every task buffer whose values the data records, one value per frame.
+
+        In an env whose transforms set task buffers, their entries must be in the data (``ValueError`` otherwise:
+        today's value would pay rewards no step paid); outside, the entries under ``curriculum_key`` are read.
+        """
+        in_env = self._recorded_in_env()
+        records = self._recorded_in_data(tensordict, batch)
+        records.update((name, record) for name, (record, _) in in_env.items())
+        values = []
+        for name, record in records.items():
+            entry = td_get(tensordict, record.key)
+            if entry is None:
+                owner = in_env[name][1]
+                raise ValueError(
+                    f"TaskTransform: the data lacks {record.key!r}, the value of the task buffer {name!r} that the "
+                    f"env's {owner} sets at every step; recomputing with its value of today would pay rewards no step "
+                    f"paid. Keep that entry with the stored transitions (the env writes it at the root of every "
+                    f"step), or recompute with a TaskTransform outside this env (curriculum_key=None: with the "
+                    f"task's buffers as they are now)."
+                )
+            module, leaf = _buffer_owner(self.task, name)
+            values.append((module, leaf, _frame_values(entry, module._buffers[leaf], batch, record)))
+        return values
+
+    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple) -> tuple:
+        """Evaluate stored transitions; the task buffers the data records hold each frame's value for the call.
+
+        The values go into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the
+        buffers are put back afterwards; kernels take a constant with leading batch dims (one value per row).
+        """
+        values = self._recorded_values(tensordict, arguments[0].shape[:-1])
+        if not values:
+            return self._evaluator()(*arguments, self.log_terms)
+        for module in self.task.modules():  # facts a task derives once (its memory layout probes a reset with its
+            if isinstance(module, Task):  # buffers): derived now, from the buffers' own values
+                _ = module.memory_layout
+        saved = [(module, leaf, module._buffers[leaf]) for module, leaf, _ in values]
+        try:
+            for module, leaf, value in values:
+                module._buffers[leaf] = value
+            outputs = self.task._transition(*arguments, self.log_terms)
+        except RuntimeError as error:  # a kernel that reads a constant without broadcasting over leading dims
+            names = [f"{type(module).__name__}.{leaf}" for module, leaf, _ in values]
+            raise ValueError(
+                f"TaskTransform: the task failed to evaluate stored transitions with one value per frame of the "
+                f"buffers {names} (the values the data records): {error}"
+            ) from error
+        finally:
+            for module, leaf, buffer in saved:
+                module._buffers[leaf] = buffer
+        batch = arguments[0].shape[:-1]
+        if outputs[0].shape != batch:
+            raise ValueError(
+                f"TaskTransform: with one value per frame of the recorded task buffers "
+                f"{[f'{type(m).__name__}.{leaf}' for m, leaf, _ in values]}, the task returned rewards of shape "
+                f"{list(outputs[0].shape)} for a batch {list(batch)}: a reward reads one of them without broadcasting "
+                "over leading batch dims"
+            )
+        return outputs
+
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         for key in ("_compiled_transition", "_limit", "_empty_template"):
@@ -821,11 +1009,12 @@ class TaskTransform(EnvDerivedTransform):
             next_tensordict, state.shape[:-1], offline
         )
         remaining = self._remaining(next_tensordict, state, offline)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = (
-            self._evaluator()(
-                state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on, self.log_terms
-            )
-        )
+        arguments = (state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on)
+        if offline:  # stored data: each frame with the values its step used for the buffers the data records
+            outputs = self._evaluate_recorded(tensordict, arguments)
+        else:
+            outputs = self._evaluator()(*arguments, self.log_terms)
+        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = outputs
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
             stored = td_get(next_tensordict, self.reward_key)
@@ -898,6 +1087,12 @@ class TaskTransform(EnvDerivedTransform):
         ``"next"`` are rewritten; the stored next memory is left as it was. An episode end that the
         stored success/failure flags attribute to the task is re-judged (a relabelled goal may
         change it); truncation and the env's own termination are kept.
+
+        Task buffers that a :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels`
+        set at every step are evaluated, frame by frame, with the values the data records at the root
+        (``(curriculum_key, <buffer name with "/" for ".">)``: the values that step used), never with their values
+        of today; in the env of such a transform, data lacking one of its entries is a ``ValueError``.
+        The buffers are put back afterwards. (Also for :meth:`reward_fn` and :meth:`relabel`.)
         """
         next_tensordict = self._offline_next(tensordict)
         self._transition(tensordict, next_tensordict, offline=True)
@@ -927,7 +1122,11 @@ class TaskTransform(EnvDerivedTransform):
         """
         next_data = self._offline_next(tensordict).copy()
         goal_keys = [] if self.goal_key is None else [self.goal_key]
-        data = tensordict.select(*self.state_keys, self.action_key, self.memory_key, *goal_keys, strict=False)
+        recorded = [record.key for record, _ in self._recorded_in_env().values()]
+        recorded += [] if self.curriculum_key is None else [self.curriculum_key]
+        data = tensordict.select(
+            *self.state_keys, self.action_key, self.memory_key, *goal_keys, *recorded, strict=False
+        )
         self._transition(data, next_data, offline=True)
         return next_data.get(self.reward_key)
 

@@ -6,6 +6,8 @@ frames and their done flags, never from the transform or the statistics under te
 
 from __future__ import annotations
 
+import re
+
 import pytest
 import torch
 from torchrl.collectors import Collector
@@ -125,3 +127,80 @@ def test_a_task_without_costs_writes_no_cost_entry():
     data = env.rollout(5, _policy)
     assert transform.cost_keys == [] and ("next", "cost") not in data.keys(True) and "task_cost" not in data["next"]
     assert not any(key.startswith("cost") for key in episode_statistics(data, terms_key=None))
+
+
+def _with_terms(names: tuple[str, ...], final: bool):
+    """A pendulum task whose reward has the named terms (each -θ²), inside a final reward or not."""
+    from torchtasks.rewards import CompoundReward, QuadraticErrorReward
+    from torchtasks.spaces import Box, EnvSpec
+    from torchtasks.tasks import FinalRewardTask, GoallessTask
+
+    spec = EnvSpec(Box([-10.0, -10.0], [10.0, 10.0]), Box([-2.0], [2.0]))
+    reward = CompoundReward({name: QuadraticErrorReward([1.0, 0.0]) for name in names})
+    task = GoallessTask(spec, reward)
+    return FinalRewardTask(task) if final else task
+
+
+# RewardSum(in_keys=...) writes ("task_cost", "episode_<x>") / ("task_reward", "episode_<x>") beside each entry it
+# sums: an entry of that name beside <x> would be overwritten by the running sum of <x> after every step
+CLASHES = {
+    "costs": (
+        lambda: ConstrainedTask(swing_up_task(), {"speed": _fast_cost(), "episode_speed": _fast_cost()}),
+        "cost 'episode_speed' is written beside 'speed' under cost_terms_key='task_cost'",
+    ),
+    "costs, sum first": (
+        lambda: ConstrainedTask(swing_up_task(), {"episode_x": _fast_cost(), "x": _fast_cost()}),
+        "cost 'episode_x' is written beside 'x'",
+    ),
+    "terms": (
+        lambda: _with_terms(("track", "episode_track"), final=False),
+        "reward term 'episode_track' is written beside 'track' under terms_key='task_reward'",
+    ),
+    "a term beside the step reward": (
+        lambda: _with_terms(("episode_step",), final=True),
+        "reward term 'episode_step' is written beside 'step'",
+    ),
+    "a term beside the final reward": (
+        lambda: _with_terms(("track", "episode_final"), final=True),
+        "reward term 'episode_final' is written beside 'final'",
+    ),
+}
+
+
+def _fast_cost() -> StateFunctionReward:
+    return StateFunctionReward(_fast, negate=False)
+
+
+@pytest.mark.parametrize("case", CLASHES)
+def test_a_name_that_reward_sum_writes_beside_another_is_refused(case: str) -> None:
+    make, message = CLASHES[case]
+    with pytest.raises(
+        ValueError,
+        match=re.escape(message) + ".*RewardSum writes the episode sum.*it writes episode_<name> beside each entry",
+    ):
+        TaskTransform(make())
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: ConstrainedTask(swing_up_task(), {"episode_speed": _fast_cost()}),  # nothing named "speed" beside it
+        lambda: _with_terms(("episode_step",), final=False),  # no final reward: no "step" entry is written
+        lambda: _with_terms(("track", "episode_track"), final=False),  # the breakdown is not written
+    ],
+    ids=["cost alone", "term without a step entry", "log_terms=False"],
+)
+def test_episode_names_without_the_entry_they_would_sum_are_accepted(make) -> None:
+    task = make()
+    log_terms = "episode_track" not in task.term_names
+    env = TransformedEnv(
+        PendulumEnv(batch_size=[2], seed=0), Compose(StepCounter(5), TaskTransform(task, log_terms=log_terms))
+    )
+    env = env.append_transform(RewardSum(in_keys=env.reward_keys))
+    data = env.rollout(3, _policy)
+    next_state = data["next", "observation"]
+    for name in task.cost_names:  # the cost is the constraint on the next state, not a running sum
+        assert torch.equal(data["next", "task_cost", name][..., 0], _fast(next_state))
+    for name in [n for n in task.term_names if n.startswith("episode_")] if log_terms else ():
+        # the term is -θ² of the next state, not a running sum
+        assert torch.equal(data["next", "task_reward", name][..., 0], -(next_state[..., 0] ** 2))

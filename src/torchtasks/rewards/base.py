@@ -9,7 +9,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
-from torchtasks._checks import as_constant, check_input, check_same_batch
+from torchtasks._checks import as_constant, cast_like, check_input, check_same_batch
 
 #: ``check(value, name) -> value``: a constant's validation, at construction and for every value written later
 ConstantCheck = Callable[[Any, str], Any]
@@ -47,6 +47,40 @@ def squared_sum(x: torch.Tensor) -> torch.Tensor:
         tensor([5., 9.])
     """
     return (x * x) @ x.new_ones(x.shape[-1])
+
+
+def row_dot(x: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Return ``Σ_i x_i w_i`` per row of ``x`` (``[*B, n]``), for weights shared by all rows (``[n]``) or one row of
+    weights per row of ``x`` (``[*B, n]``: per-frame values, as offline recomputation swaps them in).
+
+    Both are matrix-vector products, so a row gets the same sum (the same rounding) either way.
+
+    Example:
+        >>> import torch
+        >>> x = torch.tensor([[1.0, 2.0], [3.0, 0.0]])
+        >>> row_dot(x, torch.tensor([1.0, 0.5])), row_dot(x, torch.tensor([[1.0, 0.5], [2.0, 0.0]]))
+        (tensor([2., 3.]), tensor([2., 6.]))
+    """
+    if weight.ndim == 1:
+        return x @ weight
+    return (x * weight) @ x.new_ones(x.shape[-1])
+
+
+def row_scalar(constant: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
+    """A scalar constant ready for an elementwise op with ``like`` (``[*B, k]``), in ``like``'s dtype and device.
+
+    A 0-d constant is returned as it is; one value per row (``[*B]``: a per-frame value swapped in by offline
+    recomputation, or a per-env value of difficulty levels) becomes ``[*B, 1]``, so it meets its own row.
+
+    Example:
+        >>> import torch
+        >>> forces = torch.tensor([[3.0, -3.0], [3.0, -3.0]])
+        >>> forces.clamp(max=row_scalar(torch.tensor([1.0, 2.0]), forces))
+        tensor([[ 1., -3.],
+                [ 2., -3.]])
+    """
+    constant = cast_like(constant, like)
+    return constant if constant.ndim == 0 else constant.unsqueeze(-1)
 
 
 def check_ignored_action(error_state: torch.Tensor, error_action: object, state_name: str = "error_state") -> None:

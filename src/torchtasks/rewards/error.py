@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from torchtasks._checks import as_constant, cast_like, check_finite_scalar
-from torchtasks.rewards.base import RewardFunction
+from torchtasks.rewards.base import RewardFunction, row_dot
 from torchtasks.spaces import Box
 
 __all__ = [
@@ -53,12 +53,29 @@ def _weight_vector(value: object, name: str) -> torch.Tensor:
     return weight
 
 
-def quadratic_form(weight: torch.Tensor, error: torch.Tensor) -> torch.Tensor:
-    """Return ``errorᵀ W error`` per row, for a full matrix or a diagonal vector ``W``."""
+def quadratic_form(weight: torch.Tensor, error: torch.Tensor, *, diagonal: bool | None = None) -> torch.Tensor:
+    """Return ``errorᵀ W error`` per row, for a full matrix or a diagonal vector ``W``.
+
+    ``W`` is shared by all rows (``[n]`` or ``[n, n]``) or given per row (``[*B, n]`` or ``[*B, n, n]``: per-frame
+    values, as offline recomputation swaps them in). ``diagonal`` says which a weight with leading dims holds;
+    ``None``: a 1-d weight is a diagonal, a 2-d one a matrix.
+
+    Example:
+        >>> import torch
+        >>> error = torch.tensor([[1.0, 2.0], [1.0, 0.0]])
+        >>> quadratic_form(torch.tensor([1.0, 0.5]), error)
+        tensor([3., 1.])
+        >>> quadratic_form(torch.tensor([[1.0, 0.5], [4.0, 0.0]]), error, diagonal=True)  # one diagonal per row
+        tensor([3., 4.])
+    """
     weight = cast_like(weight, error)
     if weight.ndim == 1:
         return (error * error) @ weight  # a matrix-vector product: about twice as fast as (e * e * w).sum(-1)
-    return ((error @ weight) * error).sum(dim=-1)
+    if diagonal:
+        return row_dot(error * error, weight)
+    if weight.ndim == 2:
+        return ((error @ weight) * error).sum(dim=-1)
+    return ((error.unsqueeze(-2) @ weight).squeeze(-2) * error).sum(dim=-1)
 
 
 class _QuadraticCost(RewardFunction):
@@ -72,6 +89,9 @@ class _QuadraticCost(RewardFunction):
             self.uses_action = False
         else:
             self._register_constant("R", R, learnable, check=_weight_matrix)
+        # whether Q and R are diagonals: a per-frame value swapped in offline has leading dims beyond that
+        self._diagonal_q = self.Q.ndim == 1
+        self._diagonal_r = self.R is not None and self.R.ndim == 1
 
     @property
     def state_size(self) -> int:
@@ -89,9 +109,9 @@ class _QuadraticCost(RewardFunction):
         return self._cost(error_state, error_action)
 
     def _cost(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        cost = quadratic_form(self.Q, error_state)
+        cost = quadratic_form(self.Q, error_state, diagonal=self._diagonal_q)
         if self.uses_action:
-            cost = cost + quadratic_form(self.R, error_action)
+            cost = cost + quadratic_form(self.R, error_action, diagonal=self._diagonal_r)
         return cost
 
     def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
@@ -269,7 +289,7 @@ class AbsoluteErrorReward(RewardFunction):
         return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
-        value = error_state.abs() @ cast_like(self.q, error_state)
+        value = row_dot(error_state.abs(), cast_like(self.q, error_state))
         if self.uses_action:
-            value = value + error_action.abs() @ cast_like(self.r, error_action)
+            value = value + row_dot(error_action.abs(), cast_like(self.r, error_action))
         return -value

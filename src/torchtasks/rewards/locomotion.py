@@ -20,7 +20,7 @@ from torchtasks._checks import (
     check_weight,
 )
 from torchtasks._memory import read
-from torchtasks.rewards.base import RewardFunction, entries, index_problem, squared_sum, sum_terms
+from torchtasks.rewards.base import RewardFunction, entries, index_problem, row_scalar, squared_sum, sum_terms
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
 
@@ -305,8 +305,8 @@ class AntForwardReward(_HealthyForwardReward):
         return finite & (z >= self.healthy_z_low) & (z <= self.healthy_z_high)
 
     def _contact_cost(self, state: torch.Tensor) -> torch.Tensor:
-        low, high = cast_like(self.contact_force_low, state), cast_like(self.contact_force_high, state)
-        forces = self._contact_forces(state).clamp(low, high)
+        forces = self._contact_forces(state)
+        forces = forces.clamp(row_scalar(self.contact_force_low, forces), row_scalar(self.contact_force_high, forces))
         return cast_like(self.contact_cost_weight, state) * squared_sum(forces)
 
 

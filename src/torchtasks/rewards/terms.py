@@ -27,7 +27,14 @@ from torchtasks._checks import (
     check_pair,
     check_weight,
 )
-from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries, index_problem, squared_sum
+from torchtasks.rewards.base import (
+    RewardFunction,
+    check_ignored_action,
+    entries,
+    index_problem,
+    row_scalar,
+    squared_sum,
+)
 
 __all__ = ["AboveThresholdIndicator", "ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
 
@@ -321,7 +328,7 @@ class ContactCostReward(RewardFunction):
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         forces = error_state[..., self.start : self.stop]
-        forces = forces.clamp(cast_like(self.force_low, forces), cast_like(self.force_high, forces))
+        forces = forces.clamp(row_scalar(self.force_low, forces), row_scalar(self.force_high, forces))
         cost = cast_like(self.weight, forces) * squared_sum(forces)
         return -cost.clamp(cast_like(self.cost_low, cost), cast_like(self.cost_high, cost))
 
