@@ -368,7 +368,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         """The task-tree targets, each with the entry recording every env's value of the step (one row of its
         table); offline recomputation with the env's TaskTransform reads them."""
         return [
-            RecordedValue(self.targets[i], key, self._buffers[f"table_{i}"].shape[1:])
+            RecordedValue(self.targets[i], key, self._table(i).shape[1:])
             for i, key in self._value_keys.items()
             if not self.targets[i].startswith(ENV + ".")
         ]
@@ -430,7 +430,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         )
         for i, key in self._value_keys.items():
             module, leaf = slots[i]
-            shape = (*batch, *self._buffers[f"table_{i}"].shape[1:])
+            shape = (*batch, *self._table(i).shape[1:])
             observation_spec[key] = Unbounded(shape=shape, dtype=module._buffers[leaf].dtype, device=device)
         return observation_spec
 
