@@ -56,7 +56,6 @@ _INNER = "_inner_base_env"  # the state of the env below an inner TransformedEnv
 _BASE_ENV = "_base_env_class"  # marks a BaseEnvState's state: the class name of the env it saved
 _CONTINUES = "_continues"  # written by load_collector_state: the collector's carried data are restored too
 _WORKER = re.compile(r"worker\d+")
-_REUSED_ENV_BUFFERS_FIXED = (0, 14, 2)  # pytorch/rl#4341 (ParallelEnv.load_state_dict with buffers) after 0.14.1
 
 
 class BaseEnvState(Transform):
@@ -234,23 +233,19 @@ def _load_env_state(env: EnvBase, state: dict[str, Any]) -> None:
 def collector_state(collector: Collector | MultiSyncCollector) -> dict[str, Any]:
     """A checkpoint of ``collector`` that :func:`load_collector_state` continues: what to ``torch.save``.
 
-    It holds a copy of ``collector.state_dict()`` (under ``"state_dict"``: the policy, the env's
-    transforms with their :class:`BaseEnvState`, the frame and trajectory counters) and a copy of the
-    data the collector carries from one step to the next (under ``"carried"``, one nested dict of
-    tensors per worker: the last observation, ``StepCounter``'s ``step_count``, ``RewardSum``'s running
-    sums, the task memory under ``"task"``, a ``GoalCommand``'s goals and timers, the curriculum
-    entries, ``("collector", "traj_ids")``). Copies: collecting more batches does not change it (a
-    ``collector.state_dict()`` kept in memory shares the live buffers). ``torch.load`` reads it back
-    with ``weights_only=True``.
+    A dict of copies (collecting more batches does not change it; ``torch.load`` reads it with
+    ``weights_only=True``): ``"state_dict"``, ``collector.state_dict()`` (the policy, the counters,
+    the env's transforms with their :class:`BaseEnvState`), and ``"carried"``, one nested dict of
+    tensors per worker with the data the collector carries from one step to the next (observation,
+    ``step_count``, running sums, task memory, goals and timers, curriculum entries,
+    ``("collector", "traj_ids")``).
 
-    Supported: a ``Collector`` (its env in this process, or a ``ParallelEnv`` whose workers hold the
-    envs) and a ``MultiSyncCollector`` (each worker's carried data, fetched from the workers). Raises a
-    ``TypeError`` for other collectors (a ``MultiAsyncCollector``'s workers collect ahead of the
-    batches handed out, so no moment has a state the next batch continues from), a ``ValueError``
-    for a collector that assembles trajectories (``trajs_per_batch``: its partial trajectories are
-    not saved) and for envs whose running episodes the state does not hold: an env without a
-    :class:`BaseEnvState` over it, or a base env whose ``state_dict`` has no ``"running_episodes"``
-    entry (e.g. TorchRL's ``GymEnv``; torchtasks' envs have one). The error names them.
+    For a ``Collector`` (its env here, or in the workers of a ``ParallelEnv``) or a
+    ``MultiSyncCollector``; other collectors (``MultiAsyncCollector``, whose workers run ahead of the
+    batches handed out) are a ``TypeError``. A ``ValueError`` for ``trajs_per_batch`` (partial
+    trajectories are not saved) and for envs whose running episodes the state does not hold, named:
+    an env without a :class:`BaseEnvState` over it, or a base env whose ``state_dict`` has no
+    ``"running_episodes"`` entry (TorchRL's ``GymEnv``; torchtasks' envs have one).
 
     Args:
         collector: the collector, between two batches.
@@ -292,21 +287,18 @@ def collector_state(collector: Collector | MultiSyncCollector) -> dict[str, Any]
 def load_collector_state(collector: Collector | MultiSyncCollector, state: Mapping[str, Any]) -> None:
     """Load a :func:`collector_state` checkpoint so that ``collector`` continues the saved run's episodes.
 
-    ``collector`` must be built as the saved one (same env, transforms, batch sizes, policy and
-    collector class; a fresh one, e.g. in a new process). Everything is checked before anything is
-    written: the carried data of every worker must have the keys, shapes and dtypes of the
-    collector's own (keys only in the checkpoint may be the policy's outputs), and the env state must
-    hold the running episodes of every env, else a ``ValueError`` naming both sides. Then it runs
-    ``collector.load_state_dict`` (the base envs check their own state: batch size, a MuJoCo env's
-    model), puts the carried data back and sets the trajectory counter to the saved one, so that
-    running trajectories keep their ids. Do not call ``collector.reset()`` afterwards: it would end the
-    restored episodes. A ``ParallelEnv`` with shared buffers is refused under TorchRL 0.14.1 (see the
-    module docs).
+    ``collector`` must be built as the saved one (e.g. afresh in a new process). Before anything is
+    written, the carried data of every worker must have the keys, shapes and dtypes of the
+    collector's own (keys only in the checkpoint may be the policy's outputs) and the state must hold
+    the running episodes of every env, else a ``ValueError`` naming both sides; a ``ParallelEnv``
+    with shared buffers is refused (TorchRL 0.14.1's bug, see the module docs). Then
+    ``collector.load_state_dict`` runs (where the base envs check their state: batch size, a MuJoCo
+    env's model), the carried data are put back and the trajectory counter is set to the saved one.
+    Do not call ``collector.reset()`` afterwards: it would end the restored episodes.
 
-    The next batches equal the uninterrupted run's, entry for entry, when the collection is
-    deterministic (a deterministic policy, seeded generators). With a ``MultiSyncCollector``, new
-    trajectory ids come from one counter shared by the workers in the order they ask for them, which
-    differs between runs (also between two uninterrupted ones); everything else is equal.
+    With a deterministic collection the next batches equal the uninterrupted run's, entry for entry;
+    with a ``MultiSyncCollector``, except the ids of new trajectories, which the workers draw from one
+    shared counter in the order they ask (different in every run).
 
     Args:
         collector: the collector to load into (not yet iterated, or between two batches).
@@ -527,16 +519,13 @@ def _marked_continuing(state: Any) -> Any:
 
 
 def _refuse_shared_buffer_parallel_envs(env: EnvBase) -> None:
-    """Refuse a ParallelEnv with shared buffers below ``env`` where TorchRL's load leaves stale done flags."""
-    version = tuple(int(part) for part in re.findall(r"\d+", torchrl.__version__)[:3])
-    if version >= _REUSED_ENV_BUFFERS_FIXED:
-        return
+    """Refuse a ParallelEnv with shared buffers below ``env``: TorchRL's load leaves stale done flags (0.14.1)."""
     while True:
         if isinstance(env, ParallelEnv) and env._use_buffers:
             raise ValueError(
-                f"load_collector_state: a ParallelEnv with shared buffers cannot load a checkpoint under TorchRL "
-                f"{torchrl.__version__}: its load_state_dict leaves the workers' done flags set, so the next step "
-                "returns stale data (pytorch/rl#4341). Build the ParallelEnv with use_buffers=False."
+                "load_collector_state: a ParallelEnv with shared buffers cannot load a checkpoint: TorchRL 0.14.1's "
+                "ParallelEnv.load_state_dict leaves the workers' done flags set, so the next step returns stale data "
+                "(fixed upstream in pytorch/rl#4341). Build the ParallelEnv with use_buffers=False."
             )
         if isinstance(env, TransformedEnv):
             env = env.base_env
