@@ -50,7 +50,7 @@ _SECTIONS = (
     ("torchtasks.curriculum", "curricula and their schedules"),
     ("torchtasks.levels", "difficulty levels"),
     ("torchtasks.stats", "statistics of collected episodes"),
-    ("torchtasks.checkpoint", "checkpoints of env state"),
+    ("torchtasks.checkpoint", "checkpoints that a resume continues"),
     ("torchtasks.seeding", "seeds of transforms"),
     ("torchtasks.envs", "environments"),
 )

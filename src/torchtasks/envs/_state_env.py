@@ -23,11 +23,14 @@ class StateEnv(EnvBase):
     that pays no reward and ends no episode: the task on the env does both.
 
     Checkpoints: ``env.state_dict()`` holds the reset generator (its seed and state, under
-    ``"_extra_state"``); after ``load_state_dict`` the env draws the initial states that the saved
-    one would have drawn next, bit for bit. The states of the running episodes are not saved (the
-    next reset starts fresh ones). TorchRL's ``Collector.state_dict()`` and
-    ``TransformedEnv.state_dict()`` save the transforms of a ``TransformedEnv``, not its base env:
-    save ``env.base_env.state_dict()`` too.
+    ``"_extra_state"``) and the batch size; after ``load_state_dict`` (into an env of the same batch
+    size, else a ``ValueError``) the env draws the initial states that the saved one would have drawn
+    next, bit for bit. The env keeps nothing else between steps: a running episode's state is its
+    observation, which the caller (a collector's carried data) holds, so the extra state marks the
+    running episodes as saved (``"running_episodes": {}``) and
+    :func:`torchtasks.checkpoint.load_collector_state` continues them. TorchRL's
+    ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
+    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.checkpoint.BaseEnvState` in it.
     """
 
     batch_locked = True
@@ -114,15 +117,30 @@ class StateEnv(EnvBase):
 
     # ------------------------------------------------------------------ checkpoints
     def get_extra_state(self) -> dict[str, Any]:
-        """The reset generator: ``{"seed": int, "generator_state": uint8 tensor}``."""
-        return {"seed": self.rng.initial_seed(), "generator_state": self.rng.get_state()}
+        """The reset generator, the batch size and the (empty) running-episode state.
+
+        ``{"seed": int, "generator_state": uint8 tensor, "batch_size": list[int], "running_episodes": {}}``.
+        """
+        return {
+            "seed": self.rng.initial_seed(),
+            "generator_state": self.rng.get_state(),
+            "batch_size": list(self.batch_size),
+            "running_episodes": {},
+        }
 
     def set_extra_state(self, state: Any) -> None:
-        """Restore the reset generator saved by :meth:`get_extra_state`."""
+        """Restore the reset generator saved by :meth:`get_extra_state` (refused for another batch size)."""
+        owner = type(self).__name__
         saved = state.get("generator_state") if isinstance(state, Mapping) else None
         if not isinstance(saved, torch.Tensor) or saved.dtype != torch.uint8:
             raise ValueError(
-                f"{type(self).__name__}.load_state_dict: the extra state must be a dict with a uint8 tensor "
-                f"'generator_state' (as {type(self).__name__}.state_dict() writes it), got {state!r}"
+                f"{owner}.load_state_dict: the extra state must be a dict with a uint8 tensor "
+                f"'generator_state' (as {owner}.state_dict() writes it), got {state!r}"
+            )
+        batch_size = state.get("batch_size")  # absent from checkpoints written before it was saved
+        if batch_size is not None and list(batch_size) != list(self.batch_size):
+            raise ValueError(
+                f"{owner}.load_state_dict: the checkpoint is of an env of batch_size {list(batch_size)}, this env "
+                f"has batch_size {list(self.batch_size)}: its generator would draw other initial states"
             )
         self.rng.set_state(saved.cpu())

@@ -25,6 +25,7 @@ cost more (measured 13-17k against 38-44k). ``benchmarks/batched_mujoco.py`` mea
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import warnings
 from collections.abc import Mapping, Sequence
@@ -61,10 +62,12 @@ _DIVERGENCE_WARNINGS = (
 )
 #: what one ``mj_getState`` call gathers per env: ``[time, qpos, qvel]``
 _STATE_SPEC = int(mujoco.mjtState.mjSTATE_TIME | mujoco.mjtState.mjSTATE_QPOS | mujoco.mjtState.mjSTATE_QVEL)
-#: what a copy or a pickle of the env keeps of each ``MjData``: everything ``mj_step`` starts from (time, qpos,
-#: qvel, act, the constraint solver's warm start, ctrl, applied forces, mocap, ...), so a copy continues the
-#: same trajectory bit for bit
+#: what a checkpoint, a copy or a pickle of the env keeps of each ``MjData``: everything ``mj_step`` starts from
+#: (time, qpos, qvel, act, the constraint solver's warm start, ctrl, applied forces, mocap, ...), so a restored
+#: env continues the same trajectory bit for bit
 _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
+#: the entries of the running-episode state (``state_dict()["_extra_state"]["running_episodes"]``)
+_RUNNING_KEYS = ("model", "integration_state", "warnings", "time", "previous_position", "gathered")
 #: attributes rebuilt when a copy or a pickle is restored: the thread pool (threads cannot be copied), the
 #: MjData (restored from their integration state on the one MjModel) and the gather buffers with the
 #: observation plan (numpy views of each other, which a copy would turn into independent arrays)
@@ -135,9 +138,9 @@ class BatchedMujocoEnv(EnvBase):
     ``("next", "broken")`` out of statistics that should count only real episodes.
 
     ``copy.deepcopy(env)`` and ``pickle`` give an independent env in the same state (MuJoCo states
-    with the solver's warm start, generators, episode clocks) with its own threads: stepped with
-    the same actions, it continues the same trajectories bit for bit. After ``env.close()`` (which
-    stops the threads) stepping or resetting raises a ``RuntimeError``.
+    with the solver's warm start, warning counters, generators, episode clocks) with its own threads:
+    stepped with the same actions, it continues the same trajectories bit for bit. After
+    ``env.close()`` (which stops the threads) stepping or resetting raises a ``RuntimeError``.
 
     Resets draw Gymnasium v5's initial state distribution of ``env_id`` (``init_qpos`` plus uniform
     noise of half-width ``reset_noise_scale``, ``init_qvel`` plus uniform or, for HalfCheetah and
@@ -146,13 +149,18 @@ class BatchedMujocoEnv(EnvBase):
     (``mj_resetData``, then ``qpos``/``qvel``, then ``mj_forward``). Partial resets (TorchRL's
     ``"_reset"`` mask) reset only the masked envs.
 
-    Checkpoints: ``env.state_dict()`` holds the ``num_envs`` reset generators (each numpy
-    ``bit_generator.state``, under ``"_extra_state"``); after ``load_state_dict`` (into an env of
-    the same ``num_envs``) every env draws the initial states that the saved one would have drawn
-    next, bit for bit. The MuJoCo states of the running episodes are not saved (the next reset
-    starts fresh ones; ``copy.deepcopy`` or ``pickle`` keep them). TorchRL's
+    Checkpoints: ``env.state_dict()`` holds, under ``"_extra_state"``, the ``num_envs`` reset
+    generators (each numpy ``bit_generator.state``) and the running episodes: every env's
+    ``mjSTATE_INTEGRATION`` state (with the solver's warm start), its MuJoCo warning counters, the
+    episode clocks and last forward positions (what the velocities are finite-differenced from) and
+    the gathered arrays (the observation of envs a partial reset leaves alone is read from them), as
+    float64/int64 tensors. After ``load_state_dict`` every env draws the initial states that the
+    saved one would have drawn next and a step continues the saved episodes, bit for bit (the
+    collector's carried data, the last observation, is :func:`torchtasks.checkpoint.collector_state`'s).
+    A load is refused (``ValueError`` naming both sides) unless the env has the same ``env_id``,
+    ``num_envs``, ``frame_skip`` and MuJoCo model (a digest of its compiled binary). TorchRL's
     ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
-    ``TransformedEnv``, not its base env: save ``env.base_env.state_dict()`` too.
+    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.checkpoint.BaseEnvState` in it.
 
     Args:
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
@@ -512,11 +520,17 @@ class BatchedMujocoEnv(EnvBase):
 
     # ------------------------------------------------------------------ checkpoints
     def get_extra_state(self) -> dict[str, Any]:
-        """The reset generators: ``{"bit_generators": [numpy bit_generator.state of each env]}``."""
-        return {"bit_generators": [copy.deepcopy(rng.bit_generator.state) for rng in self.np_random]}
+        """The reset generators and the running episodes (see the class's "Checkpoints").
+
+        ``{"bit_generators": [numpy bit_generator.state of each env], "running_episodes": {...}}``.
+        """
+        return {
+            "bit_generators": [copy.deepcopy(rng.bit_generator.state) for rng in self.np_random],
+            "running_episodes": self._running_episodes(),
+        }
 
     def set_extra_state(self, state: Any) -> None:
-        """Restore the reset generators saved by :meth:`get_extra_state` (one per env)."""
+        """Restore what :meth:`get_extra_state` saved (checked whole before anything is written)."""
         saved = state.get("bit_generators") if isinstance(state, Mapping) else None
         if not isinstance(saved, Sequence) or len(saved) != self.num_envs:
             raise ValueError(
@@ -535,48 +549,112 @@ class BatchedMujocoEnv(EnvBase):
             bit_generator = kind()
             bit_generator.state = bit_state
             generators.append(np.random.Generator(bit_generator))
+        running = state.get("running_episodes")  # absent from checkpoints written before it was saved
+        if running is not None:
+            running = self._checked_running_episodes(running, "BatchedMujocoEnv.load_state_dict")
         self.np_random = generators
+        if running is not None:
+            self._load_running_episodes(running)
+
+    def _model_facts(self) -> dict[str, Any]:
+        """What a saved simulation state belongs to: the env, its batch, its substeps and its compiled model."""
+        binary = np.empty(mujoco.mj_sizeModel(self.model), dtype=np.uint8)
+        mujoco.mj_saveModel(self.model, None, binary)
+        return {
+            "env_id": self.env_id,
+            "num_envs": self.num_envs,
+            "frame_skip": self.frame_skip,
+            "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
+        }
+
+    def _running_episodes(self) -> dict[str, Any]:
+        """Everything the next step or partial reset reads besides its input, as tensors (copies)."""
+        model, n = self.model, self.num_envs
+        integration = np.empty((n, mujoco.mj_stateSize(model, _INTEGRATION_STATE)))
+        counters = np.empty((n, len(self.datas[0].warning)), dtype=np.int64)
+        for i, data in enumerate(self.datas):
+            mujoco.mj_getState(model, data, integration[i], _INTEGRATION_STATE)
+            counters[i] = [warning.number for warning in data.warning]
+        gathered = [self._state, *(buffer for _, _, buffer in self._readers)]
+        return {
+            "model": self._model_facts(),
+            "integration_state": torch.from_numpy(integration),
+            "warnings": torch.from_numpy(counters),
+            "time": torch.from_numpy(self._time.copy()),
+            "previous_position": torch.from_numpy(np.array(self._previous_position)),
+            "gathered": [torch.from_numpy(array.copy()) for array in gathered],
+        }
+
+    def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
+        """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
+        if not isinstance(running, Mapping) or set(running) != set(_RUNNING_KEYS):
+            got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
+            raise ValueError(f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)}, got {got}")
+        mine = self._running_episodes()
+        saved_model, own_model = dict(running["model"]), mine["model"]
+        if saved_model != own_model:
+            differ = sorted(
+                key for key in own_model.keys() | saved_model.keys() if saved_model.get(key) != own_model.get(key)
+            )
+            raise ValueError(
+                f"{owner}: the saved running episodes are of another simulation ({', '.join(differ)} differ): "
+                f"saved {saved_model}, this env {own_model}"
+            )
+        if not isinstance(running["gathered"], Sequence) or len(running["gathered"]) != len(mine["gathered"]):
+            raise ValueError(
+                f"{owner}: 'gathered' must be a list of {len(mine['gathered'])} tensors for this env, "
+                f"got {running['gathered']!r}"
+            )
+        names = ["integration_state", "warnings", "time", "previous_position"]
+        pairs = [(name, running[name], mine[name]) for name in names]
+        pairs += [
+            (f"gathered[{i}]", a, b) for i, (a, b) in enumerate(zip(running["gathered"], mine["gathered"], strict=True))
+        ]
+        for name, value, own in pairs:
+            if not isinstance(value, torch.Tensor) or value.shape != own.shape or value.dtype != own.dtype:
+                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+                raise ValueError(
+                    f"{owner}: the saved '{name}' must be a {own.dtype} tensor of shape {list(own.shape)} for this "
+                    f"env, got {got}"
+                )
+        return dict(running)
+
+    def _load_running_episodes(self, running: Mapping[str, Any]) -> None:
+        """Put the (checked) running episodes of :meth:`_running_episodes` into the ``MjData`` and the buffers."""
+        model = self.model
+        integration = running["integration_state"].cpu().numpy()
+        counters = running["warnings"].cpu().numpy()
+        for i, data in enumerate(self.datas):
+            mujoco.mj_setState(model, data, integration[i], _INTEGRATION_STATE)
+            self._forward(data)  # the derived quantities of the state (the next step recomputes them anyway)
+            for warning, number in zip(data.warning, counters[i], strict=True):
+                warning.number = int(number)
+        self._time = running["time"].cpu().numpy().copy()
+        self._previous_position = running["previous_position"].cpu().numpy().copy()
+        gathered = [self._state, *(buffer for _, _, buffer in self._readers)]
+        for array, values in zip(gathered, running["gathered"], strict=True):
+            array[:] = values.cpu().numpy()
 
     # ------------------------------------------------------------------ copies and pickles
     def __getstate__(self) -> dict[str, Any]:
-        """The env's state without its threads and with each ``MjData`` as its integration state.
-
-        The gather buffers are kept as plain copies (the observation of non-reset envs after a
-        partial reset is read from them); :meth:`__setstate__` rebuilds the views on them.
-        """
+        """The env's state without its threads, with each ``MjData`` and buffer as in the running episodes."""
         state = dict(super().__getstate__())
         for key in _REBUILT:
             state.pop(key, None)
-        datas = self.__dict__.get("datas")
-        if datas is not None:
-            model = self.model
-            saved = np.empty((len(datas), mujoco.mj_stateSize(model, _INTEGRATION_STATE)))
-            for i, data in enumerate(datas):
-                mujoco.mj_getState(model, data, saved[i], _INTEGRATION_STATE)
-            state["_saved_datas"] = saved
-            state["_saved_buffers"] = (self._state.copy(), [buffer.copy() for _, _, buffer in self._readers])
+        if self.__dict__.get("datas") is not None:
+            state["_saved_running_episodes"] = self._running_episodes()
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         state = dict(state)
-        saved_datas = state.pop("_saved_datas", None)
-        saved_buffers = state.pop("_saved_buffers", None)
+        running = state.pop("_saved_running_episodes", None)
         super().__setstate__(state)
         self._pool = None
-        if saved_datas is None:  # pickled before __init__ had built the simulation
+        if running is None:  # pickled before __init__ had built the simulation
             return
-        model = self.model
-        self.datas = [mujoco.MjData(model) for _ in range(self.num_envs)]
-        kept = {key: state[key] for key in ("_time", "_previous_position")}
+        self.datas = [mujoco.MjData(self.model) for _ in range(self.num_envs)]
         self._setup_buffers()
-        self.__dict__.update(kept)
-        for data, saved in zip(self.datas, saved_datas, strict=True):
-            mujoco.mj_setState(model, data, saved, _INTEGRATION_STATE)
-            self._forward(data)  # the derived quantities of the state (the next step recomputes them anyway)
-        gathered, buffers = saved_buffers
-        self._state[:] = gathered
-        for (_, _, buffer), values in zip(self._readers, buffers, strict=True):
-            buffer[:] = values
+        self._load_running_episodes(running)
         if not self._closed:
             self._start_threads()
 
