@@ -249,3 +249,19 @@ def test_gated_schedules_and_levels_keep_their_run_state_through_a_by_target_loa
         assert torch.equal(
             getattr(fresh.transform[-1].schedules[SUCCESS], name), getattr(env.transform[-1].schedules[SUCCESS], name)
         )
+
+
+def test_a_task_buffer_the_reward_refuses_is_refused_in_a_collector_checkpoint():
+    """The task's buffers travel with the TaskTransform's state: a negative cost weight there is refused too."""
+    env = pendulum_env({SUCCESS: constant(1.0)})
+    env.reset()
+    state = saved(env.transform.state_dict())
+    key = next(k for k in state if k.endswith("effort.weight"))
+    state[key] = torch.full_like(state[key], -1.0)
+    with pytest.raises(ValueError, match=r"load_state_dict can write \[?-1.0\]? into the ControlCostReward's weight"):
+        pendulum_env({SUCCESS: constant(1.0)}).transform.load_state_dict(state)
+    within = saved(env.transform.state_dict())  # a value within the rule loads
+    within[key] = torch.full_like(within[key], 0.25)
+    fresh = pendulum_env({SUCCESS: constant(1.0)})
+    fresh.transform.load_state_dict(within)
+    assert float(fresh.transform[1].task.get_buffer(WEIGHT)) == 0.25

@@ -9,6 +9,7 @@ import torch
 from tensordict import TensorDict
 from torch import nn
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import as_constant, cast_like, check_input, check_same_batch
 
 #: ``check(value, name) -> value``: a constant's validation, at construction and for every value written later
@@ -115,7 +116,7 @@ def check_written_value(module: RewardFunction, name: str, value: torch.Tensor, 
         ) from None
 
 
-class RewardFunction(nn.Module):
+class RewardFunction(CheckedLoad, nn.Module):
     """Base class of reward functions: ``nn.Module``\\ s mapping batched errors to ``Tensor[*B]``.
 
     A stateless reward is called as ``reward(error_state, error_action)`` with ``[*B, n]`` and
@@ -249,6 +250,15 @@ but the task's state has 2 entries
         check = self.__dict__.get("_constant_checks", {}).get(name)
         if check is not None:
             check(value, name)
+
+    def _check_loaded(self) -> None:
+        """A loaded constant passes the rule its constructor ran (a checkpoint's negative cost weight is refused).
+
+        Learnable constants (parameters) are not checked: training may move them anywhere.
+        """
+        for name in self.__dict__.get("_constant_checks", {}):
+            if name in self._buffers:
+                check_written_value(self, name, self._buffers[name], f"{type(self).__name__}.load_state_dict")
 
     def _check_inputs(
         self,
