@@ -3,7 +3,8 @@
 Every factory is a module-level function of ``(batch, seed)`` (picklable: multi-process collectors and
 ``ParallelEnv`` workers build their envs from it) returning a ``TransformedEnv`` with a ``StepCounter`` first,
 the feature's ``TaskTransform``, its run-state transforms (command, curriculum, levels) and a ``RewardSum``
-over the reward, the breakdown and the costs last, as the docs build them. Each feature comes with a
+over the reward, the breakdown and the costs, then a ``BaseEnvState`` (so a checkpoint holds the base env), as the
+docs build them. Each feature comes with a
 deterministic policy (module-level, picklable) that makes episodes end in every way the feature can end them.
 """
 
@@ -17,6 +18,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
+from torchtasks.checkpoint import BaseEnvState
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
@@ -41,7 +43,7 @@ SCHEDULED = "wrapped_task.reward.rewards.effort.R"  # swing_up_task's effort wei
 
 def _finish(env, task_transform: TaskTransform, *run_state) -> TransformedEnv:
     sums = RewardSum(in_keys=["reward", *task_transform.term_keys, *task_transform.cost_keys])
-    return TransformedEnv(env, Compose(StepCounter(MAX_STEPS), task_transform, *run_state, sums))
+    return TransformedEnv(env, Compose(StepCounter(MAX_STEPS), task_transform, *run_state, sums, BaseEnvState()))
 
 
 def plain(batch: int, seed: int) -> TransformedEnv:

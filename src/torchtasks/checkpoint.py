@@ -55,6 +55,7 @@ RUNNING_EPISODES = "running_episodes"
 _INNER = "_inner_base_env"  # the state of the env below an inner TransformedEnv without a BaseEnvState
 _BASE_ENV = "_base_env_class"  # marks a BaseEnvState's state: the class name of the env it saved
 _CONTINUES = "_continues"  # written by load_collector_state: the collector's carried data are restored too
+_LISTED = 4  # the carried entries of another shape an error lists (a batch size changes them all)
 _WORKER = re.compile(r"worker\d+")
 
 
@@ -433,14 +434,16 @@ def _restored_carrier(saved: Any, own: TensorDictBase, policy_keys: Any, where: 
         for key in own_leaves
         if key not in saved_leaves
     ]
+    shapes = []  # entries of both, of other dtypes or shapes (a batch size changes them all: a few are listed)
     for key, value in saved_leaves.items():
         mine = own_leaves.get(key)
         if mine is None and key not in outputs:
             problems.append(f"{key}: only in the checkpoint ({_described(value)}), not carried by this collector")
         elif mine is None and (not isinstance(value, torch.Tensor) or list(value.shape[: len(batch)]) != batch):
-            problems.append(f"{key}: {_described(value)} in the checkpoint, this collector's batch is {batch}")
+            shapes.append(f"{key}: {_described(value)} in the checkpoint, this collector's batch is {batch}")
         elif mine is not None and _described(value) != _described(mine):
-            problems.append(f"{key}: {_described(value)} in the checkpoint, {_described(mine)} in this collector")
+            shapes.append(f"{key}: {_described(value)} in the checkpoint, {_described(mine)} in this collector")
+    problems += shapes[:_LISTED] + ([f"{len(shapes) - _LISTED} more of other shapes"] if len(shapes) > _LISTED else [])
     if problems:
         raise ValueError(
             f"load_collector_state: the checkpoint's carried data of {where} do not fit this collector's (was it "

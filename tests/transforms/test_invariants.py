@@ -20,6 +20,7 @@ episode of a row taken as complete) fails here.
 from __future__ import annotations
 
 import functools
+import io
 import math
 from collections.abc import Callable
 
@@ -31,8 +32,17 @@ from torchrl.collectors.utils import split_trajectories
 from torchrl.data import LazyTensorStorage, RandomSampler, ReplayBuffer, SamplerWithoutReplacement
 from torchrl.envs import ParallelEnv
 
+import feature_envs
 from feature_envs import FEATURES, task_transform
+from resume_env import equal_batches
+from torchtasks.checkpoint import collector_state, load_collector_state
+from torchtasks.commands import GoalCommand
+from torchtasks.curriculum import Curriculum, linear, staged
+from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
+from torchtasks.levels import DifficultyLevels
+from torchtasks.spaces import Box
 from torchtasks.stats import episode_statistics
+from torchtasks.transforms import TaskTransform
 
 BATCH = 6
 STEPS = 20  # frames per env and batch: episodes of up to MAX_STEPS start before the batch and run past it
@@ -279,3 +289,120 @@ def test_worker_processes_keep_the_invariants(name: str, collect, fork_start_met
     _offline_matches_online(name, flat(data))
     for layout in STATISTICS_LAYOUTS:
         _statistics_hold(name, data, layout)
+
+
+# ---------------------------------------------------------------------------------------------- save -> load continues
+def _single_collector(name: str) -> Collector:
+    feature = FEATURES[name]
+    return _collector(functools.partial(feature.make_env, BATCH, SEED), feature.make_policy())
+
+
+def _parallel_collector(name: str) -> Collector:
+    feature = FEATURES[name]
+    make = functools.partial(feature.make_env, BATCH // 2, SEED)
+    return _collector(functools.partial(ParallelEnv, 2, make, use_buffers=False), feature.make_policy())
+
+
+def _multi_sync_collector(name: str) -> MultiSyncCollector:
+    feature = FEATURES[name]
+    return _collector(functools.partial(feature.make_env, BATCH // 2, SEED), feature.make_policy(), workers=2)
+
+
+def _saved(state: dict) -> dict:
+    buffer = io.BytesIO()
+    torch.save(state, buffer)
+    buffer.seek(0)
+    return torch.load(buffer, weights_only=True)
+
+
+def _resume_continues(name: str, make: Callable[[str], Collector | MultiSyncCollector], *, ids: bool = True) -> None:
+    """Two batches, a checkpoint, two more: a fresh collector loading the checkpoint collects those two again."""
+    running = make(name)
+    try:
+        running.set_seed(SEED)
+        batches = iter(running)
+        for _ in range(2):
+            next(batches)
+        checkpoint = _saved(collector_state(running))
+        expected = [next(batches).clone() for _ in range(2)]
+    finally:
+        running.shutdown()
+    resumed = make(name)
+    try:
+        load_collector_state(resumed, checkpoint)
+        batches = iter(resumed)
+        actual = [next(batches).clone() for _ in range(2)]
+    finally:
+        resumed.shutdown()
+    for i, (first, second) in enumerate(zip(expected, actual, strict=True)):
+        assert equal_batches(first, second) == [], f"{name}: batch {i} after the resume differs"
+        if ids:
+            assert torch.equal(first["collector", "traj_ids"], second["collector", "traj_ids"])
+
+
+@pytest.mark.parametrize("name", list(FEATURES))
+def test_a_resume_continues_the_saved_run(name: str):
+    _resume_continues(name, _single_collector)
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+@pytest.mark.parametrize("name", PROCESS_FEATURES)
+def test_a_resume_of_worker_processes_continues(name: str, fork_start_method):
+    _resume_continues(name, _parallel_collector)
+    # a MultiSyncCollector's workers draw new trajectory ids from one shared counter in a racy order
+    _resume_continues(name, _multi_sync_collector, ids=False)
+
+
+# ------------------------------------------------------------------------------------------------ other configurations
+def _other_curriculum(batch: int, seed: int):
+    """The curriculum feature with another kind of schedule for one target (the data carry the same entries)."""
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    schedules = {feature_envs.SCHEDULED: linear(0.0, 1.0, 0, 200), "success_value": staged({0: 10.0, 100: 100.0})}
+    return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, Curriculum(schedules))
+
+
+def _other_levels(batch: int, seed: int):
+    """The levels feature with two levels instead of three."""
+    tables = {"command.low": [[-0.1, -0.1], [-0.5, -0.5]], "command.high": [[0.1, 0.1], [0.5, 0.5]]}
+    command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), seed=seed)
+    task = TaskTransform(feature_envs._masked_reach(), goal_key="goal")
+    return feature_envs._finish(PointMassEnv(batch_size=[batch], seed=seed), task, DifficultyLevels(2, tables), command)
+
+
+def _other_goal_command(batch: int, seed: int):
+    """The goal feature with a narrower goal space: the saved range leaves it."""
+    command = GoalCommand(Box([-0.3, -0.3], [0.3, 0.3]), resample_steps=(3, 5), seed=seed)
+    task = TaskTransform(feature_envs._masked_reach(), goal_key="goal")
+    return feature_envs._finish(PointMassEnv(batch_size=[batch], seed=seed), task, command)
+
+
+OTHER_CONFIGURATIONS = {
+    "curriculum": (_other_curriculum, "'success_value' is staged here, but the checkpoint holds a linear"),
+    "levels": (_other_levels, r"shape \[2, 2\] here"),
+    "goal_command": (_other_goal_command, "must lie in this command's goal space"),
+}
+
+
+@pytest.mark.parametrize("name", list(FEATURES))
+def test_a_load_into_another_configuration_is_refused(name: str):
+    """Another batch size for every feature; another schedule, level table or goal space where the feature has one."""
+    running = _single_collector(name)
+    try:
+        running.set_seed(SEED)
+        next(iter(running))
+        checkpoint = _saved(collector_state(running))
+    finally:
+        running.shutdown()
+    feature = FEATURES[name]
+    variants = [(functools.partial(feature.make_env, BATCH + 2, SEED), "do not fit this collector")]
+    if name in OTHER_CONFIGURATIONS:
+        make, match = OTHER_CONFIGURATIONS[name]
+        variants.append((functools.partial(make, BATCH, SEED), match))
+    for make, match in variants:
+        other = _collector(make, feature.make_policy())
+        try:
+            with pytest.raises(ValueError, match=match):
+                load_collector_state(other, checkpoint)
+        finally:
+            other.shutdown()
