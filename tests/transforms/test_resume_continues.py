@@ -363,7 +363,7 @@ def test_envs_whose_running_episodes_are_not_saved_are_refused():
 def test_collectors_that_cannot_continue_are_refused():
     assembling = Collector(
         make_resume_env(2), reach_policy(), frames_per_batch=20, total_frames=-1, trajs_per_batch=2,
-        auto_register_policy_transforms=False,
+        traj_format="padded", auto_register_policy_transforms=False,
     )  # fmt: skip
     try:
         with pytest.raises(ValueError, match=r"assembles trajectories \(trajs_per_batch=2\)"):
