@@ -33,7 +33,7 @@ from torchtasks._torchrl import ResetWritingTransform, key_parts, nested_key
 from torchtasks.commands import GoalCommand
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms import RecordedValue, TaskTransform
+from torchtasks.transforms import RecordedValue, TaskTransform, buffer_owner
 
 __all__ = ["Curriculum", "GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
 
@@ -734,8 +734,7 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
             if target in commands:
                 module, leaf = commands[target]
             else:
-                module_name, _, leaf = target.rpartition(".")
-                module = task.get_submodule(module_name)
+                module, leaf = buffer_owner(task, target)
             expected, received = module._buffers[leaf].shape, schedule.value_shape
             if received != torch.Size(()) and received != expected:
                 raise ValueError(

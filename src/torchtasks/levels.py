@@ -33,7 +33,7 @@ from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms import RecordedValue, TaskTransform
+from torchtasks.transforms import RecordedValue, TaskTransform, buffer_owner
 
 __all__ = ["DifficultyLevels", "LevelRule"]
 
@@ -315,8 +315,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
                 f"It is not in {where}; its float buffers are {listed} (and "
                 f"{COMMAND + '.low'!r}/{COMMAND + '.high'!r} name a GoalCommand's range)"
             )
-        owner_name, _, leaf = name.rpartition(".")
-        owner = module.get_submodule(owner_name)
+        owner, leaf = buffer_owner(module, name)
         shape = owner._buffers[leaf].shape
         expected = (*batch, *table.shape[1:])
         if tuple(shape) != expected:

@@ -85,7 +85,7 @@ class RecordedValue(NamedTuple):
     row_shape: torch.Size | None
 
 
-def _buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
+def buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
     """The module holding the buffer ``name`` of ``task.named_buffers()`` and the buffer's name in it.
 
     Walks the submodules by key: ``get_submodule`` reads attributes, and a reward term may be named like a method
@@ -903,7 +903,7 @@ class TaskTransform(EnvDerivedTransform):
                     f"step), or recompute with a TaskTransform outside this env (curriculum_key=None: with the "
                     f"task's buffers as they are now)."
                 )
-            module, leaf = _buffer_owner(self.task, name)
+            module, leaf = buffer_owner(self.task, name)
             values.append((module, leaf, _frame_values(entry, module._buffers[leaf], batch, record)))
         return values
 

@@ -740,3 +740,14 @@ def test_overhead_benchmark_script_runs(tmp_path) -> None:
     assert results["ratio"] == results["medians"]["curriculum"] / results["medians"]["task"]
     entries = {name: module.make_env(4, name).observation_spec["curriculum"] for name in ("curriculum", "entries")}
     assert entries["entries"] == entries["curriculum"]  # the floor carries the Curriculum's entries exactly
+
+
+@pytest.mark.mujoco
+def test_a_term_named_like_a_module_method_can_be_scheduled():
+    """The locomotion presets' ``forward`` term (``nn.Module.forward`` is a method): found by key, not attribute."""
+    from torchtasks.envs import gymnasium_env
+
+    env = gymnasium_env("HalfCheetah-v5", num_envs=2, backend="batched")
+    env.append_transform(Curriculum({"reward.rewards.forward.weight": linear(0.0, 1.0, 0, 100)}))
+    data = env.rollout(3)
+    assert data["curriculum", "reward/rewards/forward/weight"][0, :, 0].tolist() == [0.0, 0.02, 0.04]
