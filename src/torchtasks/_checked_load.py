@@ -22,9 +22,16 @@ class CheckedLoad(nn.Module):
     """A module whose loaded state passes :meth:`_check_loaded`; a refused load leaves the module as it was.
 
     Mix it in before the torch base class (``class Curriculum(CheckedLoad, Transform)``) and implement
-    :meth:`_check_loaded`. A subclass overriding ``_load_from_state_dict`` calls ``super()``'s. The state
-    is copied at the start of every load (a load is rare: a resume, not a step).
+    :meth:`_check_loaded`; :meth:`_check_saved` refuses a checkpoint from its entries before anything is written,
+    and :meth:`_prepare_load` adapts the module to them (e.g. takes the saved shapes) in every load. The state is
+    copied at the start of every load, before either changes anything (a load is rare: a resume, not a step).
     """
+
+    def _check_saved(self, state_dict: Any, prefix: str) -> None:
+        """Raise ``ValueError`` if the entries under ``prefix`` are not a checkpoint of this configuration."""
+
+    def _prepare_load(self, state_dict: Any, prefix: str) -> None:
+        """Adapt the module to the entries about to be loaded (also when a refused load puts the old state back)."""
 
     def _check_loaded(self) -> None:
         """Raise ``ValueError`` if the loaded state is one the module's constructor or set-up would refuse."""
@@ -32,9 +39,11 @@ class CheckedLoad(nn.Module):
 
     def _load_from_state_dict(self, state_dict: Any, prefix: str, *args: Any, **kwargs: Any) -> None:
         if not self.__dict__.get(_RESTORING, False):
+            self._check_saved(state_dict, prefix)
             self.__dict__[_BEFORE] = copy.deepcopy(self.state_dict())
             if _after_load not in self._load_state_dict_post_hooks.values():
                 self.register_load_state_dict_post_hook(_after_load)
+        self._prepare_load(state_dict, prefix)
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 

@@ -135,7 +135,11 @@ class ResetWritingTransform(EnvDerivedTransform):
 
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         tensordict = super()._reset_env_preprocess(tensordict)
+        self._write_run_values(tensordict)
+        return tensordict
+
+    def _write_run_values(self, tensordict: TensorDictBase | None = None) -> None:
+        """Write the values of the run's state into their buffers now (as ``_reset`` does), e.g. after a load."""
         env = container_env(self)
         if env is not None:
             self._reset(tensordict, TensorDict(batch_size=env.batch_size, device=env.device))
-        return tensordict

@@ -346,17 +346,27 @@ def load_collector_state(collector: Collector | MultiSyncCollector, state: Mappi
     _refuse_unsaved_episodes(collector, state_dict, multi, "load_collector_state")
     if not multi:
         _refuse_shared_buffer_parallel_envs(collector.env)
-    current = _carriers(collector, multi)
+    current = _carriers(collector, multi, copies=True)
     outputs = collector.get_distant_attr("_policy_output_keys") if multi else [collector._policy_output_keys]
     restored = [
         _restored_carrier(saved, own, keys, f"worker {i}" if multi else "the collector")
         for i, (saved, own, keys) in enumerate(zip(carried, current, outputs, strict=True))
     ]
+    before = copy.deepcopy(collector.state_dict())  # a module refusing its state leaves the ones before it loaded
+    try:
+        _put(collector, state_dict, restored, multi)
+    except Exception:
+        _put(collector, before, current, multi)  # the collector as it was: a refused load changes nothing
+        raise
+
+
+def _put(collector: Collector | MultiSyncCollector, state_dict: Any, carriers: list, multi: bool) -> None:
+    """Load ``state_dict`` into ``collector`` and give it ``carriers`` and the saved trajectory counter."""
     collector.load_state_dict(_marked_continuing(state_dict))
     if multi:
-        collector.map_fn("__setattr__", [("_carrier", carrier) for carrier in restored])
+        collector.map_fn("__setattr__", [("_carrier", carrier) for carrier in carriers])
     else:
-        collector._carrier = restored[0]
+        collector._carrier = carriers[0]
     counter = state_dict.get("traj_pool")
     if counter is not None:  # load_state_dict drew fresh ids for the carried data: the saved counter goes on
         collector._traj_pool.load_state_dict(counter)

@@ -244,28 +244,29 @@ class GoalCommand(CheckedLoad, SeededTransform):
             if buffer.shape != target:
                 self._buffers[name] = buffer.expand(target).clone()
 
-    def _load_from_state_dict(self, state_dict: Mapping[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
+    def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        """Refuse the checkpoint of a command of the other kind (Box range or sampler) or of a range of other size."""
         saved_range = prefix + "low" in state_dict or prefix + "high" in state_dict
-        strict = bool(args[1]) if len(args) > 1 else True
-        if saved_range != isinstance(self.space, Box) and (saved_range or strict):
+        if saved_range != isinstance(self.space, Box):
             saved, here = ("a Box range", "a sampler callable") if saved_range else ("a sampler", "a Box range")
             raise ValueError(
                 f"GoalCommand.load_state_dict: the checkpoint is of a command drawing goals from {saved}, this one "
                 f"(writing {self.goal_key!r}) draws from {here}: build the command as saved"
             )
+        for name in ("low", "high") if saved_range else ():
+            saved = state_dict.get(prefix + name)
+            if isinstance(saved, torch.Tensor) and (saved.dim() == 0 or saved.shape[-1] != self.goal_size):
+                raise ValueError(
+                    f"GoalCommand.load_state_dict: the saved range {name!r} must have shape [{self.goal_size}] "
+                    f"or [*B, {self.goal_size}] ({self.goal_size} goal entries), got {list(saved.shape)}"
+                )
+
+    def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         # a saved range of one shape ([k] or [*B, k]) loads into buffers of the other: the buffers take the saved shape
-        if isinstance(self.space, Box):
-            for name in ("low", "high"):
-                saved, own = state_dict.get(prefix + name), self._buffers.get(name)
-                if not isinstance(saved, torch.Tensor) or own is None or saved.shape == own.shape:
-                    continue
-                if saved.dim() == 0 or saved.shape[-1] != self.goal_size:
-                    raise ValueError(
-                        f"GoalCommand.load_state_dict: the saved range {name!r} must have shape [{self.goal_size}] "
-                        f"or [*B, {self.goal_size}] ({self.goal_size} goal entries), got {list(saved.shape)}"
-                    )
+        for name in ("low", "high") if isinstance(self.space, Box) else ():
+            saved, own = state_dict.get(prefix + name), self._buffers.get(name)
+            if isinstance(saved, torch.Tensor) and own is not None and saved.shape != own.shape:
                 self._buffers[name] = torch.empty(saved.shape, dtype=own.dtype, device=own.device)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def _check_loaded(self) -> None:
         """Refuse a loaded range that leaves the goal space (the goal spec) or has ``low > high``."""

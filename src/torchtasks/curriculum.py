@@ -16,6 +16,8 @@ restores them on resume, with each schedule's definition (values, frames, thresh
 from __future__ import annotations
 
 import bisect
+import itertools
+import math
 from collections.abc import Hashable, Mapping, Sequence
 from typing import Any
 
@@ -100,6 +102,9 @@ class Schedule(nn.Module):
 
     def observe(self, done: torch.Tensor, metric: torch.Tensor) -> None:
         """Take note of the episodes that ended in a step (``done`` bool ``[*B]``, ``metric`` ``[*B]``); no-op here."""
+
+    def _check_state(self, owner: str) -> None:
+        """Raise ``ValueError`` (naming ``owner``) if loaded buffers break a rule the constructor enforces."""
 
     # A frame-driven schedule can also be evaluated on the host, from a Python int frame count (a host fact:
     # the Curriculum counts batch sizes), so that the Curriculum writes its buffer and entry only when the value
@@ -244,6 +249,20 @@ class _Staged(Schedule):
     def _state_at(self, frames: int) -> Hashable:
         return bisect.bisect_right(self._host_copy("boundaries"), frames) - 1
 
+    def _check_state(self, owner: str) -> None:
+        boundaries = self.boundaries.tolist()
+        if (
+            self.boundaries.dtype != torch.int64
+            or not boundaries
+            or boundaries[0] != 0
+            or any(b <= a for a, b in itertools.pairwise(boundaries))
+            or len(boundaries) != self.values.shape[0]
+        ):
+            raise ValueError(
+                f"{owner}: a staged schedule's boundaries must be increasing int64 frame counts from 0, one per "
+                f"stage ({self.values.shape[0]}), got {boundaries}"
+            )
+
     def _value_of(self, state: Hashable) -> torch.Tensor | float:
         return _single(self._host_copy("values")[state]) if self.values[0].numel() == 1 else self.values[state]
 
@@ -308,6 +327,14 @@ class GatedSchedule(Schedule):
 
     def forward(self, frames: torch.Tensor) -> torch.Tensor:
         return self.values[self.stage]
+
+    def _check_state(self, owner: str) -> None:
+        stage, episodes, average = int(self.stage), int(self.episodes), float(self.average)
+        if not 0 <= stage < self.values.shape[0] or episodes < 0 or not math.isfinite(average):
+            raise ValueError(
+                f"{owner}: a gated schedule needs a stage in [0, {self.values.shape[0] - 1}], episodes >= 0 and a "
+                f"finite average, got stage {stage}, episodes {episodes}, average {average}"
+            )
 
     def get_extra_state(self) -> dict[str, torch.Tensor | int]:
         """The gate's threshold and window, saved beside its values and state: a checkpoint restores it whole.
@@ -609,12 +636,10 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         self.__dict__["_count_of"] = (frames, frames._version, count)
         return count
 
-    def _load_from_state_dict(self, state_dict: Mapping[str, Any], prefix: str, *args: Any, **kwargs: Any) -> None:
-        self._check_saved_schedules(state_dict, prefix, strict=bool(args[1]) if len(args) > 1 else True)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-        self._forget_written()  # the schedules' parameters may change with it (loaded after this call)
+    def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        self._forget_written()  # the schedules' values and parameters change with the load
 
-    def _check_saved_schedules(self, state_dict: Mapping[str, Any], prefix: str, strict: bool) -> None:
+    def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         """Refuse a checkpoint whose schedules are not this Curriculum's: other targets, kinds or shapes.
 
         The saved keys say it all: ``schedules.<target entry>.<buffer>`` (the buffers name the kind).
@@ -627,12 +652,11 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
                 saved.setdefault(entry, {})[name] = value
         own = {entry: dict(schedule.state_dict()) for entry, schedule in self.schedules.items()}
         missing, unknown = sorted(set(own) - set(saved)), sorted(set(saved) - set(own))
-        if strict and (missing or unknown):
+        if missing or unknown:  # also with strict=False: torch does not tell a module which load it is in
             raise ValueError(
                 "Curriculum.load_state_dict: the checkpoint schedules other targets than this Curriculum: saved "
                 f"{sorted(saved)}, here {sorted(own)} (entry names: the targets with '/' for '.'; a checkpoint is "
-                "loaded by target, in any order, never by position). Build the Curriculum with the saved targets, or "
-                "load with strict=False to restore the targets both have"
+                "loaded by target, in any order, never by position). Build the Curriculum with the saved targets"
             )
         for entry in sorted(set(own) & set(saved)):
             own_kind, saved_kind = _kind(own[entry]), _kind(saved[entry])
@@ -651,10 +675,19 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
                     )
 
     def _check_loaded(self) -> None:
-        """Run the checks of spec building on the loaded schedules (values a target refuses, ranges out of a Box)."""
+        """Check the loaded schedules as their constructors and spec building do; in a built env, write their values.
+
+        The write puts each target at the loaded frame count's value before the next step reads it (a task keeps
+        some scheduled buffers, e.g. a final reward's ``success_value``, out of its own state).
+        """
+        if int(self._buffers["frames"]) < 0:
+            raise ValueError(f"Curriculum.load_state_dict: the frame count must be >= 0, got {int(self.frames)}")
+        for entry, schedule in self.schedules.items():
+            schedule._check_state(f"Curriculum.load_state_dict: the schedule of {entry!r}")
         self._forget_setup()
         if self.home_transforms() is not None:  # in an env: check now; else when the env's specs are built
             self._resolve()
+            self._write_run_values()
 
     def _apply(self, fn, *args, **kwargs):
         self._forget_written()

@@ -203,10 +203,10 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         return self.tables._buffers[self._entries[index]]
 
     # ------------------------------------------------------------------ state
-    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args: object, **kwargs: object) -> None:
-        self._check_saved_tables(state_dict, prefix, strict=bool(args[1]) if len(args) > 1 else True)
+    def _check_saved(self, state_dict: dict, prefix: str) -> None:
+        self._check_saved_tables(state_dict, prefix)
         saved = state_dict.get(prefix + "level")
-        if isinstance(saved, torch.Tensor):  # levels saved by an env of batch B load before this one's specs exist
+        if isinstance(saved, torch.Tensor):
             if saved.dtype != torch.int64 or (saved.numel() > 0 and bool((saved < 0).any())):
                 raise ValueError(
                     f"DifficultyLevels.load_state_dict: 'level' must be a non-negative int64 tensor, got {saved}"
@@ -216,21 +216,23 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
                     f"DifficultyLevels.load_state_dict: saved levels reach {int(saved.max())}, but num_levels is "
                     f"{self.num_levels}"
                 )
-            if saved.shape != self.level.shape:
-                self.level = torch.zeros_like(saved, device=self.level.device)
-        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+
+    def _prepare_load(self, state_dict: dict, prefix: str) -> None:
+        saved = state_dict.get(prefix + "level")
+        if isinstance(saved, torch.Tensor) and saved.shape != self.level.shape:  # levels saved by an env of batch B
+            self.level = torch.zeros_like(saved, device=self.level.device)  # load before this one's specs exist
         self._forget_setup()
 
-    def _check_saved_tables(self, state_dict: dict, prefix: str, strict: bool) -> None:
+    def _check_saved_tables(self, state_dict: dict, prefix: str) -> None:
         """Refuse a checkpoint whose tables are not this one's: other targets or shapes (levels, value shape)."""
         head = prefix + "tables."
         saved = {key[len(head) :]: value for key, value in state_dict.items() if key.startswith(head)}
         own = dict(self.tables.named_buffers())
-        if strict and set(saved) != set(own):
+        if set(saved) != set(own):  # also with strict=False: torch does not tell a module which load it is in
             raise ValueError(
                 "DifficultyLevels.load_state_dict: the checkpoint sets other targets than this DifficultyLevels: "
                 f"saved {sorted(saved)}, here {sorted(own)} (the targets with '/' for '.'; loaded by target, "
-                "in any order, never by position). Build it with the saved targets, or load with strict=False"
+                "in any order, never by position). Build it with the saved targets"
             )
         for entry in sorted(set(saved) & set(own)):
             if isinstance(saved[entry], torch.Tensor) and saved[entry].shape != own[entry].shape:
@@ -245,6 +247,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         env = container_env(self)
         if env is not None and self.home_transforms() is not None:  # else checked when the env's specs are built
             self._setup(env.batch_size)
+            self._write_run_values()  # each env's row into its targets before the next step reads them
 
     # ------------------------------------------------------------------ setup
     def _forget_setup(self) -> None:

@@ -16,6 +16,7 @@ from test_curriculum import WEIGHT, policy, weighted_task
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
+from torchtasks.checkpoint import BaseEnvState, collector_state, load_collector_state
 from torchtasks.commands import GoalCommand
 from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
 from torchtasks.envs import PendulumEnv
@@ -265,3 +266,105 @@ def test_a_task_buffer_the_reward_refuses_is_refused_in_a_collector_checkpoint()
     fresh = pendulum_env({SUCCESS: constant(1.0)})
     fresh.transform.load_state_dict(within)
     assert float(fresh.transform[1].task.get_buffer(WEIGHT)) == 0.25
+
+
+# ------------------------------------------------------------------------------------------------ found from outside
+def _collector(schedules: dict) -> Collector:
+    env = pendulum_env(schedules)
+    env.append_transform(BaseEnvState())
+    return Collector(env, policy(), frames_per_batch=BATCH * 10, total_frames=-1, auto_register_policy_transforms=False)
+
+
+def test_a_resumed_run_pays_the_scheduled_value_from_its_first_step():
+    """A final reward's success_value is not in the task's own state: the load writes the schedule's value."""
+    ramp = {SUCCESS: linear(0.0, 100.0, 0, 500), WEIGHT: linear(0.0, 1e-3, 0, 500)}
+    running = _collector(ramp)
+    running.set_seed(0)
+    batches = iter(running)
+    for _ in range(3):  # 120 frames
+        next(batches)
+    checkpoint = saved(collector_state(running))
+    running.shutdown()
+    resumed = _collector({SUCCESS: linear(0.0, 100.0, 0, 500), WEIGHT: linear(0.0, 1e-3, 0, 500)})
+    load_collector_state(resumed, checkpoint)
+    task = resumed.env.transform[1].task
+    assert float(task.get_buffer(SUCCESS)) == pytest.approx(24.0, rel=1e-12)  # 100 * 120 / 500, before any step
+    assert float(task.get_buffer(WEIGHT)) == pytest.approx(2.4e-4, rel=1e-6)
+    resumed.shutdown()
+
+
+def test_a_refused_load_of_another_shape_leaves_the_range_and_the_levels_as_they_were():
+    command = GoalCommand(Box([-1.0, -1.0], [1.0, 1.0]))
+    wide = {"low": torch.full((4, 2), -3.0, dtype=torch.float64), "high": torch.full((4, 2), 3.0, dtype=torch.float64)}
+    with pytest.raises(ValueError, match="must lie in this command's goal space"):
+        command.load_state_dict({**command.state_dict(), **wide})
+    assert command.low.shape == (2,) and command.low.tolist() == [-1.0, -1.0] and command.high.tolist() == [1.0, 1.0]
+    eight = goal_env(1.0, levels=DifficultyLevels(3, LEVEL_TABLES))
+    eight.reset()  # the levels are created with the specs
+    four = goal_env(1.0, levels=DifficultyLevels(3, LEVEL_TABLES))
+    four.transform[2]._setup(torch.Size([2]))  # a checkpoint of an env of 2
+    state = saved(four.transform[2].state_dict())
+    with pytest.raises(ValueError, match=r"levels \(loaded\) have shape \[2\], but the env's batch is \[4\]"):
+        eight.transform[2].load_state_dict(state)
+    assert eight.transform[2].level.shape == (BATCH,)
+    eight.rollout(3, break_when_any_done=False)  # the env still runs
+
+
+def test_a_refused_collector_load_changes_nothing():
+    """The GoalCommand refuses its range after the transforms before it loaded: load_collector_state puts them back."""
+
+    def collector() -> Collector:
+        schedules = {"command.high": linear(0.2, 1.0, 0, 400)}
+        env = goal_env(1.0, curriculum=Curriculum(schedules))
+        env.append_transform(BaseEnvState())
+        return Collector(
+            env, policy(), frames_per_batch=BATCH * 10, total_frames=-1, auto_register_policy_transforms=False
+        )
+
+    running = collector()
+    batches = iter(running)
+    for _ in range(5):
+        next(batches)
+    checkpoint = saved(collector_state(running))
+    running.shutdown()
+    low = next(key for key in checkpoint["state_dict"]["env_state_dict"] if key.endswith(".low"))
+    checkpoint["state_dict"]["env_state_dict"][low] = torch.tensor([-7.0], dtype=torch.float64)
+    other = collector()
+    next(iter(other))
+    before = saved(collector_state(other))
+    with pytest.raises(ValueError, match="must lie in this command's goal space"):
+        load_collector_state(other, checkpoint)
+    after = saved(collector_state(other))
+    frames = next(key for key in before["state_dict"]["env_state_dict"] if key.endswith("frames"))
+    assert (
+        int(after["state_dict"]["env_state_dict"][frames])
+        == BATCH * 10
+        != int(checkpoint["state_dict"]["env_state_dict"][frames])
+    )
+    for key, value in before["state_dict"]["env_state_dict"].items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(after["state_dict"]["env_state_dict"][key], value), key
+    assert torch.equal(after["carried"][0]["observation"], before["carried"][0]["observation"])
+    other.shutdown()
+
+
+@pytest.mark.parametrize(
+    ("schedule", "edit", "match"),
+    [
+        (staged({0: 1.0, 1000: 50.0}), {"boundaries": torch.tensor([500, 1000])}, "boundaries must be increasing"),
+        (staged({0: 1.0, 1000: 50.0}), {"boundaries": torch.tensor([0, 0])}, "boundaries must be increasing"),
+        (gated([1.0, 5.0, 10.0]), {"stage": torch.tensor(7)}, r"stage in \[0, 2\]"),
+        (gated([1.0, 5.0, 10.0]), {"stage": torch.tensor(-1)}, r"stage in \[0, 2\]"),
+        (gated([1.0, 5.0, 10.0]), {"episodes": torch.tensor(-3)}, "episodes >= 0"),
+        (constant(1.0), {"frames": torch.tensor(-500)}, "frame count must be >= 0"),
+    ],
+)
+def test_schedule_state_a_constructor_refuses_is_refused_when_loaded(schedule, edit, match):
+    curriculum = Curriculum({SUCCESS: schedule})
+    state = curriculum.state_dict()
+    for name, value in edit.items():
+        state[name if name == "frames" else f"schedules.{SUCCESS}.{name}"] = value
+    before = {key: value.clone() for key, value in curriculum.state_dict().items() if torch.is_tensor(value)}
+    with pytest.raises(ValueError, match=match):
+        curriculum.load_state_dict(state)
+    assert all(torch.equal(curriculum.state_dict()[key], value) for key, value in before.items())
