@@ -383,6 +383,8 @@ class TaskTransform(EnvDerivedTransform):
         others = [(f"the env's {flag!r} flag", flag) for flag in ("done", "terminated", "truncated")]
         others += [(f"the state key {key!r}", key) for key in self.state_keys]
         others.append((f"action_key={self.action_key!r}", self.action_key))
+        if self.curriculum_key is not None:  # read offline: the values a Curriculum or levels recorded
+            others.append((f"curriculum_key={self.curriculum_key!r}", self.curriculum_key))
         for i, (name, key) in enumerate(outputs):
             for other_name, other in outputs[i + 1 :] + others:
                 if _overlap(key, other):

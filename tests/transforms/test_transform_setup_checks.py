@@ -469,6 +469,7 @@ def test_bad_key_arguments(kwargs, error, pattern) -> None:
         ({"success_key": "done"}, r"success_key='done' collides with the env's 'done' flag"),
         ({"memory_key": "observation"}, r"memory_key='observation' collides with the state key 'observation'"),
         ({"failure_key": "action"}, r"failure_key='action' collides with action_key='action'"),
+        ({"terms_key": "curriculum"}, r"terms_key='curriculum' collides with curriculum_key='curriculum'"),
     ],
 )
 def test_colliding_output_keys_are_refused_at_construction(kwargs, pattern) -> None:
