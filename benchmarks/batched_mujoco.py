@@ -11,7 +11,9 @@ ratio compares numbers taken under the same machine load:
   calling thread and a ``ThreadPoolExecutor``), nothing else.
 - ``floor_rollout``: ``mujoco.rollout.Rollout(nthread=num_threads).rollout`` of ``frame_skip``
   substeps from the ``mjSTATE_FULLPHYSICS`` states of all envs per step (best of two chunk sizes).
-  The floor is the faster of the two.
+- ``floor_batch``: ``mujoco.batch.Batch.step(nstep=frame_skip)`` of all envs per step (the env's own
+  batch, ``num_threads`` threads) after writing the precomputed controls into its bound ``ctrl`` rows.
+  The floor is the fastest of the three.
 - ``env``: ``BatchedMujocoEnv(...).rollout(steps, break_when_any_done=False)`` (random actions).
 - ``collector`` (the pipeline): a ``torchrl.collectors.Collector`` with uniform random actions
   (``torchtasks.bench.collector.UniformActions``, the policy of every Collector column) and one torch
@@ -86,7 +88,9 @@ DEFAULT_CASES = ["HalfCheetah-v5:16,64,256", "Hopper-v5:16,64,256", "Ant-v5:16,6
 #: frames per measurement (at least MIN_STEPS steps): about a second of physics for each case
 FRAMES = {"HalfCheetah-v5": 60_000, "Hopper-v5": 30_000, "Ant-v5": 12_000, "Humanoid-v5": 5_000}
 MIN_STEPS = 60
-VARIANTS = ("floor_threads", "floor_rollout", "env", "collector")
+VARIANTS = ("floor_threads", "floor_rollout", "floor_batch", "env", "collector")
+#: the bare-physics variants, and the name each gives the floor when it is the fastest
+FLOORS = {"floor_threads": "threads", "floor_rollout": "rollout", "floor_batch": "batch"}
 #: measured in every repeat of every case, when installed and not skipped
 PEERS = ("gym_vector", "envpool_raw", "envpool_collector")
 #: the ParallelEnv preset: once per env id
@@ -118,7 +122,8 @@ def _fresh_env(env_id: str, num_envs: int, num_threads: int) -> BatchedMujocoEnv
 def floor_threads(env_id: str, num_envs: int, steps: int, num_threads: int) -> float:
     """Frames/s of ``ctrl = action`` + ``mj_step(nstep=frame_skip)`` over ``num_threads`` threads."""
     env = _fresh_env(env_id, num_envs, num_threads)
-    model, datas, nstep = env.model, env.datas, env.frame_skip
+    model, nstep = env.model, env.frame_skip
+    datas = [env.batch.get_data(i) for i in range(num_envs)]
     low, high = model.actuator_ctrlrange.T
     actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, model.nu))
     chunks = [(int(c[0]), int(c[-1]) + 1) for c in np.array_split(np.arange(num_envs), num_threads)]
@@ -150,8 +155,8 @@ def floor_rollout(env_id: str, num_envs: int, steps: int, num_threads: int) -> f
     spec = int(mujoco.mjtState.mjSTATE_FULLPHYSICS)
     size = mujoco.mj_stateSize(model, spec)
     initial = np.empty((num_envs, size))
-    for i, data in enumerate(env.datas):
-        mujoco.mj_getState(model, data, initial[i], spec)
+    for i in range(num_envs):
+        mujoco.mj_getState(model, env.batch.get_data(i), initial[i], spec)
     low, high = model.actuator_ctrlrange.T
     actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, 1, model.nu))
     controls = np.ascontiguousarray(np.broadcast_to(actions, (steps, num_envs, nstep, model.nu)))
@@ -173,6 +178,22 @@ def floor_rollout(env_id: str, num_envs: int, steps: int, num_threads: int) -> f
             best = max(best, num_envs * steps / (time.perf_counter() - started))
     env.close()
     return best
+
+
+def floor_batch(env_id: str, num_envs: int, steps: int, num_threads: int) -> float:
+    """Frames/s of ``ctrl = action`` + ``Batch.step(nstep=frame_skip)`` (the env's batch, ``num_threads`` threads)."""
+    env = _fresh_env(env_id, num_envs, num_threads)
+    batch, model, nstep = env.batch, env.model, env.frame_skip
+    low, high = model.actuator_ctrlrange.T
+    actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, model.nu))
+    ctrl = batch.bind("ctrl")
+    started = time.perf_counter()
+    for action in actions:
+        ctrl[:] = action
+        batch.step(None, nstep)
+    elapsed = time.perf_counter() - started
+    env.close()
+    return num_envs * steps / elapsed
 
 
 def env_rollout(env_id: str, num_envs: int, steps: int, num_threads: int) -> float:
@@ -345,6 +366,7 @@ def peer_status(variant: str) -> str | None:
 MEASURES = {
     "floor_threads": floor_threads,
     "floor_rollout": floor_rollout,
+    "floor_batch": floor_batch,
     "env": env_rollout,
     "collector": collector,
     "gym_vector": gym_vector_collector,
@@ -395,17 +417,15 @@ def run(
                 cpu, wall = time.process_time(), time.perf_counter()
                 raw[variant].append(MEASURES[variant](env_id, num_envs, steps, num_threads))
                 cpu_share[variant].append((time.process_time() - cpu) / (time.perf_counter() - wall))
-        floors = [max(a, b) for a, b in zip(raw["floor_threads"], raw["floor_rollout"], strict=True)]
+        fastest = [max(FLOORS, key=lambda variant, k=k: raw[variant][k]) for k in range(repeats)]
+        floors = [raw[variant][k] for k, variant in enumerate(fastest)]
         row: dict[str, Any] = {
             "env": env_id,
             "num_envs": num_envs,
             "steps": steps,
             "raw": raw,
             "floor": floors,
-            "floor_source": [
-                "threads" if a >= b else "rollout"
-                for a, b in zip(raw["floor_threads"], raw["floor_rollout"], strict=True)
-            ],
+            "floor_source": [FLOORS[variant] for variant in fastest],
             "cpu_seconds_per_second": cpu_share,
             "peer_status": {variant: status[variant] for variant in PEERS},
             "preset": presets[env_id],
@@ -447,8 +467,9 @@ def legend(num_threads: int, preset_envs: int) -> str:
     """What each column of :func:`header` measures."""
     return "\n".join(
         [
-            f"- physics floor: the faster of `mujoco.mj_step(nstep=frame_skip)` over {num_threads} threads and "
-            f"`mujoco.rollout` with {num_threads} threads (the `mujoco` package's MuJoCo, no TorchRL), measured in "
+            f"- physics floor: the fastest of `mujoco.mj_step(nstep=frame_skip)` over {num_threads} threads, "
+            f"`mujoco.rollout` and `mujoco.batch.Batch.step` with {num_threads} threads (the `mujoco` package's "
+            "MuJoCo, no TorchRL; the bracket names it), measured in "
             "the same repeat as the row's other columns; every ratio to the floor divides by the floor of its "
             "own repeat (the median ratio is shown).",
             f"- BatchedMujocoEnv alone: `BatchedMujocoEnv(env_id, N, num_threads={num_threads}).rollout(steps)`.",
@@ -497,13 +518,13 @@ def _format_row(row: dict[str, Any]) -> str:
     return "| " + " | ".join(cells) + " |"
 
 
-FLOORS_HEADER = "| case | floor: threaded mj_step | floor: mujoco.rollout |\n|---|---|---|"
+FLOORS_HEADER = "| case | floor: threaded mj_step | floor: mujoco.rollout | floor: mujoco.batch |\n|---|---|---|---|"
 
 
 def _format_floors(row: dict[str, Any]) -> str:
     return (
         f"| {row['env']} × {row['num_envs']} | {row['floor_threads_median']:,.0f} "
-        f"| {row['floor_rollout_median']:,.0f} |"
+        f"| {row['floor_rollout_median']:,.0f} | {row['floor_batch_median']:,.0f} |"
     )
 
 

@@ -251,8 +251,7 @@ def sync_gymnasium_env(reference: gymnasium.Env, env: BatchedMujocoEnv, index: i
     if not hasattr(unwrapped, "set_state") or not hasattr(unwrapped, "_get_obs"):
         raise TypeError(f"reference must be a Gymnasium MuJoCo env, got {type(reference).__name__}")
     reference.reset()
-    data = env.datas[int(index)]
-    unwrapped.set_state(data.qpos.copy(), data.qvel.copy())
+    unwrapped.set_state(env.batch.qpos[int(index)].copy(), env.batch.qvel[int(index)].copy())
     return unwrapped._get_obs()
 
 
@@ -268,9 +267,10 @@ def _difference(value: Any, expected: Any) -> float:
     return float(difference.max(initial=0.0))
 
 
-def _physics_state(data: Any) -> tuple[float, np.ndarray, np.ndarray]:
-    """``(time, qpos, qvel)`` copies of an ``MjData``."""
-    return float(data.time), data.qpos.copy(), data.qvel.copy()
+def _physics_state(env: BatchedMujocoEnv, index: int) -> tuple[float, np.ndarray, np.ndarray]:
+    """``(time, qpos, qvel)`` copies of env ``index`` of a batched env."""
+    batch = env.batch
+    return float(batch.time[index]), batch.qpos[index].copy(), batch.qvel[index].copy()
 
 
 def _same_physics_state(a: tuple[float, np.ndarray, np.ndarray], b: tuple[float, np.ndarray, np.ndarray]) -> bool:
@@ -435,12 +435,12 @@ def compare_batched_with_gymnasium(
                 mask = torch.zeros(n, 1, dtype=torch.bool)
                 mask[forced[step]] = True
                 before = next_root["observation"].clone()
-                states = [_physics_state(data) for data in base.datas]
+                states = [_physics_state(base, i) for i in range(n)]
                 next_root.set("_reset", mask)
                 next_root = env.reset(next_root)
                 kept = ~mask[:, 0]
                 changed = not torch.equal(next_root["observation"][kept], before[kept]) or any(
-                    not _same_physics_state(states[i], _physics_state(base.datas[i])) for i in range(n) if kept[i]
+                    not _same_physics_state(states[i], _physics_state(base, i)) for i in range(n) if kept[i]
                 )
                 restarted = "step_count" not in next_root.keys() or bool(
                     (next_root["step_count"][mask[:, 0]] == 0).all()

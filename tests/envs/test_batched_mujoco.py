@@ -187,8 +187,8 @@ def test_resets_draw_gymnasiums_initial_state_distribution(env_id: str, kwargs: 
     for i, seed in enumerate(seeds):
         reference = gymnasium.make(env_id, **kwargs)
         observation, _ = reference.reset(seed=seed)
-        np.testing.assert_array_equal(env.datas[i].qpos, reference.unwrapped.data.qpos)
-        np.testing.assert_array_equal(env.datas[i].qvel, reference.unwrapped.data.qvel)
+        np.testing.assert_array_equal(env.batch.qpos[i], reference.unwrapped.data.qpos)
+        np.testing.assert_array_equal(env.batch.qvel[i], reference.unwrapped.data.qvel)
         np.testing.assert_array_equal(tensordict["observation"][i].numpy(), observation)
         reference.close()
     if "x_velocity" in tensordict.keys():
@@ -220,18 +220,18 @@ def test_partial_reset_touches_only_the_masked_envs() -> None:
     tensordict = env.reset()
     for _ in range(5):
         tensordict = env.rand_step(tensordict)["next"]
-    states = [(data.qpos.copy(), data.qvel.copy(), data.time) for data in env.datas]
+    batch = env.batch
+    states = [(batch.qpos[i].copy(), batch.qvel[i].copy(), batch.time[i]) for i in range(4)]
     mask = torch.tensor([[False], [True], [False], [True]])
     result = env.reset(tensordict.clone().set("_reset", mask))
     for i, (qpos, qvel, time) in enumerate(states):
-        data = env.datas[i]
         if mask[i]:
-            assert data.time == 0.0
-            assert not np.array_equal(data.qpos, qpos)
+            assert batch.time[i] == 0.0
+            assert not np.array_equal(batch.qpos[i], qpos)
         else:
-            assert data.time == time
-            np.testing.assert_array_equal(data.qpos, qpos)
-            np.testing.assert_array_equal(data.qvel, qvel)
+            assert batch.time[i] == time
+            np.testing.assert_array_equal(batch.qpos[i], qpos)
+            np.testing.assert_array_equal(batch.qvel[i], qvel)
             assert torch.equal(result["observation"][i], tensordict["observation"][i])
     env.close()
 
@@ -267,15 +267,15 @@ def test_bad_actions_are_rejected_by_name() -> None:
 def test_a_non_finite_action_ends_only_that_envs_episode() -> None:
     env = BatchedMujocoEnv("Hopper-v5", 3, seed=0)
     tensordict = env.reset()
-    qpos = env.datas[1].qpos.copy()
+    qpos = env.batch.qpos[1].copy()
     action = torch.zeros(3, 3)
     action[1, 2] = float("nan")
     with pytest.warns(RuntimeWarning, match=r"non-finite action in envs \[1\], diverged state in envs \[\]"):
         out = env.step(tensordict.set("action", action))["next"]
     assert out["terminated"][:, 0].tolist() == [False, True, False]
     assert out["done"][:, 0].tolist() == [False, True, False]
-    np.testing.assert_array_equal(env.datas[1].qpos, qpos)  # not simulated
-    assert env.datas[0].time > 0.0
+    np.testing.assert_array_equal(env.batch.qpos[1], qpos)  # not simulated
+    assert env.batch.time[0] > 0.0
     env.close()
 
 
@@ -287,7 +287,7 @@ def test_a_diverged_state_ends_the_episode_instead_of_mujocos_silent_reset(steps
     tensordict = env.reset()
     for _ in range(steps_before):
         tensordict = env.step_and_maybe_reset(env.rand_action(tensordict))[1]
-    base.datas[2].qvel[:] = 1e11  # beyond mjMAXVAL: mj_checkVel resets the data
+    base.batch.qvel[2] = 1e11  # beyond mjMAXVAL: mj_checkVel resets the data
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         tensordict, next_root = env.step_and_maybe_reset(env.rand_action(tensordict))
@@ -340,7 +340,7 @@ def test_a_non_finite_state_is_restarted_like_mujoco_does_and_marked() -> None:
     """A non-finite state that MuJoCo's own checks do not see (here: an env that is not simulated) is not written."""
     env = BatchedMujocoEnv("Hopper-v5", 3, seed=0)
     root = env.reset()
-    env.datas[2].qpos[:] = float("nan")
+    env.batch.qpos[2] = float("nan")
     action = torch.zeros(3, 3)
     action[2, 0] = float("nan")
     with pytest.warns(RuntimeWarning, match="broken step"):
@@ -348,7 +348,7 @@ def test_a_non_finite_state_is_restarted_like_mujoco_does_and_marked() -> None:
     assert out["broken"][:, 0].tolist() == [False, False, True]
     for key in ("observation", "x_velocity", "qpos", "qvel", "reward"):
         assert out[key].isfinite().all(), key
-    np.testing.assert_array_equal(env.datas[2].qpos, env.model.qpos0)
+    np.testing.assert_array_equal(env.batch.qpos[2], env.model.qpos0)
     # its clock restarted with it: the next step is not taken for a diverged one
     with warnings.catch_warnings():
         warnings.simplefilter("error", RuntimeWarning)

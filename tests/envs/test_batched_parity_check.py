@@ -217,8 +217,8 @@ def test_sync_gymnasium_env_copies_the_state_and_restarts_the_time_limit() -> No
         reference.reset(seed=0)
         reference.step(reference.action_space.sample())
     observation = parity.sync_gymnasium_env(reference, env, 1)
-    np.testing.assert_array_equal(reference.unwrapped.data.qpos, env.datas[1].qpos)
-    np.testing.assert_array_equal(reference.unwrapped.data.qvel, env.datas[1].qvel)
+    np.testing.assert_array_equal(reference.unwrapped.data.qpos, env.batch.qpos[1])
+    np.testing.assert_array_equal(reference.unwrapped.data.qvel, env.batch.qvel[1])
     np.testing.assert_array_equal(observation, tensordict["observation"][1].numpy())
     truncated = [reference.step(np.zeros(6))[3] for _ in range(7)]
     assert truncated == [False] * 6 + [True]

@@ -173,13 +173,13 @@ def test_a_batched_copy_has_its_own_threads_and_simulation() -> None:
     env = BatchedMujocoEnv("Hopper-v5", 4, seed=0, num_threads=2)
     env.reset()
     for twin in (copy.deepcopy(env), pickle.loads(pickle.dumps(env))):
-        assert twin.num_threads == 2 and twin._pool is not None and twin._pool is not env._pool
+        assert twin.num_threads == 2 and twin.batch.nthread == 2 and twin.batch is not env.batch
         assert twin.model is not env.model
-        assert all(a is not b for a, b in zip(twin.datas, env.datas, strict=True))
-        # the observation plan reads the copy's own gather buffers (views of them, not copies)
+        assert not np.shares_memory(twin.batch.state, env.batch.state)
+        # the observation plan reads the copy's own state rows and buffers (views of them, not copies)
         assert all(
-            np.shares_memory(source, twin._state)
-            or any(np.shares_memory(source, buffer) for _, _, buffer in twin._readers)
+            np.shares_memory(source, twin.batch.state)
+            or any(np.shares_memory(source, buffer) for buffer, _ in twin._readers)
             for _, source, _ in twin._observation_plan
         )
         twin.close()
