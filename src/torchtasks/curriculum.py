@@ -550,7 +550,7 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
         >>> from torchtasks.curriculum import Curriculum, linear
         >>> from torchtasks.envs import PendulumEnv, swing_up_task
-        >>> from torchtasks.transforms import RecordedValue, TaskTransform
+        >>> from torchtasks.transforms import TaskTransform
         >>> curriculum = Curriculum({"success_value": linear(0.0, 100.0, 0, 40)})  # the final reward on success
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
         ...     StepCounter(50), TaskTransform(swing_up_task()), curriculum))

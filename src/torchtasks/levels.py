@@ -123,7 +123,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         >>> from torchtasks.rewards import ConstantReward
         >>> from torchtasks.spaces import Box, EnvSpec
         >>> from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-        >>> from torchtasks.transforms import RecordedValue, TaskTransform
+        >>> from torchtasks.transforms import TaskTransform
         >>> spec = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
         >>> near = functools.partial(proximity_succeeded, threshold=0.1)
         >>> reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), near)
@@ -173,10 +173,15 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         self.failure_key = None if failure_key is None else nested_key(failure_key, "DifficultyLevels: failure_key")
         self.curriculum_key = nested_key(curriculum_key, "DifficultyLevels: curriculum_key")
         self._level_key = (*key_parts(self.curriculum_key), LEVEL)
-        # the entries recording the per-env value of each task-tree and base-env target ("/" for "."), by target index
+        entries = [target.replace(".", "/") for target in values]  # each target's name in the data and the state
+        if len(set(entries)) < len(entries):
+            raise ValueError(
+                f"DifficultyLevels: targets {list(values)} give the same entry name twice ('.' becomes '/')"
+            )
+        # the entries recording the per-env value of each task-tree and base-env target, by target index
         self.__dict__["_value_keys"] = {
-            i: (*key_parts(self.curriculum_key), target.replace(".", "/"))
-            for i, target in enumerate(values)
+            i: (*key_parts(self.curriculum_key), entry)
+            for i, (target, entry) in enumerate(zip(values, entries, strict=True))
             if not target.startswith(COMMAND + ".")
         }
         for key in self._value_keys.values():
@@ -187,12 +192,8 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
                 )
         super().__init__(in_keys=[], out_keys=[self._level_key, *self._value_keys.values()])
         self.targets = tuple(values)
-        # one buffer per target, named by its entry ("." -> "/"): a checkpoint is keyed by target, not by position
-        self._entries = [target.replace(".", "/") for target in self.targets]
-        if len(set(self._entries)) < len(self._entries):
-            raise ValueError(
-                f"DifficultyLevels: targets {list(self.targets)} give the same entry name twice ('.' becomes '/')"
-            )
+        # one buffer per target, named by its entry: a checkpoint is keyed by target, not by position
+        self._entries = entries
         self.tables = nn.Module()
         for target, entry in zip(self.targets, self._entries, strict=True):
             self.tables.register_buffer(entry, _table(values[target], self.num_levels, target))
