@@ -1,23 +1,27 @@
-"""Where a Collector step over BatchedMujocoEnv goes: the same pipeline with and without the task's parts.
+"""Where a Collector step over the batched preset goes: the physics, then the pipeline one transform at a time.
 
-``python benchmarks/pipeline_costs.py [--cases HalfCheetah-v5:64 Hopper-v5:64] [--repeats 3] [--steps 1000]
-[--output runs/pipeline_costs]``
+``python benchmarks/pipeline_costs.py [--cases HalfCheetah-v5:64 Hopper-v5:64] [--repeats 5] [--steps 500]
+[--threads 2] [--output runs/pipeline_costs]``
 
-For every case, four pipelines are timed back to back in each repeat (medians reported), each a
-``torchrl.collectors.Collector`` (one torch thread, the uniform random policy of
-``benchmarks/batched_mujoco.py``, the first batch not timed) over ``BatchedMujocoEnv(env_id, N,
-num_threads=2)`` with:
+For every case, these are timed back to back in each repeat (medians reported), each Collector with one torch
+thread and the uniform random policy of ``benchmarks/batched_mujoco.py`` (``UniformActions``), the first batch not
+timed:
 
-- ``counters``: ``StepCounter(1000)`` + ``RewardSum()`` (no task: nothing ends an episode but the time limit);
-- ``task``: ``StepCounter(1000)`` + ``TaskTransform(locomotion_task(env_id))`` + ``RewardSum()`` (the pipeline
-  of ``benchmarks/batched_mujoco.py``);
-- ``task_no_terms``: the same with ``TaskTransform(..., log_terms=False)`` (no reward breakdown entries);
-- ``physics``: the physics floor of the same batch (threaded ``mj_step``, as in ``batched_mujoco.py``).
+- ``physics``: ``ctrl = action`` + ``mujoco.batch.Batch.step(nstep=frame_skip)`` of the env's own batch (the
+  floor of ``batched_mujoco.py``, no TorchRL);
+- ``env``: a Collector over ``BatchedMujocoEnv(env_id, N)`` alone;
+- ``+StepCounter``: the same with ``StepCounter(1000)``;
+- ``+task``: and the locomotion task's ``TaskTransform`` (its reward, terms, success/failure flags);
+- ``+ZeroBrokenStepReward``: and the transform that pays 0 for broken steps;
+- ``preset``: ``gymnasium_env(env_id, num_envs=N, backend="batched")``, the stack above plus ``RewardSum()``
+  over the reward and the terms: what users build;
+- ``preset, no physics``: the preset's four transforms over an env with ``BatchedMujocoEnv``'s specs that
+  simulates nothing (it returns zeros): what TorchRL and the transforms cost per step without MuJoCo.
 
 It prints milliseconds per step (one step = all N envs) and frames/s, and writes ``results.json`` and
-``results.md`` into ``--output``. The difference ``task - counters`` is what the task adds (its maths,
-its flags, its reward breakdown and, for envs that terminate, the partial resets it causes);
-``task - task_no_terms`` is what the breakdown's reward entries cost in TorchRL.
+``results.md`` into ``--output``. A layer's cost is the difference to the row before it; ``preset`` minus
+``physics`` against ``preset, no physics`` says how much of the pipeline's own time the physics' threads slow
+down (the Python of a step runs with caches the physics just used).
 """
 
 from __future__ import annotations
@@ -27,46 +31,106 @@ import json
 import os
 import statistics
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import torch
-from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
+from tensordict import TensorDict, TensorDictBase
+from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEnv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from batched_mujoco import _collector_frames_per_second, floor_threads
+from batched_mujoco import _collector_frames_per_second, floor_batch
 
-from torchtasks.envs import BatchedMujocoEnv
+from torchtasks.envs import BatchedMujocoEnv, gymnasium_env
+from torchtasks.envs.batched_mujoco import ZeroBrokenStepReward
 from torchtasks.envs.locomotion import locomotion_state_layout, locomotion_task
 from torchtasks.transforms import TaskTransform
 
-VARIANTS = ("physics", "counters", "task", "task_no_terms")
+VARIANTS = (
+    "physics",
+    "env",
+    "+StepCounter",
+    "+task",
+    "+ZeroBrokenStepReward",
+    "preset",
+    "preset, no physics",
+)
 
 
-def make_env(env_id: str, num_envs: int, variant: str, num_threads: int) -> TransformedEnv:
-    """The pipeline of ``variant`` (see the module docstring)."""
-    base = BatchedMujocoEnv(env_id, num_envs, seed=0, num_threads=num_threads)
-    transforms = [StepCounter(1000)]
-    if variant != "counters":
-        task = locomotion_task(env_id)
-        layout = list(locomotion_state_layout(env_id))
-        transforms.append(TaskTransform(task, state_key=layout, log_terms=variant == "task"))
-    transforms.append(RewardSum())
+class NoPhysicsEnv(EnvBase):
+    """An env with the specs of ``BatchedMujocoEnv(env_id, num_envs)`` that simulates nothing: every entry is zero.
+
+    Its outputs are fresh tensors each step, as the batched env's are, so a Collector over it pays what TorchRL and
+    the transforms cost per step and nothing else.
+    """
+
+    batch_locked = True
+
+    def __init__(self, like: BatchedMujocoEnv) -> None:
+        super().__init__(batch_size=like.batch_size)
+        self.observation_spec = like.observation_spec.clone()
+        self.action_spec = like.action_spec.clone()
+        self.reward_spec = like.reward_spec.clone()
+        self.done_spec = like.done_spec.clone()
+        self.last_step_broken = False  # what ZeroBrokenStepReward reads from a BatchedMujocoEnv
+        entries = {**self.observation_spec, **self.done_spec}
+        self._entries = {key: (spec.shape, spec.dtype) for key, spec in entries.items()}
+        self._reward = (self.reward_spec.shape, self.reward_spec.dtype)
+
+    def _outputs(self, reward: bool) -> TensorDictBase:
+        out = {key: torch.zeros(shape, dtype=dtype) for key, (shape, dtype) in self._entries.items()}
+        if reward:
+            out["reward"] = torch.zeros(self._reward[0], dtype=self._reward[1])
+        return TensorDict._new_unsafe(out, batch_size=self.batch_size)
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        return self._outputs(reward=True)
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
+        return self._outputs(reward=False)
+
+    def _set_seed(self, seed: int | None) -> None:
+        pass
+
+
+def _stack(base: EnvBase, env_id: str, layers: int) -> EnvBase:
+    """``base`` with the first ``layers`` transforms of the batched preset (0: the env alone)."""
+    if layers == 0:
+        return base
+    transforms = [
+        StepCounter(1000),
+        TaskTransform(locomotion_task(env_id), state_key=list(locomotion_state_layout(env_id))),
+        ZeroBrokenStepReward(),
+        RewardSum(),
+    ][:layers]
     return TransformedEnv(base, Compose(*transforms))
+
+
+def make_env(env_id: str, num_envs: int, variant: str, num_threads: int) -> EnvBase:
+    """The pipeline of ``variant`` (see the module docstring)."""
+    if variant == "preset":
+        return gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
+    base = BatchedMujocoEnv(env_id, num_envs, seed=0, num_threads=num_threads)
+    if variant == "preset, no physics":
+        return _stack(NoPhysicsEnv(base), env_id, 4)
+    layers = ("env", "+StepCounter", "+task", "+ZeroBrokenStepReward").index(variant)
+    return _stack(base, env_id, layers)
 
 
 def measure(env_id: str, num_envs: int, variant: str, steps: int, num_threads: int) -> float:
     """Frames/s of ``variant``."""
     if variant == "physics":
-        return floor_threads(env_id, num_envs, steps, num_threads)
-    return _collector_frames_per_second(lambda: make_env(env_id, num_envs, variant, num_threads), num_envs, steps)
+        return floor_batch(env_id, num_envs, steps, num_threads)
+    make: Callable[[], EnvBase] = lambda: make_env(env_id, num_envs, variant, num_threads)  # noqa: E731
+    return _collector_frames_per_second(make, num_envs, steps)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=["HalfCheetah-v5:64", "Hopper-v5:64"])
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--steps", type=int, default=1000, help="steps per measurement (each step: all N envs)")
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--steps", type=int, default=500, help="steps per measurement (each step: all N envs)")
     parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads of the env")
     parser.add_argument("--output", type=Path, default=Path("runs/pipeline_costs"))
     args = parser.parse_args(argv)
@@ -81,24 +145,38 @@ def main(argv: list[str] | None = None) -> int:
                 samples[variant].append(measure(env_id, num_envs, variant, args.steps, args.threads))
         fps = {variant: statistics.median(values) for variant, values in samples.items()}
         ms = {variant: 1e3 * num_envs / value for variant, value in fps.items()}
-        rows.append({"env_id": env_id, "num_envs": num_envs, "frames_per_second": fps, "ms_per_step": ms})
+        # each repeat's ratio to its own physics floor, the median over repeats
+        ratio = {
+            variant: statistics.median(v / p for v, p in zip(values, samples["physics"], strict=True))
+            for variant, values in samples.items()
+        }
+        rows.append(
+            {
+                "env_id": env_id,
+                "num_envs": num_envs,
+                "frames_per_second": fps,
+                "ms_per_step": ms,
+                "ratio_to_physics": ratio,
+                "raw_frames_per_second": samples,
+            }
+        )
         print(
             f"{env_id} x{num_envs}: "
-            + ", ".join(f"{variant} {ms[variant]:.2f} ms ({fps[variant]:,.0f} frames/s)" for variant in VARIANTS),
+            + ", ".join(f"{variant} {ms[variant]:.2f} ms ({ratio[variant]:.2f})" for variant in VARIANTS),
             flush=True,
         )
     lines = [
-        f"ms per step (frames/s), {args.threads} MuJoCo threads, one torch thread, medians of {args.repeats} repeats, "
-        f"load average {load_before[0]:.2f} -> {os.getloadavg()[0]:.2f}",
+        f"ms per step (in brackets: frames/s ÷ the physics floor's frames/s; medians of {args.repeats} repeats, "
+        f"{args.threads} MuJoCo threads, one torch thread, load average {load_before[0]:.2f} -> "
+        f"{os.getloadavg()[0]:.2f})",
         "",
-        "| case | " + " | ".join(VARIANTS) + " | task - counters | task - task_no_terms |",
-        "|---|" + "---|" * (len(VARIANTS) + 2),
+        "| case | " + " | ".join(VARIANTS) + " |",
+        "|---|" + "---|" * len(VARIANTS),
     ]
     for row in rows:
-        ms, fps = row["ms_per_step"], row["frames_per_second"]
-        cells = [f"{ms[variant]:.2f} ({fps[variant]:,.0f})" for variant in VARIANTS]
-        extra = [f"{ms['task'] - ms['counters']:+.2f}", f"{ms['task'] - ms['task_no_terms']:+.2f}"]
-        lines.append(f"| {row['env_id']} × {row['num_envs']} | " + " | ".join(cells + extra) + " |")
+        ms, ratio = row["ms_per_step"], row["ratio_to_physics"]
+        cells = [f"{ms[variant]:.2f} ({ratio[variant]:.2f})" for variant in VARIANTS]
+        lines.append(f"| {row['env_id']} × {row['num_envs']} | " + " | ".join(cells) + " |")
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "results.md").write_text("\n".join(lines) + "\n")
     meta = {"threads": args.threads, "repeats": args.repeats, "steps": args.steps, "torch": torch.__version__}

@@ -40,7 +40,8 @@ count of ended episodes, their length and how they ended (shown in the progress 
 Outputs in ``--output`` (default ``runs/train_locomotion_ppo``): ``locomotion_ppo_seed<N>.json``
 per seed (config, machine load at start and end, a ``curve`` with one point per batch: frames,
 seconds, training returns per term when episodes ended, 1-minute load average; an ``eval_curve``;
-totals) and ``locomotion_ppo_curve.png``: the return of every seed's JSON in that directory against
+totals, among them ``collect_seconds``: the time spent waiting for the collector's batches) and
+``locomotion_ppo_curve.png``: the return of every seed's JSON in that directory against
 frames and against wall-clock time (needs matplotlib, the ``plot`` extra; without it the plot is
 skipped with a message).
 
@@ -312,9 +313,12 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
     }
     deadline = start + 60.0 * config.max_minutes
     frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
+    # collection: from the end of one batch's update (or the start) until the collector hands over the next batch
+    collect_seconds, collect_start = 0.0, time.perf_counter()
     last_train, last_eval = None, None
     bar = frame_bar(f"PPO {ENV_ID} seed {seed}", iterations * config.frames_per_batch)  # whole batches
     for iteration, batch in enumerate(collector, start=1):
+        collect_seconds += time.perf_counter() - collect_start
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
         returns = training_returns(batch)
@@ -372,6 +376,7 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
         bar.update(batch.numel())
         if done:
             break
+        collect_start = time.perf_counter()
     bar.close()
     collector.shutdown()
     total_seconds = time.perf_counter() - start
@@ -379,6 +384,8 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
         total_frames=frames,
         total_seconds=total_seconds,
         eval_seconds=eval_seconds,
+        collect_seconds=collect_seconds,
+        collect_frames_per_second=frames / collect_seconds,
         frames_per_second=frames / total_seconds,
         stopped_by_time_limit=frames < iterations * config.frames_per_batch,
         final_train_return=None if last_train is None else last_train["train_return"],
@@ -472,7 +479,9 @@ def main() -> None:
         )
         print(
             f"seed {seed}: {record['total_frames']} frames in {duration(record['total_seconds'])} "
-            f"({record['frames_per_second']:.0f} frames/s, evaluation {record['eval_seconds']:.1f} s); {train_text}; "
+            f"({record['frames_per_second']:.0f} frames/s; collection {duration(record['collect_seconds'])}, "
+            f"{record['collect_frames_per_second']:.0f} frames/s; evaluation {record['eval_seconds']:.1f} s); "
+            f"{train_text}; "
             f"deterministic evaluation return {record['final_eval_return']:.1f}; "
             f"1-min load average {record['machine_start']['load_1min']:.2f} at start, "
             f"{record['machine_end']['load_1min']:.2f} at end"

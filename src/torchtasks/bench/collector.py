@@ -9,7 +9,7 @@ from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
-from tensordict.nn import TensorDictModule
+from tensordict.nn import TensorDictModuleBase
 from torchrl.collectors import Collector
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs import Compose, EnvBase, StepCounter, Transform, TransformedEnv
@@ -227,13 +227,18 @@ class FewestT1Transform(Transform):
         return state_spec
 
 
-class UniformActions(torch.nn.Module):
-    """The benchmarks' policy: actions drawn uniformly within the env's action bounds, one ``torch.rand`` per step.
+class UniformActions(TensorDictModuleBase):
+    """The benchmarks' policy: writes ``"action"``, drawn uniformly within the env's action bounds (one ``torch.rand``).
 
-    Every Collector of the benchmarks uses it (here and in ``benchmarks/batched_mujoco.py``).
-    ``policy=None`` (TorchRL's ``RandomPolicy``) would add a cost of its own per step to every column:
-    ``Composite.rand`` builds a TensorDict through ``from_dict``, which searches the import path for
-    pandas on every call (tensordict 0.14.3), a cost no user policy has.
+    Every Collector of the benchmarks uses it (here, ``benchmarks/batched_mujoco.py`` and
+    ``benchmarks/pipeline_costs.py``), so the columns differ only in the env. It writes its output
+    itself: a ``TensorDictModule`` passes every output through ``TensorDict.from_any``, which for a
+    plain tensor searches the import path for pandas on every call (tensordict 0.14.3, ~0.1 ms per
+    step on a 2-core machine without pandas), and ``policy=None`` (TorchRL's ``RandomPolicy``) builds
+    its TensorDict through the same search. Both are costs of the policy's wrapper, not of the env.
+
+    Args:
+        env: the env whose ``action_spec`` (a bounded spec) the actions are drawn from.
 
     Example:
         >>> from torchtasks.envs import PendulumEnv
@@ -243,19 +248,23 @@ class UniformActions(torch.nn.Module):
         True
     """
 
+    in_keys: list[str] = []
+    out_keys: list[str] = ["action"]
+
     def __init__(self, env: EnvBase) -> None:
         super().__init__()
         space = env.action_spec.space
         self.register_buffer("low", torch.as_tensor(space.low).expand(env.action_spec.shape).clone())
         self.register_buffer("width", torch.as_tensor(space.high).expand(env.action_spec.shape) - self.low)
 
-    def forward(self, observation: torch.Tensor) -> torch.Tensor:
-        return torch.rand(self.low.shape, dtype=self.low.dtype) * self.width + self.low
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = torch.rand(self.low.shape, dtype=self.low.dtype, device=self.low.device) * self.width + self.low
+        return tensordict.set("action", action)
 
 
-def uniform_policy(env: EnvBase) -> TensorDictModule:
-    """:class:`UniformActions` for ``env`` as a TensorDictModule reading ``"observation"``, writing ``"action"``."""
-    return TensorDictModule(UniformActions(env), in_keys=["observation"], out_keys=["action"])
+def uniform_policy(env: EnvBase) -> UniformActions:
+    """The benchmarks' policy for ``env``: :class:`UniformActions` (writes ``"action"``, reads nothing)."""
+    return UniformActions(env)
 
 
 def _frames_per_second(env: EnvBase, frames_per_batch: int, batches: int) -> float:
