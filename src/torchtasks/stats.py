@@ -213,12 +213,12 @@ def episode_statistics(
       ended episodes of the L2 distance between the goal that judged the episode's last step and the
       goal achieved by it. The goal is read at the root of the last frame: the goal of step ``t``,
       the one the policy saw and the one ``TaskTransform(goal_key=...)`` passed to the task (under
-      ``"next"`` is the goal of the step after, which a :class:`~torchtasks.commands.GoalCommand`
+      ``"next"`` is the goal of the step after, which a :class:`~torchtasks.transforms.GoalCommand`
       may already have redrawn: after a success with ``resample_on_success``, or when its timer ran
       out in that step). The achieved goal is read under ``"next"`` (that of ``s_{t+1}``, as
       ``TaskTransform(achieved_goal_key=...)`` writes it).
     - ``curriculum/frames`` and ``curriculum/<target>`` (when the data holds a
-      :class:`~torchtasks.curriculum.Curriculum`'s entries ``("next", curriculum_key, ...)``): the
+      :class:`~torchtasks.transforms.Curriculum`'s entries ``("next", curriculum_key, ...)``): the
       schedule at the end of the batch, read under ``"next"`` at the latest frame: the frame count and
       the values the step after the batch will use. ``<target>`` is the entry's name (the target with
       ``"/"`` for ``"."``, e.g. ``curriculum/wrapped_task/reward/rewards/effort/R``); a tensor-valued
@@ -227,7 +227,7 @@ def episode_statistics(
       ``[*envs, time]`` batch; in a flat or padded batch, whose rows are not envs, the valid frames
       with the largest frame count (the last frame of each env, when the envs share one count), so
       these layouts need the Curriculum's ``frames`` entry (a ``ValueError`` says so without it, e.g.
-      for a :class:`~torchtasks.levels.DifficultyLevels` alone). The values are means over those
+      for a :class:`~torchtasks.transforms.DifficultyLevels` alone). The values are means over those
       frames, i.e. over the envs, which hold the same values when they share one Curriculum. Data
       without the entries give none of these keys.
     - ``ended_by/<name>`` (when the data holds a task's named end conditions ``("next", ended_by_key, name)``,
@@ -241,7 +241,7 @@ def episode_statistics(
       ``cost_limits={name: limit}`` also ``cost_violation_rate/<name>``, the fraction of those episodes
       whose summed cost exceeds the limit.
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
-      :class:`~torchtasks.levels.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
+      :class:`~torchtasks.transforms.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
       for ``k`` from 0 to the highest level reached.
 

@@ -17,10 +17,11 @@ from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
 from torchtasks._memory import td_get, td_set
-from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, keys_text, nested_key
+from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
+from torchtasks.transforms._base import EnvDerivedTransform
 
 __all__ = ["TaskTransform"]
 
@@ -71,7 +72,7 @@ def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: Ne
 class RecordedValue(NamedTuple):
     """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
 
-    A :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels` after the
+    A :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` after the
     :class:`TaskTransform` names these (``_recorded_task_values()``), and offline recomputation evaluates each
     frame with the value recorded for it, never with the buffer's value of today.
     """
@@ -231,7 +232,7 @@ class TaskTransform(EnvDerivedTransform):
             sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
         goal_key: read the goal of step ``t`` from this root entry (``[*B, k]``: the goal the policy
-            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.commands.GoalCommand`) and
+            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.transforms.GoalCommand`) and
             pass it to the task (``Task.transition(..., goal=...)``); offline, a relabelled goal there
             re-judges reward, success and the episode end.
         achieved_goal_key: write the achieved goal (the entries of the state the goal is compared
@@ -250,8 +251,8 @@ class TaskTransform(EnvDerivedTransform):
             both are reward-spec entries, so they are not carried to the next step's root. A tree
             without costs writes neither.
         curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
-            values of task buffers that a :class:`~torchtasks.curriculum.Curriculum` or
-            :class:`~torchtasks.levels.DifficultyLevels` set at each step, when this transform is not in their env
+            values of task buffers that a :class:`~torchtasks.transforms.Curriculum` or
+            :class:`~torchtasks.transforms.DifficultyLevels` set at each step, when this transform is not in their env
             (e.g. a replay buffer's transform): every entry under it that names a float buffer of the task
             (``"/"`` for ``"."``) is read. In their env the transform reads their entries and refuses data without
             them. ``None``: look for none (outside such an env, the task's buffers as they are now).
@@ -1090,10 +1091,11 @@ class TaskTransform(EnvDerivedTransform):
         stored success/failure flags attribute to the task is re-judged (a relabelled goal may
         change it); truncation and the env's own termination are kept.
 
-        Task buffers that a :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels`
-        set at every step are evaluated, frame by frame, with the values the data records at the root
-        (``(curriculum_key, <buffer name with "/" for ".">)``: the values that step used), never with their values
-        of today; in the env of such a transform, data lacking one of its entries is a ``ValueError``.
+        Task buffers that a :class:`~torchtasks.transforms.Curriculum` or
+        :class:`~torchtasks.transforms.DifficultyLevels` set at every step are evaluated, frame by frame, with the
+        values the data records at the root (``(curriculum_key, <buffer name with "/" for ".">)``: the values that
+        step used), never with their values of today;
+        in the env of such a transform, data lacking one of its entries is a ``ValueError``.
         The buffers are put back afterwards. (Also for :meth:`reward_fn` and :meth:`relabel`.)
         """
         next_tensordict = self._offline_next(tensordict)
@@ -1169,7 +1171,7 @@ class TaskTransform(EnvDerivedTransform):
         Example:
             >>> import functools, torch
             >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
-            >>> from torchtasks.commands import GoalCommand
+            >>> from torchtasks.transforms import GoalCommand
             >>> from torchtasks.envs import PendulumEnv
             >>> from torchtasks.rewards import QuadraticErrorReward
             >>> from torchtasks.spaces import Box, EnvSpec

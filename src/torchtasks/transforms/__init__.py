@@ -1,0 +1,44 @@
+"""The TorchRL face of torchtasks: transforms that put a task, goals, curricula and run state into an env.
+
+- :class:`TaskTransform` (:mod:`.task`): a task's reward, flags, terms and costs at every step of an env;
+- :class:`GoalCommand` (:mod:`.command`): per-env goals drawn from a box and resampled;
+- :class:`Curriculum` (:mod:`.curriculum`) with the schedules of :mod:`.schedules`, and
+  :class:`DifficultyLevels` (:mod:`.levels`): values of the run written into the task (or the command);
+- :class:`SeededTransform` and :func:`seed_transforms` (:mod:`.seeding`): per-worker seeds from ``set_seed``;
+- :class:`BaseEnvState`, :func:`collector_state`, :func:`load_collector_state` (:mod:`.checkpoint`): saving
+  and resuming a run, episodes included.
+
+The modules of the package import only from below it (rewards, tasks, spaces) and from one another in this
+order: ``_base``, ``seeding``, ``task``, ``command``, ``schedules``, ``curriculum``, ``levels``, ``checkpoint``.
+The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.levels``,
+``torchtasks.seeding``, ``torchtasks.checkpoint``) re-export the same objects.
+"""
+
+from torchtasks.transforms.checkpoint import BaseEnvState, collector_state, load_collector_state
+from torchtasks.transforms.command import GoalCommand
+from torchtasks.transforms.curriculum import Curriculum
+from torchtasks.transforms.levels import DifficultyLevels, LevelRule
+from torchtasks.transforms.schedules import GatedSchedule, Schedule, constant, gated, linear, staged
+from torchtasks.transforms.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
+from torchtasks.transforms.task import TaskTransform
+
+__all__ = [
+    "BaseEnvState",
+    "Curriculum",
+    "DifficultyLevels",
+    "GatedSchedule",
+    "GoalCommand",
+    "LevelRule",
+    "Schedule",
+    "SeedHook",
+    "SeededTransform",
+    "TaskTransform",
+    "collector_state",
+    "constant",
+    "derived_seed",
+    "gated",
+    "linear",
+    "load_collector_state",
+    "seed_transforms",
+    "staged",
+]
