@@ -87,19 +87,18 @@ class GoalCommand(CheckedLoad, SeededTransform):
     Example:
         >>> import functools, torch
         >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
-        >>> from torchtasks.transforms import GoalCommand
         >>> from torchtasks.envs import PendulumEnv
         >>> from torchtasks.rewards import QuadraticErrorReward
         >>> from torchtasks.spaces import Box, EnvSpec
         >>> from torchtasks.tasks import DesiredStateTask, proximity_succeeded
-        >>> from torchtasks.transforms import TaskTransform
+        >>> from torchtasks.transforms import GoalCommand, TaskTransform
         >>> near = functools.partial(proximity_succeeded, threshold=0.1)
         >>> task = DesiredStateTask(EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1]), near)
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
         ...     StepCounter(50),
         ...     TaskTransform(task, goal_key="goal"),
         ...     GoalCommand(Box([-1.0, -0.5], [1.0, 0.5]), resample_steps=(5, 10), seed=0)))
-        >>> rollout = env.rollout(12)
+        >>> rollout = env.rollout(12, break_when_any_done=False)  # (a reached goal ends an episode)
         >>> rollout["goal"].shape
         torch.Size([4, 12, 2])
 
