@@ -26,7 +26,7 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable, Iterator, Mapping
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -38,25 +38,13 @@ from torchtasks.spaces import Box, EnvSpec, rows_outside
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, check_memory_layout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
+from torchtasks.tasks.transition import TaskFacts, Transition
 
 __all__ = ["ForwardingTask", "Task", "TaskOutput", "TaskWrapper", "all_tasks"]
 
 RewardOn = Literal["next", "state"]
 
-#: what :meth:`Task._transition` returns, in this order
-TransitionTuple = tuple[
-    torch.Tensor,  # reward
-    torch.Tensor,  # step_reward
-    torch.Tensor,  # final_reward
-    torch.Tensor,  # success
-    torch.Tensor,  # failure
-    torch.Tensor,  # terminated
-    torch.Tensor,  # done
-    TensorDictBase,  # memory
-    dict[str, torch.Tensor],  # terms
-    dict[str, torch.Tensor],  # costs
-    dict[str, torch.Tensor],  # ended_by: the named end conditions (empty unless a kind has two or more)
-]
+_Fact = TypeVar("_Fact")
 
 #: the end conditions of a tree that names none beyond its success and its failure
 DEFAULT_TERMINATIONS = {"success": "success", "failure": "failure"}
@@ -185,6 +173,18 @@ class Task(nn.Module):
             paths += child._kept_paths(prefix if key is None else (*prefix, key))
         return paths
 
+    def _cached(self, key: str, compute: Callable[[], _Fact]) -> _Fact:
+        """``compute()``, computed on the first call and kept under ``key`` in the instance's ``__dict__``.
+
+        For facts fixed by the task tree that the per-step path reads (a plain attribute, so ``nn.Module``'s
+        attribute machinery, ``state_dict`` and ``torch.compile`` do not see it).
+        """
+        value = self.__dict__.get(key)
+        if value is None:
+            value = compute()
+            self.__dict__[key] = value
+        return value
+
     @property
     def goal_slots(self) -> tuple[GoalSlot, ...]:
         """The tasks of this tree that take a goal (desired-state tasks), by the dotted path of their goal.
@@ -192,11 +192,7 @@ class Task(nn.Module):
         A goal passed to :meth:`transition` (or to the fine-grained calls) replaces their desired
         state: a ``[*B, k]`` tensor when the tree has exactly one, or ``{name: goal}``.
         """
-        slots = self.__dict__.get("_goal_slot_cache")
-        if slots is None:
-            slots = tuple(self._goal_slots((), None))
-            self.__dict__["_goal_slot_cache"] = slots
-        return slots
+        return self._cached("_goal_slot_cache", lambda: tuple(self._goal_slots((), None)))
 
     def _resolve_goal(self, goal: object, state: torch.Tensor) -> dict[GoalSlot, torch.Tensor]:
         """Validate ``goal`` (a tensor or ``{name: tensor}``) and map it to the goal slots it fills."""
@@ -341,12 +337,12 @@ class Task(nn.Module):
     @property
     def memory_layout(self) -> MemoryLayout:
         """The keys of this task's memory (nested for the memory of sub-tasks), fixed by the task tree."""
-        layout = self.__dict__.get("_memory_layout")
-        if layout is None:
+
+        def probe_reset() -> MemoryLayout:
             probe = torch.zeros(1, self.state_size, dtype=self.state_low.dtype, device=self.state_low.device)
-            layout = memory_layout(self._reset(probe, {}))
-            self.__dict__["_memory_layout"] = layout
-        return layout
+            return memory_layout(self._reset(probe, {}))
+
+        return self._cached("_memory_layout", probe_reset)
 
     def _check_memory(self, state: torch.Tensor, memory: TensorDictBase) -> None:
         if not isinstance(memory, TensorDictBase):
@@ -391,23 +387,30 @@ class Task(nn.Module):
         if reward_on not in ("next", "state"):
             raise ValueError(f"reward_on must be 'next' or 'state', got {reward_on!r}")
 
-    def _static_facts(self) -> tuple[bool, bool, bool, bool, bool]:
-        """``(has named terms, reads remaining steps, pays a final reward, has costs, names its end conditions)``
-        of this task tree: cached."""
-        facts = self.__dict__.get("_facts")
-        if facts is None:
-            # named flags say more than success and failure only where a kind has two or more conditions
-            kinds = list(self.termination_names.values())
-            named_ends = kinds.count("success") > 1 or kinds.count("failure") > 1
-            facts = (
-                bool(self.term_names),
-                self.uses_remaining_steps,
-                self.pays_final_reward,
-                bool(self.cost_names),
-                named_ends,
-            )
-            self.__dict__["_facts"] = facts
-        return facts
+    @property
+    def facts(self) -> TaskFacts:
+        """What a caller needs to know about this task tree, by name (a :class:`TaskFacts`; computed once).
+
+        Example:
+            >>> from torchtasks.rewards import CompoundReward, ConstantReward
+            >>> from torchtasks.spaces import EnvSpec
+            >>> from torchtasks.tasks import GoallessTask
+            >>> task = GoallessTask(EnvSpec(1, 1), CompoundReward({"alive": ConstantReward(1.0)}))
+            >>> task.facts.has_terms, task.facts.pays_final_reward
+            (True, False)
+        """
+        return self._cached("_facts", self._derive_facts)
+
+    def _derive_facts(self) -> TaskFacts:
+        # named flags say more than success and failure only where a kind has two or more conditions
+        kinds = list(self.termination_names.values())
+        return TaskFacts(
+            has_terms=bool(self.term_names),
+            reads_remaining_steps=self.uses_remaining_steps,
+            pays_final_reward=self.pays_final_reward,
+            has_costs=bool(self.cost_names),
+            names_end_conditions=kinds.count("success") > 1 or kinds.count("failure") > 1,
+        )
 
     def _as_remaining(self, remaining_steps: int | torch.Tensor, state: torch.Tensor) -> torch.Tensor:
         if isinstance(remaining_steps, bool):
@@ -418,7 +421,7 @@ class Task(nn.Module):
                     f"remaining_steps must be >= 0 (the steps left before the time limit; 0 without a limit), "
                     f"got {remaining_steps}"
                 )
-            if not self._static_facts()[1]:  # nobody reads it: no tensor to build
+            if not self.facts.reads_remaining_steps:  # nobody reads it: no tensor to build
                 return self.no_remaining_steps
             return torch.tensor(remaining_steps, device=state.device)
         if not isinstance(remaining_steps, torch.Tensor):
@@ -651,7 +654,7 @@ class Task(nn.Module):
         memory = self.with_goal(memory, goal, state)
         remaining = self._as_remaining(remaining_steps, state)
         values = self._transition(state, action, next_state, memory, remaining, terminated, truncated, reward_on)
-        return TaskOutput(*values)
+        return TaskOutput(**values._asdict())
 
     forward = transition
 
@@ -666,24 +669,25 @@ class Task(nn.Module):
         truncated: torch.Tensor | None = None,
         reward_on: RewardOn = "next",
         with_terms: bool = True,
-    ) -> TransitionTuple:
+    ) -> Transition:
         """The one implementation of a transition, without checks (pure tensor code; compiles with fullgraph).
 
         ``with_terms=False`` skips the named terms (returned empty) where nobody reads them.
         """
+        facts = self.facts
         # the step reward sees next_state (and then the env's own termination of this transition, which
         # shaping treats as absorbing) or, in Pyrado's order, state (whose step does not end here)
         if reward_on == "next":
             source, step_terminated = next_state, terminated
         else:
             source, step_terminated = state, None
-        if with_terms and self._static_facts()[0]:
+        if with_terms and facts.has_terms:
             terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps, step_terminated)
         else:
             terms = {}
             step_reward, memory = self._step_reward(source, action, memory, remaining_steps, step_terminated)
         # costs: stateless functions of the state the step reward sees (and the action), never shaped or paid once
-        costs = self._step_costs(source, action) if self._static_facts()[3] else {}
+        costs = self._step_costs(source, action) if facts.has_costs else {}
         success = self._has_succeeded(next_state, memory)
         failure = self._has_failed(next_state, memory)
         ended = success | failure
@@ -694,14 +698,27 @@ class Task(nn.Module):
         # updates the memory, as success and failure were)
         ends = (
             self._termination_terms(next_state, memory, success, failure)
-            if with_terms and self._static_facts()[4]
+            if with_terms and facts.names_end_conditions
             else {}
         )
-        if not self._static_facts()[2]:  # no task of the tree pays a final reward: it is 0
-            final = torch.zeros_like(step_reward)
-            return step_reward, step_reward, final, success, failure, ended, done, memory, terms, costs, ends
-        final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
-        return step_reward + final, step_reward, final, success, failure, ended, done, memory, terms, costs, ends
+        if facts.pays_final_reward:
+            final, memory = self._final_reward(next_state, memory, remaining_steps, done, (success, failure))
+            reward = step_reward + final
+        else:  # no task of the tree pays a final reward: it is 0
+            final, reward = torch.zeros_like(step_reward), step_reward
+        return Transition(
+            reward=reward,
+            step_reward=step_reward,
+            final_reward=final,
+            success=success,
+            failure=failure,
+            terminated=ended,
+            done=done,
+            memory=memory,
+            terms=terms,
+            costs=costs,
+            ended_by=ends,
+        )
 
     # ------------------------------------------------------------------- implementation
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:

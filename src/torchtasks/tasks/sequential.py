@@ -113,11 +113,10 @@ class SequentialTasks(CompositeTask):
     @property
     def _keeps_progress(self) -> tuple[bool, ...]:
         """Per sub-task: whether its memory holds anything a start re-initialises (beyond kept entries)."""
-        flags = self.__dict__.get("_keeps_progress_cache")
-        if flags is None:
-            flags = tuple(bool(_leaf_paths(task.memory_layout) - set(task._kept_paths())) for task in self.tasks)
-            self.__dict__["_keeps_progress_cache"] = flags
-        return flags
+        return self._cached(
+            "_keeps_progress_cache",
+            lambda: tuple(bool(_leaf_paths(task.memory_layout) - set(task._kept_paths())) for task in self.tasks),
+        )
 
     @staticmethod
     def _restart(task: Task, state: torch.Tensor, memory: TensorDictBase) -> TensorDictBase:

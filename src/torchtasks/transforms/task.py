@@ -21,6 +21,7 @@ from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_
 from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
+from torchtasks.tasks.transition import Transition
 from torchtasks.transforms._base import EnvDerivedTransform
 
 __all__ = ["TaskTransform"]
@@ -338,7 +339,7 @@ class TaskTransform(EnvDerivedTransform):
         )
         # the named end conditions, written when a kind has two or more (else success and failure say it)
         names = task.termination_names
-        self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
+        self.termination_names = tuple(names) if log_terms and task.facts.names_end_conditions else ()
         self._ended_by_keys = [unravel_key((*key_parts(self.ended_by_key), n)) for n in self.termination_names]
         self.reward_on = reward_on
         self.log_terms = log_terms
@@ -910,13 +911,14 @@ class TaskTransform(EnvDerivedTransform):
             values.append((module, leaf, _frame_values(entry, module._buffers[leaf], batch, record)))
         return values
 
-    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple) -> tuple:
+    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple, batch: torch.Size) -> Transition:
         """Evaluate stored transitions; the task buffers the data records hold each frame's value for the call.
 
-        The values go into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the
-        buffers are put back afterwards; kernels take a constant with leading batch dims (one value per row).
+        ``arguments`` are those of :meth:`Task._transition` for the frames of batch shape ``batch``. The values go
+        into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the buffers are put back
+        afterwards; kernels take a constant with leading batch dims (one value per row).
         """
-        values = self._recorded_values(tensordict, arguments[0].shape[:-1])
+        values = self._recorded_values(tensordict, batch)
         if not values:
             return self._evaluator()(*arguments, self.log_terms)
         for module in self.task.modules():  # facts a task derives once (its memory layout probes a reset with its
@@ -936,13 +938,12 @@ class TaskTransform(EnvDerivedTransform):
         finally:
             for module, leaf, buffer in saved:
                 module._buffers[leaf] = buffer
-        batch = arguments[0].shape[:-1]
-        if outputs[0].shape != batch:
+        if outputs.reward.shape != batch:
             raise ValueError(
                 f"TaskTransform: with one value per frame of the recorded task buffers "
                 f"{[f'{type(m).__name__}.{leaf}' for m, leaf, _ in values]}, the task returned rewards of shape "
-                f"{list(outputs[0].shape)} for a batch {list(batch)}: a reward reads one of them without broadcasting "
-                "over leading batch dims"
+                f"{list(outputs.reward.shape)} for a batch {list(batch)}: a reward reads one of them without "
+                "broadcasting over leading batch dims"
             )
         return outputs
 
@@ -1014,34 +1015,33 @@ class TaskTransform(EnvDerivedTransform):
         remaining = self._remaining(next_tensordict, state, offline)
         arguments = (state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on)
         if offline:  # stored data: each frame with the values its step used for the buffers the data records
-            outputs = self._evaluate_recorded(tensordict, arguments)
+            outputs = self._evaluate_recorded(tensordict, arguments, state.shape[:-1])
         else:
             outputs = self._evaluator()(*arguments, self.log_terms)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = outputs
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
             stored = td_get(next_tensordict, self.reward_key)
             reward_dtype = state.dtype if stored is None else stored.dtype
         shape = done.shape
-        td_set(next_tensordict, self.reward_key, _as_entry(reward, shape, reward_dtype))
-        td_set(next_tensordict, self.success_key, success.reshape(shape))
-        td_set(next_tensordict, self.failure_key, failure.reshape(shape))
+        td_set(next_tensordict, self.reward_key, _as_entry(outputs.reward, shape, reward_dtype))
+        td_set(next_tensordict, self.success_key, outputs.success.reshape(shape))
+        td_set(next_tensordict, self.failure_key, outputs.failure.reshape(shape))
         if has_terminated:
-            td_set(next_tensordict, "terminated", terminated.reshape(shape))
-        td_set(next_tensordict, "done", done_now.reshape(shape))
+            td_set(next_tensordict, "terminated", outputs.terminated.reshape(shape))
+        td_set(next_tensordict, "done", outputs.done.reshape(shape))
         if (not offline if write_memory is None else write_memory) and self._has_memory:
-            td_set(next_tensordict, self.memory_key, memory)
+            td_set(next_tensordict, self.memory_key, outputs.memory)
         if not offline and self.achieved_goal_key is not None:
             td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
         if self.log_terms:
-            values = [step_reward, final] if self._writes_step_final else []
-            values += [terms[name] for name in self._term_names]
+            values = [outputs.step_reward, outputs.final_reward] if self._writes_step_final else []
+            values += [outputs.terms[name] for name in self._term_names]
             for key, value in zip(self._term_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
         for name, key in zip(self.termination_names, self._ended_by_keys, strict=True):
-            td_set(next_tensordict, key, ends[name].reshape(shape))
+            td_set(next_tensordict, key, outputs.ended_by[name].reshape(shape))
         if self.cost_names:
-            values = [costs[name] for name in self.cost_names]
+            values = [outputs.costs[name] for name in self.cost_names]
             td_set(next_tensordict, self.cost_key, torch.stack(values, -1).to(reward_dtype))
             for key, value in zip(self._cost_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))

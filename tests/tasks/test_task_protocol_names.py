@@ -1,0 +1,139 @@
+"""What crosses the wall between a task and its callers is named: ``Transition`` and ``Task.facts``.
+
+``Task._transition`` (the function ``TaskTransform`` runs online, offline and compiled) returns a
+``Transition`` named tuple whose fields are those of the public ``TaskOutput``, equal to it field by
+field, also when compiled with ``fullgraph=True``. ``Task.facts`` names what the transform needs to know
+about a tree; the expected facts of every case are written here by hand from the way the case is built.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+
+import pytest
+import torch
+from tensordict import TensorDictBase
+
+from task_trees import all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
+from torchtasks.rewards import StateFunctionReward, VelocityReward
+from torchtasks.tasks import ConstrainedTask, Constraint, Task
+from torchtasks.tasks.output import TaskOutput
+from torchtasks.tasks.transition import TaskFacts, Transition
+
+
+def _constrained_cases() -> dict[str, Callable[[], Task]]:
+    cases = class_cases()
+    return {
+        "constrained_final_time": lambda: ConstrainedTask(
+            cases["final_state_time"](), {"effort": Constraint(VelocityReward(1.0, index=1), limit=1.0)}
+        ),
+        "constrained_ant": lambda: ConstrainedTask(
+            cases["goalless_ant"](), {"first": StateFunctionReward(lambda s: s[..., 0], negate=False)}
+        ),
+    }
+
+
+CASES = {**all_task_cases(), **_constrained_cases()}
+
+# the cases for which a fact holds, read off the builders in task_trees.py and above
+HOLDS = {
+    # rewards with named terms: forward velocity (forward, ctrl), Ant (forward, ctrl, healthy, contact), shaping
+    "has_terms": {
+        "goalless_forward_velocity",
+        "goalless_ant",
+        "final_state_goalless",
+        "shaping_goal",
+        "shaping_final",
+        "shaping_walk",
+        "constrained_ant",
+    },
+    # final rewards with FinalRewardMode(time_dependent=True)
+    "reads_remaining_steps": {
+        "final_state_time",
+        "final_positive_time",
+        "nested_sequential_masked",
+        "shaping_final",
+        "constrained_final_time",
+    },
+    # a FinalRewardTask or BestStateFinalRewardTask somewhere in the tree
+    "pays_final_reward": {
+        "final_default",
+        "final_state_time",
+        "final_state_goalless",
+        "final_negative_state",
+        "final_positive_time",
+        "best_state",
+        "nested_parallel_sequential",
+        "nested_sequential_masked",
+        "shaping_final",
+        "constrained_final_time",
+    },
+    "has_costs": {"constrained_final_time", "constrained_ant"},
+    # Ant with terminate_when_unhealthy: two failures (out of bounds, unhealthy)
+    "names_end_conditions": {"goalless_ant", "constrained_ant"},
+}
+
+
+def _arguments(task: Task) -> tuple:
+    draws = random_transitions(task, torch.Generator().manual_seed(3), 1, 6)
+    state, next_state = draws["states"][0], draws["states"][1]
+    remaining = draws["remaining"][0] if task.uses_remaining_steps else task.no_remaining_steps
+    memory = task.reset(state)
+    return state, draws["actions"][0], next_state, memory, remaining, draws["terminated"][0], draws["truncated"][0]
+
+
+def _assert_same_field(name: str, got: object, want: object, what: str) -> None:
+    if isinstance(want, TensorDictBase):
+        assert_memory_equal(got, want, f"{what}.{name}")
+    elif isinstance(want, dict):
+        assert isinstance(got, dict) and list(got) == list(want), f"{what}.{name}: {list(got)} != {list(want)}"
+        for key in want:
+            assert_same(got[key], want[key], f"{what}.{name}[{key!r}]")
+    else:
+        assert_same(got, want, f"{what}.{name}")
+
+
+def test_the_transition_fields_are_the_task_output_fields() -> None:
+    assert Transition._fields == tuple(field.name for field in dataclasses.fields(TaskOutput))
+    assert TaskFacts._fields == (
+        "has_terms",
+        "reads_remaining_steps",
+        "pays_final_reward",
+        "has_costs",
+        "names_end_conditions",
+    )
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_transition_is_named_and_is_what_transition_returns(case: str) -> None:
+    task = CASES[case]().double()
+    state, action, next_state, memory, remaining, terminated, truncated = _arguments(task)
+    values = task._transition(state, action, next_state, memory, remaining, terminated, truncated)
+    out = task.transition(state, action, next_state, memory, remaining, terminated=terminated, truncated=truncated)
+    assert type(values) is Transition
+    for name in Transition._fields:
+        _assert_same_field(name, getattr(values, name), getattr(out, name), case)
+    assert bool(values.costs) == (case in HOLDS["has_costs"])
+    assert bool(values.ended_by) == (case in HOLDS["names_end_conditions"])
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_facts_name_what_the_tree_is(case: str) -> None:
+    task = CASES[case]()
+    facts = task.facts
+    assert type(facts) is TaskFacts
+    assert facts._asdict() == {name: case in cases for name, cases in HOLDS.items()}
+    assert task.facts is facts  # computed once
+
+
+@pytest.mark.parametrize("case", ["goalless_ant", "shaping_final", "constrained_final_time"])
+def test_the_compiled_transition_returns_the_named_tuple(case: str) -> None:
+    torch._dynamo.reset()
+    task = CASES[case]().double()
+    arguments = _arguments(task)
+    want = task._transition(*arguments)
+    got = torch.compile(task._transition, fullgraph=True, backend="eager")(*arguments)
+    assert type(got) is Transition
+    for name in Transition._fields:
+        _assert_same_field(name, getattr(got, name), getattr(want, name), f"compiled {case}")
