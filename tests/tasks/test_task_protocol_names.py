@@ -4,6 +4,8 @@
 ``Transition`` named tuple whose fields are those of the public ``TaskOutput``, equal to it field by
 field, also when compiled with ``fullgraph=True``. ``Task.facts`` names what the transform needs to know
 about a tree; the expected facts of every case are written here by hand from the way the case is built.
+Whether a tree pays a final reward follows the classes that define one (a wrapper's own combination of
+final rewards is not one).
 """
 
 from __future__ import annotations
@@ -16,8 +18,9 @@ import torch
 from tensordict import TensorDictBase
 
 from task_trees import all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
-from torchtasks.rewards import StateFunctionReward, VelocityReward
-from torchtasks.tasks import ConstrainedTask, Constraint, Task
+from torchtasks.rewards import ConstantReward, StateFunctionReward, VelocityReward
+from torchtasks.spaces import EnvSpec
+from torchtasks.tasks import ConstrainedTask, Constraint, FinalRewardTask, GoallessTask, Task, TaskWrapper
 from torchtasks.tasks.output import TaskOutput
 from torchtasks.tasks.transition import TaskFacts, Transition
 
@@ -137,3 +140,39 @@ def test_the_compiled_transition_returns_the_named_tuple(case: str) -> None:
     assert type(got) is Transition
     for name in Transition._fields:
         _assert_same_field(name, getattr(got, name), getattr(want, name), f"compiled {case}")
+
+
+class _PaysInWrapper(TaskWrapper):
+    def _compute_final_reward(self, state, memory, remaining_steps, done, flags=None):
+        return torch.where(done, 1.0, 0.0).to(state.dtype), memory
+
+
+class _OwnFinalWrapper(TaskWrapper):
+    def _final_reward(self, state, memory, remaining_steps, done, flags=None):
+        return super()._final_reward(state, memory, remaining_steps, done, flags)
+
+
+class _OwnFinalLeaf(GoallessTask):
+    def _final_reward(self, state, memory, remaining_steps, done, flags=None):
+        return torch.where(done, 2.0, 0.0).to(state.dtype), memory
+
+
+def _leaf() -> GoallessTask:
+    return GoallessTask(EnvSpec(2, 1), ConstantReward(1.0))
+
+
+@pytest.mark.parametrize(
+    ("build", "pays"),
+    [
+        (lambda: TaskWrapper(_leaf()), False),  # a wrapper's own combination pays nothing by itself
+        (lambda: TaskWrapper(TaskWrapper(_leaf())), False),
+        (lambda: _PaysInWrapper(_leaf()), True),
+        (lambda: _OwnFinalWrapper(_leaf()), True),
+        (lambda: TaskWrapper(FinalRewardTask(_leaf())), True),
+        (lambda: _OwnFinalLeaf(EnvSpec(2, 1), ConstantReward(1.0)), True),
+        (lambda: TaskWrapper(_OwnFinalLeaf(EnvSpec(2, 1), ConstantReward(1.0))), True),
+    ],
+)
+def test_a_task_pays_a_final_reward_when_some_class_of_the_tree_defines_one(build: Callable[[], Task], pays: bool):
+    task = build()
+    assert task.pays_final_reward is pays and task.facts.pays_final_reward is pays

@@ -262,15 +262,22 @@ class Task(nn.Module):
     def pays_final_reward(self) -> bool:
         """Whether any task of this tree can pay a final reward (else ``final_reward`` is always 0).
 
-        A task pays one when it defines its own ``_compute_final_reward`` (or its own ``_final_reward``);
-        a task that only forwards its children's (a mask, a composite) says so by overriding this property.
+        A task pays one when it defines its own ``_compute_final_reward`` (or its own ``_final_reward``,
+        see :meth:`_pays_own_final_reward`); a task that only forwards its children's (a mask, a composite)
+        says so by overriding this property.
+        """
+        return self._pays_own_final_reward() or any(child.pays_final_reward for child in self.children_tasks())
+
+    def _pays_own_final_reward(self) -> bool:
+        """Whether this task's class defines a final reward of its own (its children's aside).
+
+        A class that overrides ``_final_reward`` to combine its own ``_compute_final_reward`` with its
+        children's (a wrapper) overrides this method to look past its combination.
         """
         cls = type(self)
-        own = cls._compute_final_reward is not Task._compute_final_reward or cls._final_reward not in (
-            Task._final_reward,
-            TaskWrapper._final_reward,
+        return (
+            cls._compute_final_reward is not Task._compute_final_reward or cls._final_reward is not Task._final_reward
         )
-        return own or any(child.pays_final_reward for child in self.children_tasks())
 
     def all_reset_keys(self) -> set[str]:
         """Names of the reset overrides understood anywhere in this task tree."""
@@ -900,6 +907,14 @@ class TaskWrapper(Task):
 
     def _is_done(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return self.wrapped_task._is_done(state, read(memory, "wrapped"))
+
+    def _pays_own_final_reward(self) -> bool:
+        # this class's _final_reward adds the wrapper's own _compute_final_reward to the wrapped task's
+        cls = type(self)
+        return (
+            cls._compute_final_reward is not Task._compute_final_reward
+            or cls._final_reward is not TaskWrapper._final_reward
+        )
 
     def _final_reward(
         self,
