@@ -5,18 +5,25 @@
 field, also when compiled with ``fullgraph=True``. ``Task.facts`` names what the transform needs to know
 about a tree; the expected facts of every case are written here by hand from the way the case is built.
 Whether a tree pays a final reward follows the classes that define one (a wrapper's own combination of
-final rewards is not one).
+final rewards is not one). The modules of ``torchtasks.tasks`` import downwards only: the protocol
+(``protocol.py``) knows neither its wrappers nor any task built on it, and ``tasks.base`` is only the
+old path, re-exporting.
 """
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import graphlib
 from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 import torch
 from tensordict import TensorDictBase
 
+import torchtasks.tasks
+import torchtasks.tasks.base
 from task_trees import all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
 from torchtasks.rewards import ConstantReward, StateFunctionReward, VelocityReward
 from torchtasks.spaces import EnvSpec
@@ -176,3 +183,48 @@ def _leaf() -> GoallessTask:
 def test_a_task_pays_a_final_reward_when_some_class_of_the_tree_defines_one(build: Callable[[], Task], pays: bool):
     task = build()
     assert task.pays_final_reward is pays and task.facts.pays_final_reward is pays
+
+
+# ------------------------------------------------------------------------------ the layout of tasks/
+TASKS_DIR = Path(torchtasks.tasks.__file__).parent
+PACKAGE_DIR = TASKS_DIR.parent
+
+
+def _torchtasks_imports(path: Path) -> set[str]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    found = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("torchtasks"):
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names if alias.name.startswith("torchtasks"))
+    return found
+
+
+def test_the_task_modules_import_downwards_without_a_circle() -> None:
+    modules = {path.stem for path in TASKS_DIR.glob("*.py")} - {"__init__", "base"}  # base: the old path
+    graph = {
+        name: {
+            module.rsplit(".", 1)[1]
+            for module in _torchtasks_imports(TASKS_DIR / f"{name}.py")
+            if module.startswith("torchtasks.tasks.")
+        }
+        for name in modules
+    }
+    order = list(graphlib.TopologicalSorter(graph).static_order())  # CycleError on a circle
+    assert set(order) >= modules
+    # the protocol knows its argument checks and what it returns, never a task built on it
+    assert graph["protocol"] == {"_validation", "goals", "memory", "output", "transition"}
+    assert graph["wrapper"] == {"memory", "protocol"}
+    assert graph["_validation"] == {"memory"} and graph["transition"] == set()
+
+
+def test_the_package_imports_the_tasks_from_their_modules_and_the_old_path_re_exports_them() -> None:
+    users = sorted(
+        str(path.relative_to(PACKAGE_DIR))
+        for path in PACKAGE_DIR.rglob("*.py")
+        if path != TASKS_DIR / "base.py" and "torchtasks.tasks.base" in _torchtasks_imports(path)
+    )
+    assert users == []
+    for name in ("Task", "TaskWrapper", "ForwardingTask", "TaskOutput", "all_tasks"):
+        assert getattr(torchtasks.tasks.base, name) is getattr(torchtasks.tasks, name), name

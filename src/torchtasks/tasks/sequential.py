@@ -11,10 +11,10 @@ from tensordict import TensorDictBase
 
 from torchtasks._checks import check_int
 from torchtasks._memory import copy_entries, read
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.goals import replace_entry
 from torchtasks.tasks.memory import MemoryLayout, make_memory
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["SequentialTasks"]
 

@@ -16,7 +16,7 @@ class Transition(NamedTuple):
     The unchecked twin of :class:`~torchtasks.tasks.TaskOutput` (same fields, same meaning): a named tuple, so
     building it costs what a tuple costs and ``torch.compile(fullgraph=True)`` traces it. Read it by name.
 
-    Attributes:
+    Fields:
         reward: ``step_reward + final_reward``, ``[*B]``.
         step_reward: the step reward, ``[*B]``.
         final_reward: the one-off final reward, ``[*B]`` (zeros when no task of the tree pays one).
@@ -60,7 +60,7 @@ class TaskFacts(NamedTuple):
     Fixed by the tree's structure at construction; :attr:`Task.facts <torchtasks.tasks.Task.facts>` computes
     them once and caches them, since the per-step path reads them to skip work nobody needs.
 
-    Attributes:
+    Fields:
         has_terms: the step reward has named terms (:attr:`~torchtasks.tasks.Task.term_names` is not empty).
         reads_remaining_steps: some task of the tree reads ``remaining_steps``
             (:attr:`~torchtasks.tasks.Task.uses_remaining_steps`).

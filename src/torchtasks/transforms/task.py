@@ -18,9 +18,9 @@ from torchrl.envs.utils import make_composite_from_td
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
 from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
+from torchtasks.tasks.protocol import Task
 from torchtasks.tasks.transition import Transition
 from torchtasks.transforms._base import EnvDerivedTransform
 
