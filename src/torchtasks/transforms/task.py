@@ -87,6 +87,17 @@ class RecordedValue(NamedTuple):
     row_shape: torch.Size | None
 
 
+class TimeLimit(NamedTuple):
+    """The time limit a :class:`TaskTransform` derives from the env it is in (see ``TaskTransform._time_limit``)."""
+
+    #: the limit for the remaining steps (None: no limit, or a task tree that does not read them)
+    max_steps: int | None
+    #: the entry holding the step count (that of the StepCounter with the limit)
+    step_count_key: NestedKey
+    #: whether a StepCounter of the env truncates at ``max_steps`` (else the step counts met are checked)
+    enforced: bool
+
+
 def buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
     """The module holding the buffer ``name`` of ``task.named_buffers()`` and the buffer's name in it.
 
@@ -412,8 +423,9 @@ class TaskTransform(EnvDerivedTransform):
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
 
-    def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
-        """Return ``(max_steps, step_count_key, enforced)`` for the env the transform is in now.
+    def _time_limit(self, observation_spec: Composite | None = None) -> TimeLimit:
+        """Return the :class:`TimeLimit` (``max_steps``, ``step_count_key``, ``enforced``) of the env the transform
+        is in now.
 
         ``max_steps`` is the explicit one or that of the first ``StepCounter`` with a limit preceding this
         transform (in its Compose, or in a TransformedEnv it wraps); ``enforced`` says whether that
@@ -450,7 +462,7 @@ class TaskTransform(EnvDerivedTransform):
                     f"{counter.max_steps}) precedes it. Leave max_steps out (the transform reads the StepCounter's "
                     "limit) or remove the StepCounter's limit."
                 )
-            return None, step_count_key, False
+            return TimeLimit(None, step_count_key, enforced=False)
         if max_steps is None:
             if counter is not None:
                 max_steps, step_count_key = counter.max_steps, counter.step_count_key
@@ -476,7 +488,7 @@ class TaskTransform(EnvDerivedTransform):
                 "Pass TaskTransform(..., max_steps=<the env's limit>), or put StepCounter(max_steps) before "
                 "TaskTransform in the same Compose."
             )
-        return max_steps, step_count_key, counter is not None
+        return TimeLimit(max_steps, step_count_key, enforced=counter is not None)
 
     def _preceding_transforms(self) -> list[tuple[Transform, bool]]:
         """The transforms that run before this one in its env, each with whether it sits in a wrapped env.
@@ -561,7 +573,7 @@ class TaskTransform(EnvDerivedTransform):
             stacklevel=2,
         )
 
-    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
+    def _setup(self, observation_spec: Composite | None = None) -> TimeLimit:
         """Derive the time limit for the current container and store what the step reads (at spec building).
 
         Given the observation spec (spec building), also check the transforms before this one: a
@@ -575,7 +587,7 @@ class TaskTransform(EnvDerivedTransform):
                 self._warn_no_time_limit(max_steps)
         # the step computes the remaining steps only for a task tree that reads them and a known limit;
         # a limit no StepCounter enforces (given as max_steps) is checked against the step counts it meets
-        limit = (max_steps if self._uses_remaining else None, step_count_key, enforced)
+        limit = TimeLimit(max_steps if self._uses_remaining else None, step_count_key, enforced)
         self.__dict__["_limit"] = limit
         return limit
 
@@ -590,7 +602,7 @@ class TaskTransform(EnvDerivedTransform):
 
         Read from the env the transform is in now (nothing is frozen by reading it).
         """
-        return self._time_limit()[0]
+        return self._time_limit().max_steps
 
     # ------------------------------------------------------------------------- specs
     def _state_spec_size(self, observation_spec: Composite) -> tuple[int, torch.dtype, torch.Size]:
@@ -899,7 +911,7 @@ class TaskTransform(EnvDerivedTransform):
         for name, record in records.items():
             entry = td_get(tensordict, record.key)
             if entry is None:
-                owner = in_env[name][1]
+                _, owner = in_env[name]
                 raise ValueError(
                     f"TaskTransform: the data lacks {record.key!r}, the value of the task buffer {name!r} that the "
                     f"env's {owner} sets at every step; recomputing with its value of today would pay rewards no step "
@@ -1110,7 +1122,7 @@ class TaskTransform(EnvDerivedTransform):
         limit = self.__dict__.get("_limit")
         if limit is None:
             limit = self._setup()
-        if self._uses_remaining and limit[0] is None and "step_count" in next_tensordict.keys():
+        if self._uses_remaining and limit.max_steps is None and "step_count" in next_tensordict.keys():
             raise ValueError(
                 f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final "
                 "reward) and the data holds ('next', 'step_count'), but max_steps is not known: outside an env "
