@@ -18,9 +18,10 @@ from torchrl.envs.utils import make_composite_from_td
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
 from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.transition import Transition
 from torchtasks.transforms._base import EnvDerivedTransform
 
 __all__ = ["TaskTransform"]
@@ -84,6 +85,17 @@ class RecordedValue(NamedTuple):
     #: the shape of one env's value for a buffer holding one value per env (``[*B_env, *row_shape]``, set by
     #: levels); ``None`` for a value shared by all envs (a schedule's value: the buffer's shape, or a scalar)
     row_shape: torch.Size | None
+
+
+class TimeLimit(NamedTuple):
+    """The time limit a :class:`TaskTransform` derives from the env it is in (see ``TaskTransform._time_limit``)."""
+
+    #: the limit for the remaining steps (None: no limit, or a task tree that does not read them)
+    max_steps: int | None
+    #: the entry holding the step count (that of the StepCounter with the limit)
+    step_count_key: NestedKey
+    #: whether a StepCounter of the env truncates at ``max_steps`` (else the step counts met are checked)
+    enforced: bool
 
 
 def buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
@@ -338,7 +350,7 @@ class TaskTransform(EnvDerivedTransform):
         )
         # the named end conditions, written when a kind has two or more (else success and failure say it)
         names = task.termination_names
-        self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
+        self.termination_names = tuple(names) if log_terms and task.facts.names_end_conditions else ()
         self._ended_by_keys = [unravel_key((*key_parts(self.ended_by_key), n)) for n in self.termination_names]
         self.reward_on = reward_on
         self.log_terms = log_terms
@@ -411,8 +423,9 @@ class TaskTransform(EnvDerivedTransform):
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
 
-    def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
-        """Return ``(max_steps, step_count_key, enforced)`` for the env the transform is in now.
+    def _time_limit(self, observation_spec: Composite | None = None) -> TimeLimit:
+        """Return the :class:`TimeLimit` (``max_steps``, ``step_count_key``, ``enforced``) of the env the transform
+        is in now.
 
         ``max_steps`` is the explicit one or that of the first ``StepCounter`` with a limit preceding this
         transform (in its Compose, or in a TransformedEnv it wraps); ``enforced`` says whether that
@@ -449,7 +462,7 @@ class TaskTransform(EnvDerivedTransform):
                     f"{counter.max_steps}) precedes it. Leave max_steps out (the transform reads the StepCounter's "
                     "limit) or remove the StepCounter's limit."
                 )
-            return None, step_count_key, False
+            return TimeLimit(None, step_count_key, enforced=False)
         if max_steps is None:
             if counter is not None:
                 max_steps, step_count_key = counter.max_steps, counter.step_count_key
@@ -475,7 +488,7 @@ class TaskTransform(EnvDerivedTransform):
                 "Pass TaskTransform(..., max_steps=<the env's limit>), or put StepCounter(max_steps) before "
                 "TaskTransform in the same Compose."
             )
-        return max_steps, step_count_key, counter is not None
+        return TimeLimit(max_steps, step_count_key, enforced=counter is not None)
 
     def _preceding_transforms(self) -> list[tuple[Transform, bool]]:
         """The transforms that run before this one in its env, each with whether it sits in a wrapped env.
@@ -560,7 +573,7 @@ class TaskTransform(EnvDerivedTransform):
             stacklevel=2,
         )
 
-    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
+    def _setup(self, observation_spec: Composite | None = None) -> TimeLimit:
         """Derive the time limit for the current container and store what the step reads (at spec building).
 
         Given the observation spec (spec building), also check the transforms before this one: a
@@ -574,7 +587,7 @@ class TaskTransform(EnvDerivedTransform):
                 self._warn_no_time_limit(max_steps)
         # the step computes the remaining steps only for a task tree that reads them and a known limit;
         # a limit no StepCounter enforces (given as max_steps) is checked against the step counts it meets
-        limit = (max_steps if self._uses_remaining else None, step_count_key, enforced)
+        limit = TimeLimit(max_steps if self._uses_remaining else None, step_count_key, enforced)
         self.__dict__["_limit"] = limit
         return limit
 
@@ -589,7 +602,7 @@ class TaskTransform(EnvDerivedTransform):
 
         Read from the env the transform is in now (nothing is frozen by reading it).
         """
-        return self._time_limit()[0]
+        return self._time_limit().max_steps
 
     # ------------------------------------------------------------------------- specs
     def _state_spec_size(self, observation_spec: Composite) -> tuple[int, torch.dtype, torch.Size]:
@@ -898,7 +911,7 @@ class TaskTransform(EnvDerivedTransform):
         for name, record in records.items():
             entry = td_get(tensordict, record.key)
             if entry is None:
-                owner = in_env[name][1]
+                _, owner = in_env[name]
                 raise ValueError(
                     f"TaskTransform: the data lacks {record.key!r}, the value of the task buffer {name!r} that the "
                     f"env's {owner} sets at every step; recomputing with its value of today would pay rewards no step "
@@ -910,13 +923,14 @@ class TaskTransform(EnvDerivedTransform):
             values.append((module, leaf, _frame_values(entry, module._buffers[leaf], batch, record)))
         return values
 
-    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple) -> tuple:
+    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple, batch: torch.Size) -> Transition:
         """Evaluate stored transitions; the task buffers the data records hold each frame's value for the call.
 
-        The values go into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the
-        buffers are put back afterwards; kernels take a constant with leading batch dims (one value per row).
+        ``arguments`` are those of :meth:`Task._transition` for the frames of batch shape ``batch``. The values go
+        into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the buffers are put back
+        afterwards; kernels take a constant with leading batch dims (one value per row).
         """
-        values = self._recorded_values(tensordict, arguments[0].shape[:-1])
+        values = self._recorded_values(tensordict, batch)
         if not values:
             return self._evaluator()(*arguments, self.log_terms)
         for module in self.task.modules():  # facts a task derives once (its memory layout probes a reset with its
@@ -936,13 +950,12 @@ class TaskTransform(EnvDerivedTransform):
         finally:
             for module, leaf, buffer in saved:
                 module._buffers[leaf] = buffer
-        batch = arguments[0].shape[:-1]
-        if outputs[0].shape != batch:
+        if outputs.reward.shape != batch:
             raise ValueError(
                 f"TaskTransform: with one value per frame of the recorded task buffers "
                 f"{[f'{type(m).__name__}.{leaf}' for m, leaf, _ in values]}, the task returned rewards of shape "
-                f"{list(outputs[0].shape)} for a batch {list(batch)}: a reward reads one of them without broadcasting "
-                "over leading batch dims"
+                f"{list(outputs.reward.shape)} for a batch {list(batch)}: a reward reads one of them without "
+                "broadcasting over leading batch dims"
             )
         return outputs
 
@@ -1014,34 +1027,33 @@ class TaskTransform(EnvDerivedTransform):
         remaining = self._remaining(next_tensordict, state, offline)
         arguments = (state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on)
         if offline:  # stored data: each frame with the values its step used for the buffers the data records
-            outputs = self._evaluate_recorded(tensordict, arguments)
+            outputs = self._evaluate_recorded(tensordict, arguments, state.shape[:-1])
         else:
             outputs = self._evaluator()(*arguments, self.log_terms)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = outputs
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
             stored = td_get(next_tensordict, self.reward_key)
             reward_dtype = state.dtype if stored is None else stored.dtype
         shape = done.shape
-        td_set(next_tensordict, self.reward_key, _as_entry(reward, shape, reward_dtype))
-        td_set(next_tensordict, self.success_key, success.reshape(shape))
-        td_set(next_tensordict, self.failure_key, failure.reshape(shape))
+        td_set(next_tensordict, self.reward_key, _as_entry(outputs.reward, shape, reward_dtype))
+        td_set(next_tensordict, self.success_key, outputs.success.reshape(shape))
+        td_set(next_tensordict, self.failure_key, outputs.failure.reshape(shape))
         if has_terminated:
-            td_set(next_tensordict, "terminated", terminated.reshape(shape))
-        td_set(next_tensordict, "done", done_now.reshape(shape))
+            td_set(next_tensordict, "terminated", outputs.terminated.reshape(shape))
+        td_set(next_tensordict, "done", outputs.done.reshape(shape))
         if (not offline if write_memory is None else write_memory) and self._has_memory:
-            td_set(next_tensordict, self.memory_key, memory)
+            td_set(next_tensordict, self.memory_key, outputs.memory)
         if not offline and self.achieved_goal_key is not None:
             td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
         if self.log_terms:
-            values = [step_reward, final] if self._writes_step_final else []
-            values += [terms[name] for name in self._term_names]
+            values = [outputs.step_reward, outputs.final_reward] if self._writes_step_final else []
+            values += [outputs.terms[name] for name in self._term_names]
             for key, value in zip(self._term_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
         for name, key in zip(self.termination_names, self._ended_by_keys, strict=True):
-            td_set(next_tensordict, key, ends[name].reshape(shape))
+            td_set(next_tensordict, key, outputs.ended_by[name].reshape(shape))
         if self.cost_names:
-            values = [costs[name] for name in self.cost_names]
+            values = [outputs.costs[name] for name in self.cost_names]
             td_set(next_tensordict, self.cost_key, torch.stack(values, -1).to(reward_dtype))
             for key, value in zip(self._cost_keys, values, strict=True):
                 td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
@@ -1110,7 +1122,7 @@ class TaskTransform(EnvDerivedTransform):
         limit = self.__dict__.get("_limit")
         if limit is None:
             limit = self._setup()
-        if self._uses_remaining and limit[0] is None and "step_count" in next_tensordict.keys():
+        if self._uses_remaining and limit.max_steps is None and "step_count" in next_tensordict.keys():
             raise ValueError(
                 f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final "
                 "reward) and the data holds ('next', 'step_count'), but max_steps is not known: outside an env "
