@@ -22,6 +22,7 @@ from torchtasks.tasks.base import Task
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, where_memory
 from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.names import CURRICULUM_KEY, target_name
 
 __all__ = ["TaskTransform"]
 
@@ -295,7 +296,7 @@ class TaskTransform(EnvDerivedTransform):
         cost_key: NestedKey = "cost",
         cost_terms_key: NestedKey = "task_cost",
         ended_by_key: NestedKey = "ended_by",
-        curriculum_key: NestedKey | None = "curriculum",
+        curriculum_key: NestedKey | None = CURRICULUM_KEY,
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -868,7 +869,7 @@ class TaskTransform(EnvDerivedTransform):
         buffers = dict(self.task.named_buffers())
         found = {}
         for name in node.keys():
-            buffer = buffers.get(name.replace("/", "."))
+            buffer = buffers.get(target_name(name))
             if buffer is None or not buffer.is_floating_point():
                 continue  # e.g. the frame count, the levels, a GoalCommand's range or an env field
             trailing, shape = node.get(name).shape[len(batch) :], buffer.shape
@@ -878,7 +879,7 @@ class TaskTransform(EnvDerivedTransform):
                 and shape[len(shape) - len(trailing) :] == trailing
             )
             record = RecordedValue(
-                name.replace("/", "."), (*key_parts(self.curriculum_key), name), trailing if per_env else None
+                target_name(name), (*key_parts(self.curriculum_key), name), trailing if per_env else None
             )
             found[record.buffer] = record
         return found
