@@ -74,7 +74,7 @@ class RecordedValue(NamedTuple):
     """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
 
     A :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` after the
-    :class:`TaskTransform` names these (``_recorded_task_values()``), and offline recomputation evaluates each
+    :class:`TaskTransform` names these (``recorded_task_values()``), and offline recomputation evaluates each
     frame with the value recorded for it, never with the buffer's value of today.
     """
 
@@ -851,7 +851,7 @@ class TaskTransform(EnvDerivedTransform):
         flat, position = home
         found = {}
         for transform in flat[position + 1 :]:
-            recorded = getattr(transform, "_recorded_task_values", None)
+            recorded = getattr(transform, "recorded_task_values", None)
             if recorded is not None:
                 found.update((record.buffer, (record, type(transform).__name__)) for record in recorded())
         return found
