@@ -17,6 +17,7 @@ from tensordict.utils import NestedKey
 
 from torchtasks._checks import check_int
 from torchtasks._torchrl import key_parts, keys_text, nested_key
+from torchtasks.transforms.names import CURRICULUM_KEY, FRAMES, LEVEL
 
 __all__ = ["episode_statistics"]
 
@@ -30,12 +31,8 @@ STEP_COUNT_KEY = "step_count"
 IS_INIT_KEY = "is_init"
 #: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
 EPISODE_SUM_PREFIX = "episode_"
-#: the Curriculum's frame count, under its curriculum_key
-CURRICULUM_FRAMES = "frames"
 #: prefix of the scheduled values in the returned dict
 CURRICULUM_PREFIX = "curriculum/"
-#: the per-env levels of a DifficultyLevels, under its curriculum_key
-CURRICULUM_LEVEL = "level"
 
 
 class _Frames:
@@ -148,7 +145,7 @@ def episode_statistics(
     terms_key: NestedKey | None = "task_reward",
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
-    curriculum_key: NestedKey | None = "curriculum",
+    curriculum_key: NestedKey | None = CURRICULUM_KEY,
     cost_terms_key: NestedKey | None = "task_cost",
     ended_by_key: NestedKey | None = "ended_by",
     cost_limits: Mapping[str, float] | None = None,
@@ -520,12 +517,12 @@ def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None)
     if frames.time_dim is not None and valid is None:  # rows of env frames: the last frame of every row
         latest = torch.arange(frames.rows) * frames.steps + frames.steps - 1
     else:  # flat, or rows of padded trajectories: the valid frames with the largest frame count
-        count = frames.get((*key, CURRICULUM_FRAMES))
+        count = frames.get((*key, FRAMES))
         if count is None:  # e.g. DifficultyLevels without a Curriculum: nothing tells which frames are the latest
             layout = "a flat batch" if frames.time_dim is None else "a padded batch (rows are trajectories, not envs)"
             raise ValueError(
                 f"episode_statistics: the entries ('next', *{key!r}) of {layout} are read at its latest frames, "
-                f"found by a Curriculum's frame count ('next', *{key!r}, {CURRICULUM_FRAMES!r}), which this batch "
+                f"found by a Curriculum's frame count ('next', *{key!r}, {FRAMES!r}), which this batch "
                 "does not hold; pass the batch time-major and unpadded ([*E, T], as a collector returns it with "
                 "split_trajs=False), add a Curriculum to the env, or pass curriculum_key=None to leave these "
                 "statistics out"
@@ -541,7 +538,7 @@ def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None)
         value = frames.get((*key, *name))
         value = value[latest.to(value.device)]
         stat = CURRICULUM_PREFIX + "/".join(name)
-        if name == (CURRICULUM_LEVEL,) and not value.is_floating_point():  # DifficultyLevels: one level per env
+        if name == (LEVEL,) and not value.is_floating_point():  # DifficultyLevels: one level per env
             schedule.update(_level_stats(value.reshape(-1), stat))
             continue
         value = value.to(torch.float64).mean(0).reshape(-1)  # mean over the envs, then one value per entry

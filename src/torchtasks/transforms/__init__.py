@@ -8,8 +8,13 @@
 - :class:`BaseEnvState`, :func:`collector_state`, :func:`load_collector_state` (:mod:`.checkpoint`): saving
   and resuming a run, episodes included.
 
+:mod:`.targets` is the one resolver of the values of the run (a name to a buffer of the task tree, a GoalCommand's
+range or the base env; the checks; the write) that curricula and levels share; :mod:`.names` spells the entries
+they write.
+
 The modules of the package import only from below it (rewards, tasks, spaces) and from one another in this
-order: ``_base``, ``seeding``, ``task``, ``command``, ``schedules``, ``curriculum``, ``levels``, ``checkpoint``.
+order: ``names``, ``_base``, ``seeding``, ``task``, ``command``, ``schedules``, ``targets``, ``curriculum``,
+``levels``, ``checkpoint``.
 The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.levels``,
 ``torchtasks.seeding``, ``torchtasks.checkpoint``) re-export the same objects.
 """

@@ -12,24 +12,20 @@ restores them on resume, with each schedule's definition (values, frames, thresh
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Hashable, Mapping
+from typing import Any, NamedTuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Composite, Unbounded
-from torchrl.envs.transforms import Transform
 
 from torchtasks._checked_load import CheckedLoad
-from torchtasks._checks import check_positive_int, did_you_mean
+from torchtasks._checks import check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import key_parts, nested_key
-from torchtasks.rewards import RewardFunction
-from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms._base import ResetWritingTransform
-from torchtasks.transforms.command import GoalCommand
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, entry_name
 from torchtasks.transforms.schedules import (
     GatedSchedule,
     Schedule,
@@ -38,19 +34,43 @@ from torchtasks.transforms.schedules import (
     schedule_kind,
     value_at,
 )
-from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owner
+from torchtasks.transforms.targets import (
+    Target,
+    TargetWriter,
+    check_in_goal_space,
+    check_low_not_above_high,
+    command_ranges,
+    resolve_targets,
+)
+from torchtasks.transforms.task import RecordedValue
 
 __all__ = ["Curriculum"]
 
-FRAMES = "frames"
-COMMAND = "command"  # the prefix of the targets that name buffers of the env's GoalCommand(s)
+
+class _Written(NamedTuple):
+    """What a step wrote last into one target (see :meth:`Curriculum._forget_written`)."""
+
+    #: the schedule's host state (a frame-driven schedule's fraction or stage)
+    state: Hashable
+    #: the buffer after the write, and its version counter then
+    buffer: torch.Tensor
+    buffer_version: int
+    #: the entry put in the data, and its version counter then
+    entry: torch.Tensor
+    entry_version: int
+    #: the batch of the data the entry was made for
+    batch: torch.Size
 
 
-def _entry_name(target: str) -> str:
-    return target.replace(".", "/")
+class _CountMirror(NamedTuple):
+    """The frame count as a Python int, with the ``frames`` buffer it mirrors and that buffer's version then."""
+
+    frames: torch.Tensor
+    version: int
+    count: int
 
 
-class Curriculum(CheckedLoad, ResetWritingTransform):
+class Curriculum(CheckedLoad, TargetWriter):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
@@ -138,7 +158,7 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
     """
 
     def __init__(
-        self, schedules: Mapping[str, Schedule], *, curriculum_key: NestedKey = "curriculum", workers: int = 1
+        self, schedules: Mapping[str, Schedule], *, curriculum_key: NestedKey = CURRICULUM_KEY, workers: int = 1
     ) -> None:
         if not isinstance(schedules, Mapping) or not schedules:
             raise TypeError(
@@ -155,7 +175,7 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         self.curriculum_key = nested_key(curriculum_key, "Curriculum: curriculum_key")
         self.workers = check_positive_int(workers, "Curriculum: workers")
         self.targets = tuple(schedules)
-        entries = [_entry_name(target) for target in self.targets]
+        entries = [entry_name(target) for target in self.targets]
         if FRAMES in entries:
             raise ValueError(f"Curriculum: a target may not be named {FRAMES!r}: that entry is the frame count")
         if len(set(entries)) < len(entries):
@@ -193,23 +213,23 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
     # data of earlier steps that hold it, e.g. until env.rollout stacks them, keep their values.
     def _forget_written(self) -> None:
         self.__dict__["_written"] = [None] * len(self.targets)
-        self.__dict__["_count_of"] = None  # (frames buffer, its version, count)
+        self.__dict__["_count_of"] = None  # a _CountMirror
 
     def _frame_count(self) -> int:
         """The frame count as a Python int, re-read from the ``frames`` buffer if anything but this wrote to it."""
         frames = self._buffers["frames"]
         mirror = self.__dict__["_count_of"]
-        if mirror is not None and mirror[0] is frames and mirror[1] == frames._version:
-            return mirror[2]
+        if mirror is not None and mirror.frames is frames and mirror.version == frames._version:
+            return mirror.count
         count = int(frames)  # a host copy: once after a load or a move, never in a step of a running collection
-        self.__dict__["_count_of"] = (frames, frames._version, count)
+        self.__dict__["_count_of"] = _CountMirror(frames, frames._version, count)
         return count
 
     def _add_frames(self, added: int) -> int:
         count = self._frame_count() + added
         frames = self._buffers["frames"]
         frames.fill_(count)
-        self.__dict__["_count_of"] = (frames, frames._version, count)
+        self.__dict__["_count_of"] = _CountMirror(frames, frames._version, count)
         return count
 
     def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
@@ -270,148 +290,51 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         return super()._apply(fn, *args, **kwargs)
 
     # ------------------------------------------------------------------ setup
-    def _flat(self) -> tuple[list[Transform], int]:
-        """The leaf transforms of the env and the Curriculum's position among them (for a clone in TorchRL's view of
-        a later transform's parent env, those of the env of the Curriculum it was cloned from, which holds the
-        GoalCommands it schedules)."""
-        home = self.home_transforms()
-        if home is None:
-            raise ValueError("Curriculum must sit in a TransformedEnv, after the TaskTransform whose task it schedules")
-        return home
-
-    def _task_transform(self) -> TaskTransform:
-        flat, position = self._flat()
-        tasks = [t for t in flat[:position] if isinstance(t, TaskTransform)]
-        if len(tasks) != 1:
-            after = any(isinstance(t, TaskTransform) for t in flat[position:])
-            raise ValueError(
-                f"Curriculum must come after exactly one TaskTransform in its env, found {len(tasks)} before it"
-                + (" (put Curriculum after TaskTransform in the Compose)" if after and not tasks else "")
-            )
-        return tasks[0]
-
-    def _command_slots(self) -> tuple[dict[str, tuple[nn.Module, str]], dict[str, list[str]], list[str]]:
-        """The command targets: ``{name: (GoalCommand, buffer name)}``, ``{ambiguous short name: choices}`` and the
-        names an error lists (the short ones with one GoalCommand, the qualified ones with several)."""
-        flat, _ = self._flat()
-        commands = [t for t in flat if isinstance(t, GoalCommand)]
-        names: dict[str, tuple[nn.Module, str]] = {}
-        ambiguous: dict[str, list[str]] = {}
-        for command in commands:
-            qualifier = "/".join(key_parts(command.goal_key))
-            for leaf, buffer in command.named_buffers(recurse=False):
-                if buffer.is_floating_point():
-                    names[f"{COMMAND}.{qualifier}.{leaf}"] = (command, leaf)
-                    ambiguous.setdefault(f"{COMMAND}.{leaf}", []).append(f"{COMMAND}.{qualifier}.{leaf}")
-        goal_keys = [command.goal_key for command in commands]
-        if len(set(goal_keys)) < len(goal_keys) and any(t.startswith(COMMAND + ".") for t in self.targets):
-            raise ValueError(
-                f"Curriculum: several GoalCommands of the env write the same goal key (goal keys {goal_keys}): their "
-                f"{COMMAND + '.'!r} targets cannot be told apart"
-            )
-        if len(commands) == 1:
-            names.update({short: names[full] for short, (full,) in ambiguous.items()})
-            return names, {}, sorted(ambiguous)
-        return names, ambiguous, sorted(choice for choices in ambiguous.values() for choice in choices)
-
-    def _resolve(self) -> list[tuple[nn.Module, str]]:
-        """Find each target buffer in the task tree or a GoalCommand (checked names, shapes and ranges).
-
-        Returns ``(module, buffer name)`` pairs, one per target.
-        """
-        task = self._task_transform().task
-        schedulable = {name: buffer for name, buffer in task.named_buffers() if buffer.is_floating_point()}
-        commands, ambiguous, listed = self._command_slots()
-        for target in self.targets:
-            if target in ambiguous:
-                raise ValueError(
-                    f"Curriculum: the target {target!r} is ambiguous: the env has several GoalCommands; name one of "
-                    f'{ambiguous[target]} ("{COMMAND}.<goal key>.<buffer>")'
-                )
-        unknown = [target for target in self.targets if target not in schedulable and target not in commands]
-        if unknown:
-            names = sorted(schedulable) + listed
-            raise ValueError(
-                f"Curriculum: unknown target {unknown[0]!r}{did_you_mean(unknown[0], names) or '.'} "
-                + (f"(Also unknown: {unknown[1:]}.) " if len(unknown) > 1 else "")
-                + f"It is not in the {type(task).__name__} tree or the env's GoalCommands; the schedulable names "
-                f"(float buffers of the task tree, and under {COMMAND + '.'!r} the sampling range of a GoalCommand) "
-                f"are {names}"
-            )
-        slots = []
-        for target, schedule in zip(self.targets, self.schedules.values(), strict=True):
-            if target in commands:
-                module, leaf = commands[target]
-            else:
-                module, leaf = buffer_owner(task, target)
-            expected, received = module._buffers[leaf].shape, schedule.value_shape
-            if received != torch.Size(()) and received != expected:
-                raise ValueError(
-                    f"Curriculum: the schedule of {target!r} has values of shape {tuple(received)}, but the target "
-                    f"has shape {tuple(expected)}; give values of shape {tuple(expected)} or scalars"
-                )
-            if isinstance(module, RewardFunction):  # the values its constructor would accept, at every breakpoint
-                for value in possible_values(schedule, module._buffers[leaf]):
-                    check_written_value(module, leaf, value.expand(expected), f"Curriculum: the schedule of {target!r}")
-            slots.append((module, leaf))
-        self._check_ranges(slots)
-        self.__dict__["_slots"] = slots
+    def _resolve(self) -> list[Target]:
+        """Resolve the targets in the env (names, shapes, every value a schedule can write), cached until it changes."""
+        schedules = list(self.schedules.values())
+        targets = resolve_targets(self, self.targets, [schedule.value_shape for schedule in schedules]).targets
+        for target, schedule in zip(targets, schedules, strict=True):  # as the reward's constructor would check them
+            target.check_values(possible_values(schedule, target.value), f"Curriculum: the schedule of {target.name!r}")
+        self._check_ranges(targets, schedules)
+        self.__dict__["_resolved"] = targets
         self._forget_written()
-        return slots
+        return targets
 
-    def _check_ranges(self, slots: list[tuple[nn.Module, str]]) -> None:
-        """Refuse a scheduled GoalCommand range that leaves its Box or has ``low > high``; check the command's order."""
-        flat, position = self._flat()
-        scheduled: dict[int, dict[str, tuple[str, Schedule]]] = {}
-        for target, (module, leaf), schedule in zip(self.targets, slots, self.schedules.values(), strict=True):
-            if isinstance(module, GoalCommand):
-                scheduled.setdefault(id(module), {})[leaf] = (target, schedule)
-        for command in (t for t in flat if isinstance(t, GoalCommand) and id(t) in scheduled):
-            bounds = scheduled[id(command)]
-            names = ", ".join(repr(target) for target, _ in bounds.values())
-            if flat.index(command) < position:
-                raise ValueError(
-                    f"Curriculum schedules {names} of the GoalCommand writing {command.goal_key!r}, which comes before "
-                    "it: put the Curriculum before that GoalCommand in the Compose (after the TaskTransform), so that "
-                    "the goal drawn in a step uses that step's range"
-                )
-            space_low = command.space.low.to(torch.float64)
-            space_high = command.space.high.to(torch.float64)
-            for leaf, (target, schedule) in bounds.items():
-                values = possible_values(schedule, command._buffers[leaf])
-                if ((values < space_low) | (values > space_high)).any():
-                    raise ValueError(
-                        f"Curriculum: the schedule of {target!r} leaves the GoalCommand's space (its goal spec, "
-                        f"low={space_low.tolist()}, high={space_high.tolist()}): its values at its breakpoints or "
-                        f"stages are {values.tolist()}; build the GoalCommand with a Box that holds the widest range"
+    def _check_ranges(self, targets: list[Target], schedules: list[Schedule]) -> None:
+        """Refuse a scheduled GoalCommand range that leaves its Box or has ``low > high``: at every breakpoint of
+        constant, linear and staged schedules (where their extremes lie), and every stage value of a gated schedule
+        against every value the other bound can take."""
+        for command, bounds in command_ranges(targets).items():
+            names = ", ".join(repr(targets[i].name) for i in bounds.values())
+            for i in bounds.values():
+                values = possible_values(schedules[i], targets[i].value)
+                label = f"Curriculum: the schedule of {targets[i].name!r}"
+                among = f"of its values at its breakpoints or stages, {values.tolist()}"
+                check_in_goal_space(targets[i], values, label, [f"its value {v} ({among})" for v in values.tolist()])
+            low = schedules[bounds["low"]] if "low" in bounds else None
+            high = schedules[bounds["high"]] if "high" in bounds else None
+            scheduled = f"Curriculum: the scheduled range {names} of the GoalCommand writing {command.goal_key!r}"
+            if not (isinstance(low, GatedSchedule) or isinstance(high, GatedSchedule)):
+                # both follow the frames only: compare them at every breakpoint of either
+                counts = sorted(set().union(*(breakpoint_frames(s) for s in (low, high) if s is not None)))
+                pairs = [
+                    (
+                        command.low if low is None else value_at(low, count),
+                        command.high if high is None else value_at(high, count),
                     )
-            low, high = bounds.get("low"), bounds.get("high")
-            low_schedule = None if low is None else low[1]
-            high_schedule = None if high is None else high[1]
-            gated = isinstance(low_schedule, GatedSchedule) or isinstance(high_schedule, GatedSchedule)
-            if not gated:  # both follow the frames only: compare them at every breakpoint of either
-                counts = set().union(*(breakpoint_frames(s) for s in (low_schedule, high_schedule) if s is not None))
-                for count in sorted(counts):
-                    low_value = command.low if low_schedule is None else value_at(low_schedule, count)
-                    high_value = command.high if high_schedule is None else value_at(high_schedule, count)
-                    low_value, high_value = low_value.to("cpu", torch.float64), high_value.to("cpu", torch.float64)
-                    if (low_value > high_value).any():
-                        raise ValueError(
-                            f"Curriculum: the scheduled range {names} of the GoalCommand writing "
-                            f"{command.goal_key!r} has low > high at frame {count}: low={low_value.tolist()}, "
-                            f"high={high_value.tolist()}"
-                        )
+                    for count in counts
+                ]
+                check_low_not_above_high(pairs, [f"{scheduled}, at frame {count}," for count in counts])
             else:  # a gated stage may be reached at any frame: every value of one bound against every one of the other
-                lows = possible_values(low_schedule, command.low)
-                highs = possible_values(high_schedule, command.high)
-                if (lows.amax(0) > highs.amin(0)).any():
-                    raise ValueError(
-                        f"Curriculum: the scheduled range {names} of the GoalCommand writing {command.goal_key!r} "
-                        f"can have low > high (a gated stage may be reached at any frame): low takes "
-                        f"{lows.tolist()}, high takes {highs.tolist()}"
-                    )
+                lows, highs = possible_values(low, command.low), possible_values(high, command.high)
+                gated = (
+                    f"{scheduled} (a gated stage may be reached at any frame: low takes {lows.tolist()}, high takes "
+                    f"{highs.tolist()}; the highest low against the lowest high)"
+                )
+                check_low_not_above_high([(lows.amax(0), highs.amin(0))], [gated])
 
-    def _recorded_task_values(self) -> list[RecordedValue]:
+    def recorded_task_values(self) -> list[RecordedValue]:
         """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by
         all envs); offline recomputation with the env's TaskTransform reads them (a GoalCommand's range needs none:
         the goal drawn is in the data)."""
@@ -421,17 +344,28 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
             if not target.startswith(COMMAND + ".")
         ]
 
-    def _get_slots(self) -> list[tuple[nn.Module, str]]:
-        slots = self.__dict__.get("_slots")
-        return self._resolve() if slots is None else slots
+    def written_targets(self) -> list[Target]:
+        """The targets this Curriculum writes, resolved in its env (``ValueError`` if one is refused).
+
+        Example:
+            >>> from torchrl.envs import Compose, TransformedEnv
+            >>> from torchtasks.envs import PendulumEnv, swing_up_task
+            >>> from torchtasks.transforms import Curriculum, TaskTransform, linear
+            >>> curriculum = Curriculum({"success_value": linear(0.0, 100.0, 0, 40)})
+            >>> env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(TaskTransform(swing_up_task()), curriculum))
+            >>> [(target.name, type(target.module).__name__, target.buffer) for target in curriculum.written_targets()]
+            [('success_value', 'FinalRewardTask', 'success_value')]
+        """
+        targets = self.__dict__.get("_resolved")
+        return self._resolve() if targets is None else targets
 
     def _forget_setup(self) -> None:
-        self.__dict__.pop("_slots", None)
+        self.__dict__.pop("_resolved", None)
         self._forget_written()
 
     # ------------------------------------------------------------------ specs
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        slots = self._resolve()
+        targets = self._resolve()
         batch, device = observation_spec.shape, observation_spec.device
         for key in self._metric_keys:
             if key not in observation_spec.keys(True, True):
@@ -440,10 +374,9 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
                     "Curriculum after the transform that writes it, e.g. the TaskTransform or a RewardSum)"
                 )
         observation_spec[self._frames_key] = Unbounded(shape=(*batch, 1), dtype=torch.int64, device=device)
-        for key, (module, leaf), schedule in zip(self._value_keys, slots, self.schedules.values(), strict=True):
+        for key, target, schedule in zip(self._value_keys, targets, self.schedules.values(), strict=True):
             shape = schedule.value_shape if schedule.value_shape != torch.Size(()) else torch.Size([1])
-            dtype = module._buffers[leaf].dtype
-            observation_spec[key] = Unbounded(shape=(*batch, *shape), dtype=dtype, device=device)
+            observation_spec[key] = Unbounded(shape=(*batch, *shape), dtype=target.value.dtype, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ TorchRL hooks
@@ -458,44 +391,40 @@ class Curriculum(CheckedLoad, ResetWritingTransform):
         batch = tensordict.batch_size
         frames = self._buffers["frames"]
         entries = {FRAMES: torch.full((*batch, 1), count, dtype=torch.int64, device=frames.device)}
-        slots = self.__dict__.get("_slots")
-        if slots is None:
-            slots = self._resolve()
+        targets = self.__dict__.get("_resolved")
+        if targets is None:
+            targets = self._resolve()
         written = self.__dict__["_written"]
-        for i, ((name, shape, schedule), (module, leaf)) in enumerate(zip(self.__dict__["_plan"], slots, strict=True)):
-            buffer = module._buffers[leaf]
+        for i, ((name, shape, schedule), target) in enumerate(zip(self.__dict__["_plan"], targets, strict=True)):
+            buffer = target.module._buffers[target.buffer]
             state = schedule._state_at(count)
             last = written[i]
             if (
                 state is not None
                 and last is not None
-                and last[0] == state
-                and last[1] is buffer
-                and last[2] == buffer._version
-                and last[3]._version == last[4]
-                and last[5] == batch
+                and last.state == state
+                and last.buffer is buffer
+                and last.buffer_version == buffer._version
+                and last.entry._version == last.entry_version
+                and last.batch == batch
             ):
-                entries[name] = last[3]  # the same value: the entry of the last write
+                entries[name] = last.entry  # the same value: the entry of the last write
                 continue
             value = schedule(frames) if state is None else schedule._value_of(state)
             if isinstance(value, list):
                 value = torch.tensor(value, dtype=buffer.dtype, device=buffer.device)
             if isinstance(value, float):  # a frame-driven value of one element, on the host
-                if replace:
-                    buffer = module._buffers[leaf] = torch.full_like(buffer, value)
-                else:
-                    buffer.fill_(value)
+                buffer = target.write(value, replace=replace)
                 entry = torch.full((*batch, *shape), value, dtype=buffer.dtype, device=buffer.device)
             else:
                 if value.dtype != buffer.dtype or value.device != buffer.device:
                     value = value.to(device=buffer.device, dtype=buffer.dtype)
-                if replace:
-                    buffer = module._buffers[leaf] = value.expand_as(buffer).clone()
-                else:
-                    buffer.copy_(value)
+                buffer = target.write(value, replace=replace)
                 entry = value.expand(*batch, *shape).clone()
             entries[name] = entry
-            written[i] = None if state is None else (state, buffer, buffer._version, entry, entry._version, batch)
+            written[i] = (
+                None if state is None else _Written(state, buffer, buffer._version, entry, entry._version, batch)
+            )
         self._put(tensordict, batch, entries)
         return tensordict
 

@@ -26,25 +26,27 @@ from torch import nn
 from torchrl.data import Bounded, Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
-from torchtasks._checks import check_non_negative_int, check_positive_int, did_you_mean
+from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
-from torchtasks.rewards import RewardFunction
-from torchtasks.rewards.base import check_written_value
-from torchtasks.transforms._base import ResetWritingTransform
-from torchtasks.transforms.command import GoalCommand
-from torchtasks.transforms.curriculum import Curriculum
-from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owner
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, ENV, FRAMES, LEVEL, entry_name
+from torchtasks.transforms.targets import (
+    Target,
+    TargetWriter,
+    check_in_goal_space,
+    check_low_not_above_high,
+    check_one_owner,
+    command_ranges,
+    find_placement,
+    resolve_targets,
+)
+from torchtasks.transforms.task import RecordedValue
 
 __all__ = ["DifficultyLevels", "LevelRule"]
 
 #: ``rule(tensordict, next_tensordict) -> change``: the level change of every env (an integer tensor ``[*B]`` or
 #: ``[*B, 1]``), applied where the env's episode ended in this step
 LevelRule = Callable[[TensorDictBase, TensorDictBase], torch.Tensor]
-
-LEVEL = "level"
-COMMAND = "command"
-ENV = "env"
 
 
 def _table(values: object, num_levels: int, name: str) -> torch.Tensor:
@@ -69,7 +71,7 @@ def _table(values: object, num_levels: int, name: str) -> torch.Tensor:
     return table
 
 
-class DifficultyLevels(CheckedLoad, ResetWritingTransform):
+class DifficultyLevels(CheckedLoad, TargetWriter):
     """Keep an integer difficulty level per env, moved at that env's episode ends; set per-env values from it.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env and before the
@@ -152,7 +154,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         rule: LevelRule | None = None,
         success_key: NestedKey | None = None,
         failure_key: NestedKey | None = None,
-        curriculum_key: NestedKey = "curriculum",
+        curriculum_key: NestedKey = CURRICULUM_KEY,
     ) -> None:
         self.num_levels = check_positive_int(num_levels, "DifficultyLevels: num_levels")
         self.initial_level = check_non_negative_int(initial_level, "DifficultyLevels: initial_level")
@@ -174,7 +176,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
         self.failure_key = None if failure_key is None else nested_key(failure_key, "DifficultyLevels: failure_key")
         self.curriculum_key = nested_key(curriculum_key, "DifficultyLevels: curriculum_key")
         self._level_key = (*key_parts(self.curriculum_key), LEVEL)
-        entries = [target.replace(".", "/") for target in values]  # each target's name in the data and the state
+        entries = [entry_name(target) for target in values]  # each target's name in the data and the state
         if len(set(entries)) < len(entries):
             raise ValueError(
                 f"DifficultyLevels: targets {list(values)} give the same entry name twice ('.' becomes '/')"
@@ -186,7 +188,7 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
             if not target.startswith(COMMAND + ".")
         }
         for key in self._value_keys.values():
-            if key[-1] in (LEVEL, "frames"):
+            if key[-1] in (LEVEL, FRAMES):
                 raise ValueError(
                     f"DifficultyLevels: a target may not be named {key[-1]!r}: its per-env values would be written "
                     f"over the entry {key!r} (the levels, or a Curriculum's frame count)"
@@ -253,24 +255,16 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
 
     # ------------------------------------------------------------------ setup
     def _forget_setup(self) -> None:
-        self.__dict__.pop("_slots", None)
+        self.__dict__.pop("_resolved", None)
 
-    def _setup(self, batch: torch.Size) -> list[tuple[nn.Module, str]]:
+    def _setup(self, batch: torch.Size) -> list[Target]:
         """Resolve the targets, make the levels and the command ranges per env; cached until the env changes."""
-        slots = self.__dict__.get("_slots")
-        if slots is not None:
-            return slots
-        home = self.home_transforms()
-        if home is None:
-            raise ValueError("DifficultyLevels must sit in a TransformedEnv, after a TaskTransform")
-        flat, position = home
-        tasks = [t for t in flat[:position] if isinstance(t, TaskTransform)]
-        if len(tasks) != 1:
-            raise ValueError(
-                f"DifficultyLevels must come after exactly one TaskTransform in its env, found {len(tasks)} before it"
-            )
-        task_transform = tasks[0]
+        targets = self.__dict__.get("_resolved")
+        if targets is not None:
+            return targets
+        placement = find_placement(self)
         if self.rule is None:
+            task_transform = placement.task_transform
             self.__dict__["_flags"] = (
                 self.success_key or task_transform.success_key,
                 self.failure_key or task_transform.failure_key,
@@ -282,93 +276,39 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
                 f"DifficultyLevels: the levels (loaded) have shape {list(self.level.shape)}, but the env's batch is "
                 f"{list(batch)}"
             )
-        slots = [
-            self._resolve(target, i, flat, position, task_transform, batch) for i, target in enumerate(self.targets)
-        ]
-        self._refuse_scheduled(flat, slots)
-        self._check_ranges(slots)
-        self.__dict__["_slots"] = slots
-        return slots
+        rows = [self._table(i).shape[1:] for i in range(len(self.targets))]
+        targets = resolve_targets(self, self.targets, rows, batch=batch, rows=self.num_levels, env_fields=True).targets
+        for i, target in enumerate(targets):  # every level's row, as the reward's constructor would check the value
+            levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
+            target.check_values(self._table(i), levels)
+        self._check_ranges(targets)
+        self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
+        try:
+            check_one_owner(self, targets, placement, " (schedule the level tables' rows instead)")
+        except ValueError:
+            self._forget_setup()
+            raise
+        return targets
 
-    def _resolve(
-        self, target: str, index: int, flat: list, position: int, task_transform: TaskTransform, batch: torch.Size
-    ) -> tuple[nn.Module, str]:
-        table = self._table(index)
-        if target.startswith(COMMAND + "."):
-            command, leaf = self._command_slot(target, flat, position)
-            expected = command._buffers[leaf].shape[-1:]
-            if table.shape[1:] != expected:
-                raise ValueError(
-                    f"DifficultyLevels: the values of {target!r} must have shape [{self.num_levels}, "
-                    f"{expected[0]}] (one range bound per level), got {list(table.shape)}"
-                )
-            command.use_per_env_range(batch)
-            return command, leaf
-        if target.startswith(ENV + "."):
-            module = container_env(self).base_env
-            name = target[len(ENV) + 1 :]
-            where = "the base env"
-        else:
-            module = task_transform.task
-            name = target
-            where = f"the {type(module).__name__} tree"
-        buffers = {n: b for n, b in module.named_buffers() if b.is_floating_point()}
-        if name not in buffers:
-            listed = sorted(buffers) if where != "the base env" else sorted(f"{ENV}.{n}" for n in buffers)
-            raise ValueError(
-                f"DifficultyLevels: unknown target {target!r}{did_you_mean(target, listed) or '.'} "
-                f"It is not in {where}; its float buffers are {listed} (and "
-                f"{COMMAND + '.low'!r}/{COMMAND + '.high'!r} name a GoalCommand's range)"
-            )
-        owner, leaf = buffer_owner(module, name)
-        shape = owner._buffers[leaf].shape
-        expected = (*batch, *table.shape[1:])
-        if tuple(shape) != expected:
-            raise ValueError(
-                f"DifficultyLevels: the target {target!r} has shape {list(shape)}, but a per-env value of the "
-                f"table's shape {list(table.shape[1:])} needs a buffer of shape {list(expected)} (the env batch "
-                f"{list(batch)} first); a value shared by all envs is scheduled with a Curriculum"
-            )
-        if isinstance(owner, RewardFunction):  # every level's row, as the constructor would check the value
-            for level, row in enumerate(table):
-                check_written_value(owner, leaf, row, f"DifficultyLevels: level {level} of {target!r}")
-        return owner, leaf
+    def _check_ranges(self, targets: list[Target]) -> None:
+        """Refuse a level's range that leaves the command's Box or has ``low > high``."""
+        for command, bounds in command_ranges(targets).items():
+            for leaf, i in bounds.items():
+                table = self._table(i)
+                rows = [f"level {level}'s row {row}" for level, row in enumerate(table.tolist())]
+                check_in_goal_space(targets[i], table, f"DifficultyLevels: the {leaf} bound of the levels", rows)
+            current = {  # the bound no table sets: the command's range (env 0's, if already per env)
+                leaf: getattr(command, leaf).to("cpu", torch.float64).reshape(-1, command.goal_size)[:1]
+                for leaf in ("low", "high")
+            }
+            low = self._table(bounds["low"]) if "low" in bounds else current["low"]
+            high = self._table(bounds["high"]) if "high" in bounds else current["high"]
+            low, high = torch.broadcast_tensors(low.to("cpu"), high.to("cpu"))
+            where = f"of the GoalCommand writing {command.goal_key!r}"
+            levels = [f"DifficultyLevels: level {level} {where}" for level in range(len(low))]
+            check_low_not_above_high(zip(low, high, strict=True), levels)
 
-    def _command_slot(self, target: str, flat: list, position: int) -> tuple[GoalCommand, str]:
-        commands = [t for t in flat[position + 1 :] if isinstance(t, GoalCommand)]
-        before = [t for t in flat[:position] if isinstance(t, GoalCommand)]
-        parts = target.split(".")
-        leaf = parts[-1]
-        qualifier = ".".join(parts[1:-1])
-        if leaf not in ("low", "high") or len(parts) < 2:
-            raise ValueError(
-                f"DifficultyLevels: unknown target {target!r}: a GoalCommand's range is 'command.low' and "
-                "'command.high' (or 'command.<goal key>.low' with several commands)"
-            )
-        if qualifier:
-            commands = [c for c in commands if "/".join(key_parts(c.goal_key)) == qualifier]
-        if not commands:
-            hint = (
-                " (a GoalCommand before it draws its goals before the level of the step is known: put "
-                "DifficultyLevels before it)"
-                if before
-                else ""
-            )
-            raise ValueError(
-                f"DifficultyLevels: {target!r} names no GoalCommand after the DifficultyLevels in its env{hint}"
-            )
-        if len(commands) > 1:
-            names = [f"{COMMAND}.{'/'.join(key_parts(c.goal_key))}.{leaf}" for c in commands]
-            raise ValueError(f"DifficultyLevels: the target {target!r} is ambiguous; name one of {names}")
-        command = commands[0]
-        if "low" not in command._buffers:
-            raise ValueError(
-                f"DifficultyLevels: {target!r}: the GoalCommand writing {command.goal_key!r} samples with a "
-                "callable and has no range to set"
-            )
-        return command, leaf
-
-    def _recorded_task_values(self) -> list[RecordedValue]:
+    def recorded_task_values(self) -> list[RecordedValue]:
         """The task-tree targets, each with the entry recording every env's value of the step (one row of its
         table); offline recomputation with the env's TaskTransform reads them."""
         return [
@@ -377,86 +317,62 @@ class DifficultyLevels(CheckedLoad, ResetWritingTransform):
             if not self.targets[i].startswith(ENV + ".")
         ]
 
-    def _refuse_scheduled(self, flat: list, slots: list[tuple[nn.Module, str]]) -> None:
-        """One owner per buffer: refuse a target that a Curriculum of the env also schedules."""
-        mine = {(id(module), leaf): target for target, (module, leaf) in zip(self.targets, slots, strict=True)}
-        for curriculum in (t for t in flat if isinstance(t, Curriculum)):
-            for target, (module, leaf) in zip(curriculum.targets, curriculum._get_slots(), strict=True):
-                if (id(module), leaf) in mine:
-                    raise ValueError(
-                        f"DifficultyLevels sets {mine[(id(module), leaf)]!r}, which a Curriculum of the env also "
-                        f"schedules as {target!r}: a buffer has one owner (schedule the level tables' rows instead)"
-                    )
-            if curriculum.curriculum_key == self.curriculum_key and LEVEL in {
-                t.replace(".", "/") for t in curriculum.targets
-            }:
-                raise ValueError(f"DifficultyLevels writes ({self.curriculum_key!r}, 'level'), a Curriculum target")
+    def written_targets(self) -> list[Target]:
+        """The targets these levels write, resolved in their env (``ValueError`` if one is refused).
 
-    def _check_ranges(self, slots: list[tuple[nn.Module, str]]) -> None:
-        """Refuse a level's range that leaves the command's Box or has ``low > high``."""
-        ranges: dict[int, dict[str, torch.Tensor]] = {}
-        commands: dict[int, GoalCommand] = {}
-        for i, (module, leaf) in enumerate(slots):
-            if isinstance(module, GoalCommand):
-                ranges.setdefault(id(module), {})[leaf] = self._table(i)
-                commands[id(module)] = module
-        for key, bounds in ranges.items():
-            command = commands[key]
-            space_low = command.space.low.to("cpu", torch.float64)
-            space_high = command.space.high.to("cpu", torch.float64)
-            for leaf, table in bounds.items():
-                table = table.to("cpu")
-                outside = (table < space_low) | (table > space_high)
-                if outside.any():
-                    level = int(outside.any(-1).nonzero()[0, 0])
-                    raise ValueError(
-                        f"DifficultyLevels: the {leaf} bound of level {level}, {table[level].tolist()}, leaves the "
-                        f"goal space of the GoalCommand writing {command.goal_key!r} (low={space_low.tolist()}, "
-                        f"high={space_high.tolist()})"
-                    )
-            low = bounds.get("low", command.low.to("cpu", torch.float64).reshape(-1, command.goal_size)[:1])
-            high = bounds.get("high", command.high.to("cpu", torch.float64).reshape(-1, command.goal_size)[:1])
-            low, high = torch.broadcast_tensors(low.to("cpu"), high.to("cpu"))
-            crossed = low > high
-            if crossed.any():
-                level = int(crossed.any(-1).nonzero()[0, 0])
-                raise ValueError(
-                    f"DifficultyLevels: level {level} of the GoalCommand writing {command.goal_key!r} has low > high: "
-                    f"low={low[level].tolist()}, high={high[level].tolist()}"
-                )
+        Example:
+            >>> import functools
+            >>> from torchrl.envs import Compose, TransformedEnv
+            >>> from torchtasks.envs import PointMassEnv
+            >>> from torchtasks.rewards import ConstantReward
+            >>> from torchtasks.spaces import Box, EnvSpec
+            >>> from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
+            >>> from torchtasks.transforms import DifficultyLevels, GoalCommand, TaskTransform
+            >>> spec = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
+            >>> near = functools.partial(proximity_succeeded, threshold=0.1)
+            >>> reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), near)
+            >>> levels = DifficultyLevels(2, {"command.high": [[0.5, 0.5], [1.0, 1.0]]})
+            >>> env = TransformedEnv(PointMassEnv(batch_size=[3]), Compose(
+            ...     TaskTransform(MaskedTask(spec, reach, ["x", "y"]), goal_key="goal"), levels,
+            ...     GoalCommand(Box([-1.0, -1.0], [1.0, 1.0]))))
+            >>> [(target.name, target.buffer, target.per_env) for target in levels.written_targets()]
+            [('command.high', 'high', True)]
+            >>> env.transform[-1].high.shape  # the GoalCommand's range, made per env
+            torch.Size([3, 2])
+        """
+        env = container_env(self)
+        if env is None:
+            find_placement(self)  # raises: not in an env
+        return self._setup(env.batch_size)
 
     # ------------------------------------------------------------------ specs
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch, device = observation_spec.shape, observation_spec.device
-        slots = self._setup(batch)
+        targets = self._setup(batch)
         observation_spec[self._level_key] = Bounded(
             low=0, high=self.num_levels - 1, shape=(*batch, 1), dtype=torch.int64, device=device
         )
         for i, key in self._value_keys.items():
-            module, leaf = slots[i]
             shape = (*batch, *self._table(i).shape[1:])
-            observation_spec[key] = Unbounded(shape=shape, dtype=module._buffers[leaf].dtype, device=device)
+            observation_spec[key] = Unbounded(shape=shape, dtype=targets[i].value.dtype, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ TorchRL hooks
     def _write_levels(self, tensordict: TensorDictBase, replace: bool) -> TensorDictBase:
         """Write each env's row of every table into its target, and the levels and the rows set (but a GoalCommand's
         range: the goal drawn is in the data) into ``tensordict``."""
-        slots = self._setup(tensordict.batch_size)  # first: it creates the levels at the first call
+        targets = self._setup(tensordict.batch_size)  # first: it creates the levels at the first call
         level = self.level
         value_keys = self._value_keys
-        for i, (module, leaf) in enumerate(slots):
-            buffer = module._buffers[leaf]
+        for i, target in enumerate(targets):
+            buffer = target.module._buffers[target.buffer]
             table = self._table(i)
             if table.dtype != buffer.dtype or table.device != buffer.device:
                 table = table.to(device=buffer.device, dtype=buffer.dtype)
             value = table[level.to(table.device)]
-            if replace:  # under grad mode: keep the tensor earlier steps' graph saved
-                module._buffers[leaf] = value
-            else:
-                buffer.copy_(value)
-            if i in value_keys:  # a new tensor: never written into afterwards (the buffer is, or is replaced)
-                td_set(tensordict, value_keys[i], value.clone() if replace else value)
+            target.write(value, replace=replace)  # under grad mode a copy takes the buffer's place
+            if i in value_keys:  # a new tensor: never written into afterwards (the buffer holds a copy of it)
+                td_set(tensordict, value_keys[i], value)
         td_set(tensordict, self._level_key, level.unsqueeze(-1).clone())
         return tensordict
 

@@ -23,6 +23,7 @@ from torchtasks.tasks.memory import MemoryLayout, where_memory
 from torchtasks.tasks.protocol import Task
 from torchtasks.tasks.transition import Transition
 from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.names import CURRICULUM_KEY, target_name
 
 __all__ = ["TaskTransform"]
 
@@ -74,7 +75,7 @@ class RecordedValue(NamedTuple):
     """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
 
     A :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` after the
-    :class:`TaskTransform` names these (``_recorded_task_values()``), and offline recomputation evaluates each
+    :class:`TaskTransform` names these (``recorded_task_values()``), and offline recomputation evaluates each
     frame with the value recorded for it, never with the buffer's value of today.
     """
 
@@ -307,7 +308,7 @@ class TaskTransform(EnvDerivedTransform):
         cost_key: NestedKey = "cost",
         cost_terms_key: NestedKey = "task_cost",
         ended_by_key: NestedKey = "ended_by",
-        curriculum_key: NestedKey | None = "curriculum",
+        curriculum_key: NestedKey | None = CURRICULUM_KEY,
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -863,7 +864,7 @@ class TaskTransform(EnvDerivedTransform):
         flat, position = home
         found = {}
         for transform in flat[position + 1 :]:
-            recorded = getattr(transform, "_recorded_task_values", None)
+            recorded = getattr(transform, "recorded_task_values", None)
             if recorded is not None:
                 found.update((record.buffer, (record, type(transform).__name__)) for record in recorded())
         return found
@@ -881,7 +882,7 @@ class TaskTransform(EnvDerivedTransform):
         buffers = dict(self.task.named_buffers())
         found = {}
         for name in node.keys():
-            buffer = buffers.get(name.replace("/", "."))
+            buffer = buffers.get(target_name(name))
             if buffer is None or not buffer.is_floating_point():
                 continue  # e.g. the frame count, the levels, a GoalCommand's range or an env field
             trailing, shape = node.get(name).shape[len(batch) :], buffer.shape
@@ -891,7 +892,7 @@ class TaskTransform(EnvDerivedTransform):
                 and shape[len(shape) - len(trailing) :] == trailing
             )
             record = RecordedValue(
-                name.replace("/", "."), (*key_parts(self.curriculum_key), name), trailing if per_env else None
+                target_name(name), (*key_parts(self.curriculum_key), name), trailing if per_env else None
             )
             found[record.buffer] = record
         return found
