@@ -10,7 +10,8 @@
   and resuming a run, episodes included.
 
 The modules of the package import only from below it (rewards, tasks, spaces) and from one another in this
-order: ``_base``, ``entries``, ``seeding``, ``task``, ``command``, ``schedules``, ``curriculum``, ``levels``, ``checkpoint``.
+order: ``_base``, ``entries``, ``seeding``, ``task``, ``command``, ``schedules``, ``curriculum``, ``levels``,
+``checkpoint``.
 The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.levels``,
 ``torchtasks.seeding``, ``torchtasks.checkpoint``) re-export the same objects.
 """
