@@ -17,7 +17,21 @@ from tensordict.utils import NestedKey
 
 from torchtasks._checks import check_int
 from torchtasks._torchrl import key_parts, keys_text, nested_key
-from torchtasks.transforms.names import CURRICULUM_KEY, FRAMES, LEVEL
+from torchtasks.transforms.names import (
+    COST_TERMS_KEY,
+    CURRICULUM_KEY,
+    DONE_KEY,
+    ENDED_BY_KEY,
+    EPISODE_SUM_PREFIX,
+    FAILURE_KEY,
+    FRAMES,
+    LEVEL,
+    REWARD_KEY,
+    SUCCESS_KEY,
+    TERMINATED_KEY,
+    TERMS_KEY,
+    TRUNCATED_KEY,
+)
 
 __all__ = ["episode_statistics"]
 
@@ -29,8 +43,6 @@ MASK_KEY = ("collector", "mask")
 STEP_COUNT_KEY = "step_count"
 #: InitTracker's entry: True on the first frame of an episode
 IS_INIT_KEY = "is_init"
-#: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
-EPISODE_SUM_PREFIX = "episode_"
 #: prefix of the scheduled values in the returned dict
 CURRICULUM_PREFIX = "curriculum/"
 
@@ -139,15 +151,15 @@ def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
 def episode_statistics(
     batch: TensorDictBase,
     *,
-    reward_key: NestedKey | None = "reward",
-    success_key: NestedKey | None = "success",
-    failure_key: NestedKey | None = "failure",
-    terms_key: NestedKey | None = "task_reward",
+    reward_key: NestedKey | None = REWARD_KEY,
+    success_key: NestedKey | None = SUCCESS_KEY,
+    failure_key: NestedKey | None = FAILURE_KEY,
+    terms_key: NestedKey | None = TERMS_KEY,
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = CURRICULUM_KEY,
-    cost_terms_key: NestedKey | None = "task_cost",
-    ended_by_key: NestedKey | None = "ended_by",
+    cost_terms_key: NestedKey | None = COST_TERMS_KEY,
+    ended_by_key: NestedKey | None = ENDED_BY_KEY,
     cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
     mask_key: NestedKey | None = MASK_KEY,
@@ -329,14 +341,14 @@ def _statistics(
 ) -> dict[str, float]:
     frames = _Frames(batch, time_dim)
     # every entry that a given key names is read (and checked) up front, whether or not an episode ended
-    done = _required(frames, ("done",), "done", flag=True)
+    done = _required(frames, (DONE_KEY,), DONE_KEY, flag=True)
     flags = {
         name: _required(frames, keys[f"{name}_key"], f"{name}_key", flag=True)
         for name in ("success", "failure")
         if keys[f"{name}_key"] is not None
     }
-    terminated = frames.flag(("terminated",), "terminated")
-    truncated = frames.flag(("truncated",), "truncated")
+    terminated = frames.flag((TERMINATED_KEY,), TERMINATED_KEY)
+    truncated = frames.flag((TRUNCATED_KEY,), TRUNCATED_KEY)
     step_count = frames.scalar((STEP_COUNT_KEY,), STEP_COUNT_KEY)
     is_init = frames.flag((IS_INIT_KEY,), IS_INIT_KEY, where="root")
     valid = None if keys["mask_key"] is None else _valid_frames(frames, keys["mask_key"])

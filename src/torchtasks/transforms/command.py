@@ -20,6 +20,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_non_negative_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
 from torchtasks.spaces import Box
+from torchtasks.transforms.names import SUCCESS_KEY
 from torchtasks.transforms.seeding import SeededTransform
 from torchtasks.transforms.task import TaskTransform
 
@@ -126,7 +127,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
         goal_key: NestedKey = "goal",
         resample_steps: int | tuple[int, int] | None = None,
         resample_on_success: bool = False,
-        success_key: NestedKey = "success",
+        success_key: NestedKey = SUCCESS_KEY,
         seed: int | None = None,
         goal_size: int | None = None,
     ) -> None:

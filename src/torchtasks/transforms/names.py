@@ -1,4 +1,8 @@
-"""The names of the entries the run's values are written under, and of the prefixes of their targets.
+"""The default names of the entries torchtasks writes into an env's data, spelt once.
+
+The task's entries (:data:`REWARD_KEY`, :data:`SUCCESS_KEY`, the reward breakdown under :data:`TERMS_KEY`, ...),
+read by :class:`~torchtasks.transforms.TaskTransform`'s entry table (:mod:`torchtasks.transforms.entries`), and the
+run's values.
 
 A :class:`~torchtasks.transforms.Curriculum` and :class:`~torchtasks.transforms.DifficultyLevels` write under
 ``curriculum_key`` (default :data:`CURRICULUM_KEY`): the frame count (:data:`FRAMES`), the levels
@@ -10,8 +14,55 @@ read these names from here.
 
 from __future__ import annotations
 
-__all__ = ["COMMAND", "CURRICULUM_KEY", "ENV", "FRAMES", "LEVEL", "entry_name", "target_name"]
+__all__ = [
+    "COMMAND",
+    "COST_KEY",
+    "COST_TERMS_KEY",
+    "CURRICULUM_KEY",
+    "DONE_KEY",
+    "ENDED_BY_KEY",
+    "ENV",
+    "EPISODE_SUM_PREFIX",
+    "FAILURE_KEY",
+    "FINAL_TERM",
+    "FRAMES",
+    "LEVEL",
+    "MEMORY_KEY",
+    "REWARD_KEY",
+    "STEP_TERM",
+    "SUCCESS_KEY",
+    "TERMINATED_KEY",
+    "TERMS_KEY",
+    "TRUNCATED_KEY",
+    "entry_name",
+    "target_name",
+]
 
+# ------------------------------------------------------------------------------------------ the task's entries
+#: the reward entry the task's reward replaces (TorchRL's default reward key)
+REWARD_KEY = "reward"
+#: the task memory (``memory_key``)
+MEMORY_KEY = "task"
+#: the task's success and failure flags (``success_key``, ``failure_key``)
+SUCCESS_KEY = "success"
+FAILURE_KEY = "failure"
+#: the reward breakdown (``terms_key``): ``(TERMS_KEY, STEP_TERM)``, ``(TERMS_KEY, FINAL_TERM)``, one entry per term
+TERMS_KEY = "task_reward"
+STEP_TERM = "step"
+FINAL_TERM = "final"
+#: all costs stacked (``cost_key``) and one entry per cost (``cost_terms_key``)
+COST_KEY = "cost"
+COST_TERMS_KEY = "task_cost"
+#: one flag per named end condition (``ended_by_key``)
+ENDED_BY_KEY = "ended_by"
+#: the env's end-of-episode flags (TorchRL's names); the task ORs its verdict into the first two
+DONE_KEY = "done"
+TERMINATED_KEY = "terminated"
+TRUNCATED_KEY = "truncated"
+#: the prefix TorchRL's ``RewardSum`` gives the running episode sum of an entry it sums (``episode_<name>``)
+EPISODE_SUM_PREFIX = "episode_"
+
+# ------------------------------------------------------------------------------------------ the run's values
 #: the default key under which the run's values are written (``curriculum_key``)
 CURRICULUM_KEY = "curriculum"
 #: a Curriculum's frame count, under ``curriculum_key``

@@ -21,6 +21,7 @@ from torch import nn
 
 from torchtasks._checks import check_finite_scalar, check_non_negative_int, check_positive_int
 from torchtasks._torchrl import nested_key
+from torchtasks.transforms.names import SUCCESS_KEY
 
 __all__ = ["GatedSchedule", "Schedule", "constant", "gated", "linear", "staged"]
 
@@ -383,7 +384,7 @@ def staged(stages: Mapping[int, object]) -> Schedule:
 
 
 def gated(
-    values: Sequence[object], metric: NestedKey = "success", threshold: float = 0.8, window: int = 100
+    values: Sequence[object], metric: NestedKey = SUCCESS_KEY, threshold: float = 0.8, window: int = 100
 ) -> GatedSchedule:
     """A schedule through ``values`` that advances a stage when the episodes' moving average passes ``threshold``.
 
