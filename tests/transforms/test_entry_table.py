@@ -268,7 +268,8 @@ def test_the_entry_names_are_spelt_in_the_names_module_only() -> None:
     found = []
     for path in sorted(package.rglob("*.py")):
         relative = path.relative_to(package).as_posix()
-        if relative.startswith(("tasks/", "rewards/")) or relative == "transforms/names.py":
+        # names.py spells them; entries.py names the fields of a Transition, some of which share an entry's name
+        if relative.startswith(("tasks/", "rewards/")) or relative in ("transforms/names.py", "transforms/entries.py"):
             continue
         strings, defaults = _code_strings(path)
         found += [f"{relative}:{line}: {value!r}" for line, value in strings if value in UNAMBIGUOUS]
