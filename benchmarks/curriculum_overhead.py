@@ -35,9 +35,8 @@ from torchrl.collectors import Collector
 from torchrl.data import Composite, Unbounded
 from torchrl.envs import Compose, StepCounter, Transform, TransformedEnv
 
-from torchtasks.curriculum import Curriculum, linear, staged
 from torchtasks.envs import PendulumEnv, swing_up_task
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, TaskTransform, linear, staged
 
 
 class ZeroActions(torch.nn.Module):

@@ -53,8 +53,10 @@ autoclass_content = "class"  # the class docstring says what the constructor tak
 napoleon_google_docstring = True
 napoleon_numpy_docstring = False
 napoleon_use_rtype = False
-# RewardFunction documents its class attributes in a "Class attributes:" section (name: description)
-napoleon_custom_sections = [("Class attributes", "params_style")]
+# RewardFunction documents its class attributes in a "Class attributes:" section (name: description), the
+# named tuples of torchtasks.tasks.transition their fields in a "Fields:" section (an "Attributes:" section
+# would describe each field a second time beside autodoc's members)
+napoleon_custom_sections = [("Class attributes", "params_style"), ("Fields", "params_style")]
 
 # --- HTML -------------------------------------------------------------------------------------
 html_theme = "alabaster"

@@ -41,16 +41,13 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PointMassEnv
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import ControlCostReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
 from torchtasks.tasks.final_reward import FinalRewardMode
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, DifficultyLevels, GoalCommand, TaskTransform, linear
 
 NAME = "curriculum_reaching"
 #: variant -> (per-env goal levels, effort ramp); the default runs compare the first two, the others are ablations

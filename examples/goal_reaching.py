@@ -1,6 +1,6 @@
 """Goal reaching on a 2-D point mass with TorchRL's TD3, with and without hindsight relabelling (HER).
 
-What it shows: goals sampled per env by a :class:`~torchtasks.commands.GoalCommand` and seen by the
+What it shows: goals sampled per env by a :class:`~torchtasks.transforms.GoalCommand` and seen by the
 policy, a sparse goal-reaching task applied by :class:`~torchtasks.transforms.TaskTransform` (reward,
 success, episode end), and the same task relabelling stored transitions in TorchRL's
 ``HERReplayBuffer`` through ``TaskTransform.relabel``. The agent is TorchRL's TD3 (``TD3Loss``,
@@ -63,13 +63,12 @@ from torchrl.data import Bounded, HERReplayBuffer, LazyTensorStorage, TensorDict
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 from torchrl.objectives import SoftUpdate, TD3Loss
 
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
 from torchtasks.tasks.final_reward import FinalRewardMode
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import GoalCommand, TaskTransform
 
 MAX_FORCE = 2.0
 MAX_STEPS = 50  # 2.5 s per episode

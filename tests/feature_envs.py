@@ -18,11 +18,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
-from torchtasks.checkpoint import BaseEnvState
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward
 from torchtasks.rewards.terms import HealthyReward
 from torchtasks.spaces import Box, EnvSpec
@@ -35,7 +31,7 @@ from torchtasks.tasks import (
     PotentialShapingTask,
     proximity_succeeded,
 )
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import BaseEnvState, Curriculum, DifficultyLevels, GoalCommand, TaskTransform, linear
 
 MAX_STEPS = 12
 SCHEDULED = "wrapped_task.reward.rewards.effort.R"  # swing_up_task's effort weight, ramped by the curriculum feature

@@ -17,15 +17,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 
-from torchtasks.checkpoint import BaseEnvState
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, gated, linear
 from torchtasks.envs import PointMassEnv
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import BaseEnvState, Curriculum, DifficultyLevels, GoalCommand, TaskTransform, gated, linear
 
 SPEC = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
 

@@ -1,7 +1,7 @@
 """A 1-D random walk whose episodes end in success, failure or truncation, for the difficulty-level tests.
 
 :class:`WalkEnv` moves ``x`` by ``step_size * action`` (``step_size`` a per-env float buffer, a parameter
-a :class:`~torchtasks.levels.DifficultyLevels` can set); resets put ``x`` at 0. :func:`walk_task` succeeds
+a :class:`~torchtasks.transforms.DifficultyLevels` can set); resets put ``x`` at 0. :func:`walk_task` succeeds
 near ``x = 0.8`` and fails outside ``[-1, 1]``. :func:`expected_levels` recomputes from collected data,
 independently of the transform, what each env's level must be. The module-level constructors are what
 multi-process tests hand to ``ParallelEnv`` and collectors (they pickle by reference).
@@ -16,13 +16,11 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
 from torchtasks.envs._state_env import StateEnv
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import DifficultyLevels, GoalCommand, TaskTransform
 
 SPEC = EnvSpec(Box([-1.0], [1.0], labels=["x"]), 1)
 TARGET = 0.8

@@ -2,8 +2,8 @@
 
 Layers (imports only point down): :mod:`torchtasks.spaces`, :mod:`torchtasks.rewards`,
 :mod:`torchtasks.tasks`, :mod:`torchtasks.predefined`, :mod:`torchtasks.transforms` (the TorchRL face of a
-task), :mod:`torchtasks.commands` (goal commands, which look for the TaskTransforms beside them),
-:mod:`torchtasks.stats` (reads collected data), :mod:`torchtasks.envs`.
+task: the task transform, goal commands, curricula, levels, seeding and checkpoints), :mod:`torchtasks.stats`
+(reads collected data), :mod:`torchtasks.envs`.
 """
 
 __version__ = "0.1.0"

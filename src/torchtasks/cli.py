@@ -45,13 +45,8 @@ _SECTIONS = (
     ("torchtasks.tasks", "tasks"),
     ("torchtasks.predefined", "task factories"),
     ("torchtasks.spaces", "boxes and env specs"),
-    ("torchtasks.transforms", "a task as a TorchRL transform"),
-    ("torchtasks.commands", "goal commands"),
-    ("torchtasks.curriculum", "curricula and their schedules"),
-    ("torchtasks.levels", "difficulty levels"),
+    ("torchtasks.transforms", "TorchRL transforms: the task, goal commands, curricula, levels, run state"),
     ("torchtasks.stats", "statistics of collected episodes"),
-    ("torchtasks.checkpoint", "checkpoints that a resume continues"),
-    ("torchtasks.seeding", "seeds of transforms"),
     ("torchtasks.envs", "environments"),
 )
 

@@ -42,6 +42,7 @@ from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
 from torchtasks.envs.gymnasium_v5 import gymnasium_config, make_v5_env
 from torchtasks.envs.locomotion import gymnasium_env
 from torchtasks.transforms import TaskTransform
+from torchtasks.transforms.names import FAILURE_KEY, TERMS_KEY
 
 __all__ = [
     "BATCHED_PARITY_TOLERANCE",
@@ -136,10 +137,10 @@ def check_parity(env_id: str, seeds: Sequence[int] = (0, 1, 2), steps: int = 100
                 compared += 1
                 reward_diff = max(reward_diff, abs(float(result["reward"]) - float(reward)))
                 for name in names:
-                    difference = abs(float(result["task_reward", name]) - float(info[f"reward_{name}"]))
+                    difference = abs(float(result[TERMS_KEY, name]) - float(info[f"reward_{name}"]))
                     term_diff[name] = max(term_diff[name], difference)
                 termination_mismatches += int(
-                    bool(result["failure"]) != terminated
+                    bool(result[FAILURE_KEY]) != terminated
                     or bool(result["terminated"]) != terminated
                     or bool(result["truncated"]) != truncated
                 )
@@ -416,7 +417,7 @@ def compare_batched_with_gymnasium(
                 record(maxima, "observation", _difference(out["observation"][i].numpy(), observation), where)
                 record(maxima, "reward", _difference(out["reward"][i].item(), reward), where)
                 for name in names:
-                    value = _difference(out["task_reward", name][i].item(), info[f"reward_{name}"])
+                    value = _difference(out[TERMS_KEY, name][i].item(), info[f"reward_{name}"])
                     record(term_maxima, name, value, f"{where} (term {name!r})")
                 ended = bool(out["done"][i].item())
                 flags = {

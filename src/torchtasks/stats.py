@@ -17,6 +17,21 @@ from tensordict.utils import NestedKey
 
 from torchtasks._checks import check_int
 from torchtasks._torchrl import key_parts, keys_text, nested_key
+from torchtasks.transforms.names import (
+    COST_TERMS_KEY,
+    CURRICULUM_KEY,
+    DONE_KEY,
+    ENDED_BY_KEY,
+    EPISODE_SUM_PREFIX,
+    FAILURE_KEY,
+    FRAMES,
+    LEVEL,
+    REWARD_KEY,
+    SUCCESS_KEY,
+    TERMINATED_KEY,
+    TERMS_KEY,
+    TRUNCATED_KEY,
+)
 
 __all__ = ["episode_statistics"]
 
@@ -28,14 +43,8 @@ MASK_KEY = ("collector", "mask")
 STEP_COUNT_KEY = "step_count"
 #: InitTracker's entry: True on the first frame of an episode
 IS_INIT_KEY = "is_init"
-#: prefix RewardSum gives the running episode sum of a reward entry (``episode_<name>``)
-EPISODE_SUM_PREFIX = "episode_"
-#: the Curriculum's frame count, under its curriculum_key
-CURRICULUM_FRAMES = "frames"
 #: prefix of the scheduled values in the returned dict
 CURRICULUM_PREFIX = "curriculum/"
-#: the per-env levels of a DifficultyLevels, under its curriculum_key
-CURRICULUM_LEVEL = "level"
 
 
 class _Frames:
@@ -142,15 +151,15 @@ def _time_dim(batch: TensorDictBase, time_dim: int | None) -> int | None:
 def episode_statistics(
     batch: TensorDictBase,
     *,
-    reward_key: NestedKey | None = "reward",
-    success_key: NestedKey | None = "success",
-    failure_key: NestedKey | None = "failure",
-    terms_key: NestedKey | None = "task_reward",
+    reward_key: NestedKey | None = REWARD_KEY,
+    success_key: NestedKey | None = SUCCESS_KEY,
+    failure_key: NestedKey | None = FAILURE_KEY,
+    terms_key: NestedKey | None = TERMS_KEY,
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
-    curriculum_key: NestedKey | None = "curriculum",
-    cost_terms_key: NestedKey | None = "task_cost",
-    ended_by_key: NestedKey | None = "ended_by",
+    curriculum_key: NestedKey | None = CURRICULUM_KEY,
+    cost_terms_key: NestedKey | None = COST_TERMS_KEY,
+    ended_by_key: NestedKey | None = ENDED_BY_KEY,
     cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
     mask_key: NestedKey | None = MASK_KEY,
@@ -213,12 +222,12 @@ def episode_statistics(
       ended episodes of the L2 distance between the goal that judged the episode's last step and the
       goal achieved by it. The goal is read at the root of the last frame: the goal of step ``t``,
       the one the policy saw and the one ``TaskTransform(goal_key=...)`` passed to the task (under
-      ``"next"`` is the goal of the step after, which a :class:`~torchtasks.commands.GoalCommand`
+      ``"next"`` is the goal of the step after, which a :class:`~torchtasks.transforms.GoalCommand`
       may already have redrawn: after a success with ``resample_on_success``, or when its timer ran
       out in that step). The achieved goal is read under ``"next"`` (that of ``s_{t+1}``, as
       ``TaskTransform(achieved_goal_key=...)`` writes it).
     - ``curriculum/frames`` and ``curriculum/<target>`` (when the data holds a
-      :class:`~torchtasks.curriculum.Curriculum`'s entries ``("next", curriculum_key, ...)``): the
+      :class:`~torchtasks.transforms.Curriculum`'s entries ``("next", curriculum_key, ...)``): the
       schedule at the end of the batch, read under ``"next"`` at the latest frame: the frame count and
       the values the step after the batch will use. ``<target>`` is the entry's name (the target with
       ``"/"`` for ``"."``, e.g. ``curriculum/wrapped_task/reward/rewards/effort/R``); a tensor-valued
@@ -227,7 +236,7 @@ def episode_statistics(
       ``[*envs, time]`` batch; in a flat or padded batch, whose rows are not envs, the valid frames
       with the largest frame count (the last frame of each env, when the envs share one count), so
       these layouts need the Curriculum's ``frames`` entry (a ``ValueError`` says so without it, e.g.
-      for a :class:`~torchtasks.levels.DifficultyLevels` alone). The values are means over those
+      for a :class:`~torchtasks.transforms.DifficultyLevels` alone). The values are means over those
       frames, i.e. over the envs, which hold the same values when they share one Curriculum. Data
       without the entries give none of these keys.
     - ``ended_by/<name>`` (when the data holds a task's named end conditions ``("next", ended_by_key, name)``,
@@ -241,7 +250,7 @@ def episode_statistics(
       ``cost_limits={name: limit}`` also ``cost_violation_rate/<name>``, the fraction of those episodes
       whose summed cost exceeds the limit.
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
-      :class:`~torchtasks.levels.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
+      :class:`~torchtasks.transforms.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
       for ``k`` from 0 to the highest level reached.
 
@@ -332,14 +341,14 @@ def _statistics(
 ) -> dict[str, float]:
     frames = _Frames(batch, time_dim)
     # every entry that a given key names is read (and checked) up front, whether or not an episode ended
-    done = _required(frames, ("done",), "done", flag=True)
+    done = _required(frames, (DONE_KEY,), DONE_KEY, flag=True)
     flags = {
         name: _required(frames, keys[f"{name}_key"], f"{name}_key", flag=True)
         for name in ("success", "failure")
         if keys[f"{name}_key"] is not None
     }
-    terminated = frames.flag(("terminated",), "terminated")
-    truncated = frames.flag(("truncated",), "truncated")
+    terminated = frames.flag((TERMINATED_KEY,), TERMINATED_KEY)
+    truncated = frames.flag((TRUNCATED_KEY,), TRUNCATED_KEY)
     step_count = frames.scalar((STEP_COUNT_KEY,), STEP_COUNT_KEY)
     is_init = frames.flag((IS_INIT_KEY,), IS_INIT_KEY, where="root")
     valid = None if keys["mask_key"] is None else _valid_frames(frames, keys["mask_key"])
@@ -520,12 +529,12 @@ def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None)
     if frames.time_dim is not None and valid is None:  # rows of env frames: the last frame of every row
         latest = torch.arange(frames.rows) * frames.steps + frames.steps - 1
     else:  # flat, or rows of padded trajectories: the valid frames with the largest frame count
-        count = frames.get((*key, CURRICULUM_FRAMES))
+        count = frames.get((*key, FRAMES))
         if count is None:  # e.g. DifficultyLevels without a Curriculum: nothing tells which frames are the latest
             layout = "a flat batch" if frames.time_dim is None else "a padded batch (rows are trajectories, not envs)"
             raise ValueError(
                 f"episode_statistics: the entries ('next', *{key!r}) of {layout} are read at its latest frames, "
-                f"found by a Curriculum's frame count ('next', *{key!r}, {CURRICULUM_FRAMES!r}), which this batch "
+                f"found by a Curriculum's frame count ('next', *{key!r}, {FRAMES!r}), which this batch "
                 "does not hold; pass the batch time-major and unpadded ([*E, T], as a collector returns it with "
                 "split_trajs=False), add a Curriculum to the env, or pass curriculum_key=None to leave these "
                 "statistics out"
@@ -541,7 +550,7 @@ def _schedule(frames: _Frames, key: tuple[str, ...], valid: torch.Tensor | None)
         value = frames.get((*key, *name))
         value = value[latest.to(value.device)]
         stat = CURRICULUM_PREFIX + "/".join(name)
-        if name == (CURRICULUM_LEVEL,) and not value.is_floating_point():  # DifficultyLevels: one level per env
+        if name == (LEVEL,) and not value.is_floating_point():  # DifficultyLevels: one level per env
             schedule.update(_level_stats(value.reshape(-1), stat))
             continue
         value = value.to(torch.float64).mean(0).reshape(-1)  # mean over the envs, then one value per entry

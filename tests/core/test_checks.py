@@ -24,7 +24,6 @@ from torchtasks._checks import (
     check_positive_int,
     check_weight,
 )
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import (
     AntForwardReward,
@@ -40,7 +39,7 @@ from torchtasks.rewards import (
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import DesiredStateTask, MaskedTask, SequentialTasks, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import GoalCommand, TaskTransform
 
 NOT_INTS = [True, False, np.bool_(True), 2.0, np.float64(2.0), "2", None, torch.tensor(2), [2]]
 NOT_INT_IDS = ["true", "false", "np_bool", "float", "np_float", "str", "none", "tensor", "list"]

@@ -12,13 +12,12 @@ from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PointMassEnv
 from torchtasks.envs.point_mass import point_mass_dynamics
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import GoalCommand, TaskTransform
 
 
 @pytest.mark.parametrize("batch_size", [(), (3,), (2, 3)])

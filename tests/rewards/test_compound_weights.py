@@ -13,12 +13,11 @@ import pytest
 import torch
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
-from torchtasks.curriculum import Curriculum, staged
 from torchtasks.envs import PendulumEnv
 from torchtasks.rewards import CompoundReward, ConstantReward, ForwardVelocityReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import FinalRewardTask, RadiallySymmetricDesiredStateTask
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, TaskTransform, staged
 
 
 def terms() -> dict[str, object]:

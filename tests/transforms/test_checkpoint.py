@@ -16,13 +16,11 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import Compose, EnvBase, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 
-from torchtasks.checkpoint import BaseEnvState
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import BaseEnvState, GoalCommand, TaskTransform
 
 BATCH = 3
 STEPS = 10  # per batch and env; episodes of 7 steps: resets inside every batch

@@ -16,13 +16,21 @@ from test_curriculum import WEIGHT, policy, weighted_task
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
-from torchtasks.checkpoint import BaseEnvState, collector_state, load_collector_state
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
 from torchtasks.envs import PendulumEnv
-from torchtasks.levels import DifficultyLevels
 from torchtasks.spaces import Box
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import (
+    BaseEnvState,
+    Curriculum,
+    DifficultyLevels,
+    GoalCommand,
+    TaskTransform,
+    collector_state,
+    constant,
+    gated,
+    linear,
+    load_collector_state,
+    staged,
+)
 from walk_env import WalkEnv, walk_task
 
 BATCH = 4

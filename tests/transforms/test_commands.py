@@ -15,13 +15,11 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, GoalCommand, TaskTransform, linear
 
 SPACE = Box([-0.6], [0.6])  # goal angles
 MAX_STEPS = 25

@@ -18,13 +18,11 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import Compose, ParallelEnv, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, constant, gated, linear, staged
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.rewards import CompoundReward, ControlCostReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, GoalCommand, TaskTransform, constant, gated, linear, staged
 from walk_env import WalkEnv
 
 WEIGHT = "wrapped_task.reward.rewards.effort.weight"
@@ -615,7 +613,7 @@ def test_transforms_between_the_curriculum_and_its_command(between: str) -> None
     transform's parent env holds a clone of the Curriculum without the command: it answers for the original)."""
     from torchrl.envs import RewardSum
 
-    from torchtasks.levels import DifficultyLevels
+    from torchtasks.transforms import DifficultyLevels
 
     middle = RewardSum() if between == "RewardSum" else DifficultyLevels(2)  # levels without a target
     env = goal_env({"command.high": linear([0.1, 0.05], [1.0, 0.5], 0, 40 * BATCH)}, between=(middle,))

@@ -147,7 +147,7 @@ def test_task_transform_goal_errors():
 def test_her_relabelled_batches_carry_the_tasks_reward_success_and_episode_end():
     from torchrl.data import HERReplayBuffer, LazyTensorStorage
 
-    from torchtasks.commands import GoalCommand
+    from torchtasks.transforms import GoalCommand
 
     task = reach()
     transform = TaskTransform(task, goal_key="goal", achieved_goal_key="achieved_goal")

@@ -35,14 +35,19 @@ from torchrl.envs import ParallelEnv
 import feature_envs
 from feature_envs import FEATURES, task_transform
 from resume_env import equal_batches
-from torchtasks.checkpoint import collector_state, load_collector_state
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear, staged
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
-from torchtasks.levels import DifficultyLevels
 from torchtasks.spaces import Box
 from torchtasks.stats import episode_statistics
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import (
+    Curriculum,
+    DifficultyLevels,
+    GoalCommand,
+    TaskTransform,
+    collector_state,
+    linear,
+    load_collector_state,
+    staged,
+)
 
 BATCH = 6
 STEPS = 20  # frames per env and batch: episodes of up to MAX_STEPS start before the batch and run past it

@@ -14,14 +14,11 @@ from tensordict import TensorDictBase
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import Compose, ParallelEnv, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import RewardFunction
 from torchtasks.spaces import Box
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import DesiredStateTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, DifficultyLevels, GoalCommand, TaskTransform, linear
 from walk_env import SPEC, WalkEnv, expected_levels, make_walk_env, random_walk_policy, walk_task
 
 NUM_LEVELS = 3

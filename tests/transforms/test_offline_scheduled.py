@@ -1,8 +1,8 @@
 """Offline recomputation uses the values each step used, not today's buffers (issue 30, defect 5).
 
-Data is collected while a :class:`~torchtasks.curriculum.Curriculum` ramps a task buffer (a scalar reward
+Data is collected while a :class:`~torchtasks.transforms.Curriculum` ramps a task buffer (a scalar reward
 weight, the final reward's ``success_value``, a vector weight, a scalar filling a vector weight) or
-:class:`~torchtasks.levels.DifficultyLevels` sets per-env buffers (a scalar and a vector per env) from its
+:class:`~torchtasks.transforms.DifficultyLevels` sets per-env buffers (a scalar and a vector per env) from its
 tables. Recomputing the stored transitions (``forward``, ``reward_fn``, ``relabel`` with the original goal)
 must give the rewards and flags the env paid, on the rollout's ``[B, T]``, flattened ``[N]`` and a replay
 buffer's random sample, with the env's own TaskTransform and with one outside any env (a replay buffer's
@@ -33,10 +33,8 @@ from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
 from task_trees import all_task_cases, example_trees, predefined_cases, random_transitions
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, swing_up_task
 from torchtasks.envs.locomotion import safety_velocity_task
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import (
     AbsoluteErrorReward,
     CompoundReward,
@@ -49,7 +47,7 @@ from torchtasks.rewards import (
 from torchtasks.rewards.terms import AboveThresholdIndicator, ContactCostReward, HealthyReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, DifficultyLevels, TaskTransform, linear
 
 # ------------------------------------------------------------------------------------------------------------------
 # Kernels: one value per row of every float buffer

@@ -29,14 +29,13 @@ from torch import nn
 from torchrl.collectors import Collector
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import CompoundReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
 from torchtasks.tasks.final_reward import FinalRewardMode
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import GoalCommand, TaskTransform
 
 MAX_STEPS = 25
 MAX_FORCE = 4.0

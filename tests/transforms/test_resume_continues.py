@@ -26,15 +26,21 @@ from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollecto
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 
 from resume_env import equal_batches, make_parallel_resume_env, make_resume_env, reach_policy
-from torchtasks.checkpoint import BaseEnvState, collector_state, load_collector_state
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, gated, linear
 from torchtasks.envs import PendulumEnv, PointMassEnv
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import (
+    BaseEnvState,
+    Curriculum,
+    DifficultyLevels,
+    GoalCommand,
+    TaskTransform,
+    collector_state,
+    gated,
+    linear,
+    load_collector_state,
+)
 
 SEED = 7
 BEFORE = 3  # batches collected before the checkpoint

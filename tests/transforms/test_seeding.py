@@ -17,13 +17,11 @@ from tensordict.nn import TensorDictModule
 from torchrl.collectors import Collector, MultiSyncCollector
 from torchrl.envs import Compose, EnvBase, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
 
-from torchtasks.commands import GoalCommand
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import QuadraticErrorReward
-from torchtasks.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import GoalCommand, SeededTransform, SeedHook, TaskTransform, derived_seed, seed_transforms
 
 GOALS = Box([-0.8, -0.8], [0.8, 0.8])
 BATCH = 3

@@ -22,13 +22,12 @@ from torchrl.collectors.utils import split_trajectories
 from torchrl.envs import Compose, InitTracker, RewardSum, StepCounter, TransformedEnv
 from torchrl.record import CSVLogger
 
-from torchtasks.commands import GoalCommand
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import CompoundReward, ConstantReward, QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, MaskedTask, proximity_succeeded
+from torchtasks.transforms import Curriculum, GoalCommand, linear
 
 MAX_STEPS = 8
 TERMS = ("step", "final", "track", "effort")

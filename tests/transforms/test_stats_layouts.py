@@ -31,14 +31,12 @@ from torchrl.data import LazyTensorStorage, ReplayBuffer
 from torchrl.data.replay_buffers import SamplerWithoutReplacement
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 
-from torchtasks.curriculum import Curriculum, linear
 from torchtasks.envs import PendulumEnv, swing_up_task
-from torchtasks.levels import DifficultyLevels
 from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import ConstrainedTask, Constraint, DesiredStateTask, proximity_succeeded
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import Curriculum, DifficultyLevels, TaskTransform, linear
 
 ENVS, MAX_STEPS = 4, 8
 ROLLOUT_STEPS = 40

@@ -20,6 +20,14 @@ from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import DesiredStateTask, FinalRewardTask, Task, proximity_succeeded
 from torchtasks.transforms import TaskTransform
+from torchtasks.transforms.names import (
+    FAILURE_KEY,
+    FINAL_TERM,
+    MEMORY_KEY,
+    STEP_TERM,
+    SUCCESS_KEY,
+    TERMS_KEY,
+)
 
 __all__ = [
     "FewestT1Transform",
@@ -90,8 +98,8 @@ class MinimalT1Transform(Transform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         state = next_tensordict.get("observation")
         action = tensordict.get("action").to(state.dtype)
-        paid = tensordict.get(("task", "paid"))
-        goal = tensordict.get(("task", "wrapped", "state_des"))
+        paid = tensordict.get((MEMORY_KEY, "paid"))
+        goal = tensordict.get((MEMORY_KEY, "wrapped", "state_des"))
         factor, zero, r = self._constants(state)
         error = goal - state
         step = -((error * error).sum(-1) + r * (action * action).sum(-1))
@@ -103,14 +111,14 @@ class MinimalT1Transform(Transform):
         final = torch.where(finished & ~paid, torch.where(failure, -factor, torch.where(success, factor, zero)), zero)
         reward_spec_dtype = torch.float32
         next_tensordict.set("reward", (step + final).unsqueeze(-1).to(reward_spec_dtype))
-        next_tensordict.set("success", success.unsqueeze(-1))
-        next_tensordict.set("failure", failure.unsqueeze(-1))
+        next_tensordict.set(SUCCESS_KEY, success.unsqueeze(-1))
+        next_tensordict.set(FAILURE_KEY, failure.unsqueeze(-1))
         next_tensordict.set("terminated", next_tensordict.get("terminated") | ended)
         next_tensordict.set("done", done | ended)
-        next_tensordict.set(("task", "paid"), paid | finished)
-        next_tensordict.set(("task", "wrapped", "state_des"), goal)
-        next_tensordict.set(("task_reward", "step"), step.unsqueeze(-1).to(reward_spec_dtype))
-        next_tensordict.set(("task_reward", "final"), final.unsqueeze(-1).to(reward_spec_dtype))
+        next_tensordict.set((MEMORY_KEY, "paid"), paid | finished)
+        next_tensordict.set((MEMORY_KEY, "wrapped", "state_des"), goal)
+        next_tensordict.set((TERMS_KEY, STEP_TERM), step.unsqueeze(-1).to(reward_spec_dtype))
+        next_tensordict.set((TERMS_KEY, FINAL_TERM), final.unsqueeze(-1).to(reward_spec_dtype))
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -121,13 +129,13 @@ class MinimalT1Transform(Transform):
             batch_size=batch,
         )
         reset = None if tensordict is None else tensordict.get("_reset", None)
-        old = None if tensordict is None else tensordict.get("task", None)
+        old = None if tensordict is None else tensordict.get(MEMORY_KEY, None)
         if reset is not None and old is not None:
             memory = old.where(~reset.reshape(batch), memory)
-        tensordict_reset.set("task", memory)
+        tensordict_reset.set(MEMORY_KEY, memory)
         flags = torch.zeros((*batch, 1), dtype=torch.bool)
-        tensordict_reset.set("success", flags)
-        tensordict_reset.set("failure", flags.clone())
+        tensordict_reset.set(SUCCESS_KEY, flags)
+        tensordict_reset.set(FAILURE_KEY, flags.clone())
         return tensordict_reset
 
     def _memory_spec(self, batch: torch.Size, dtype: torch.dtype) -> Composite:
@@ -140,20 +148,20 @@ class MinimalT1Transform(Transform):
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch = observation_spec.shape
         dtype = observation_spec["observation"].dtype
-        observation_spec["success"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
-        observation_spec["failure"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
-        observation_spec["task"] = self._memory_spec(batch, dtype)
+        observation_spec[SUCCESS_KEY] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec[FAILURE_KEY] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec[MEMORY_KEY] = self._memory_spec(batch, dtype)
         return observation_spec
 
     def transform_state_spec(self, state_spec: Composite) -> Composite:
         observation_spec = self.parent.full_observation_spec
-        state_spec["task"] = self._memory_spec(observation_spec.shape, observation_spec["observation"].dtype)
+        state_spec[MEMORY_KEY] = self._memory_spec(observation_spec.shape, observation_spec["observation"].dtype)
         return state_spec
 
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
         base = reward_spec["reward"]
-        for name in ("step", "final"):
-            reward_spec[("task_reward", name)] = Unbounded(shape=base.shape, dtype=base.dtype)
+        for name in (STEP_TERM, FINAL_TERM):
+            reward_spec[(TERMS_KEY, name)] = Unbounded(shape=base.shape, dtype=base.dtype)
         return reward_spec
 
 
@@ -175,7 +183,7 @@ class FewestT1Transform(Transform):
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         state = next_tensordict.get("observation")
         action = tensordict.get("action").to(state.dtype)
-        paid = tensordict.get(("task", "paid"))
+        paid = tensordict.get((MEMORY_KEY, "paid"))
         step = -((state * state).sum(-1) + 0.1 * (action * action).sum(-1))  # the goal is the origin
         success = torch.linalg.vector_norm(state, dim=-1) < self.threshold
         failure = (state.abs() > self.bound).any(-1) | torch.isnan(state).any(-1)
@@ -191,25 +199,25 @@ class FewestT1Transform(Transform):
             finished & ~paid, torch.where(failure, on_failure, torch.where(success, on_success, zero)), zero
         )
         next_tensordict.set("reward", (step + final).unsqueeze(-1).to(torch.float32))
-        next_tensordict.set("success", success.unsqueeze(-1))
-        next_tensordict.set("failure", failure.unsqueeze(-1))
+        next_tensordict.set(SUCCESS_KEY, success.unsqueeze(-1))
+        next_tensordict.set(FAILURE_KEY, failure.unsqueeze(-1))
         ended = (success | failure).unsqueeze(-1)
         next_tensordict.set("terminated", next_tensordict.get("terminated") | ended)
         next_tensordict.set("done", done | ended)
-        next_tensordict.set(("task", "paid"), paid | finished)
+        next_tensordict.set((MEMORY_KEY, "paid"), paid | finished)
         return next_tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         batch = tensordict_reset.batch_size
         paid = torch.zeros(batch, dtype=torch.bool)
         reset = None if tensordict is None else tensordict.get("_reset", None)
-        old = None if tensordict is None else tensordict.get(("task", "paid"), None)
+        old = None if tensordict is None else tensordict.get((MEMORY_KEY, "paid"), None)
         if reset is not None and old is not None:
             paid = torch.where(reset.reshape(batch), paid, old)
-        tensordict_reset.set(("task", "paid"), paid)
+        tensordict_reset.set((MEMORY_KEY, "paid"), paid)
         flags = torch.zeros((*batch, 1), dtype=torch.bool)
-        tensordict_reset.set("success", flags)
-        tensordict_reset.set("failure", flags.clone())
+        tensordict_reset.set(SUCCESS_KEY, flags)
+        tensordict_reset.set(FAILURE_KEY, flags.clone())
         return tensordict_reset
 
     def _memory_spec(self, batch: torch.Size) -> Composite:
@@ -217,13 +225,13 @@ class FewestT1Transform(Transform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch = observation_spec.shape
-        observation_spec["success"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
-        observation_spec["failure"] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
-        observation_spec["task"] = self._memory_spec(batch)
+        observation_spec[SUCCESS_KEY] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec[FAILURE_KEY] = Categorical(2, shape=(*batch, 1), dtype=torch.bool)
+        observation_spec[MEMORY_KEY] = self._memory_spec(batch)
         return observation_spec
 
     def transform_state_spec(self, state_spec: Composite) -> Composite:
-        state_spec["task"] = self._memory_spec(self.parent.full_observation_spec.shape)
+        state_spec[MEMORY_KEY] = self._memory_spec(self.parent.full_observation_spec.shape)
         return state_spec
 
 

@@ -30,7 +30,7 @@ class StateEnv(EnvBase):
     running episodes as saved (``"running_episodes": {}``) and
     :func:`torchtasks.checkpoint.load_collector_state` continues them. TorchRL's
     ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
-    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.checkpoint.BaseEnvState` in it.
+    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.transforms.BaseEnvState` in it.
     """
 
     batch_locked = True

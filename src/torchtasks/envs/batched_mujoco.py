@@ -177,7 +177,7 @@ class BatchedMujocoEnv(EnvBase):
     A load is refused (``ValueError`` naming both sides) unless the env has the same ``env_id``,
     ``num_envs``, ``frame_skip`` and MuJoCo model (a digest of its compiled binary). TorchRL's
     ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
-    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.checkpoint.BaseEnvState` in it.
+    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.transforms.BaseEnvState` in it.
 
     Args:
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.

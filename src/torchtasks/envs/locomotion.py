@@ -71,9 +71,9 @@ from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.compound import CompoundReward
 from torchtasks.rewards.terms import AboveThresholdIndicator, ControlCostReward, VelocityReward
 from torchtasks.spaces import Box, EnvSpec
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.goalless import GoallessTask
+from torchtasks.tasks.protocol import Task
 from torchtasks.transforms import TaskTransform
 
 # the 'mujoco' extra: without it, importing this module raises an error naming the extra to install

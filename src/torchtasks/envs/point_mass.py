@@ -48,7 +48,7 @@ class PointMassEnv(StateEnv):
     :func:`point_mass_dynamics`); resets draw the position uniformly in the box with zero velocity.
     The env pays no reward and never ends an episode by itself: put a
     :class:`~torchtasks.transforms.TaskTransform` (and a ``StepCounter``) on it, e.g. with a
-    :class:`~torchtasks.commands.GoalCommand` and a task reaching the goal position (the state
+    :class:`~torchtasks.transforms.GoalCommand` and a task reaching the goal position (the state
     entries ``"x"``, ``"y"``). The dynamics are differentiable, so ``env.rollout`` keeps the autograd
     graph from the policy's actions to the states and the task's rewards.
 

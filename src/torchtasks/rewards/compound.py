@@ -60,7 +60,7 @@ class CompoundReward(RewardFunction):
     them, so the logged terms still add up to the reward. Each weight is a registered float64 buffer
     named ``weights.<term>`` in the compound (``reward.weights.effort`` for the reward of a
     :class:`~torchtasks.tasks.DesiredStateTask`, as ``task.named_buffers()`` names it): a
-    :class:`~torchtasks.curriculum.Curriculum` schedules it by that name, IsaacLab's
+    :class:`~torchtasks.transforms.Curriculum` schedules it by that name, IsaacLab's
     ``modify_reward_weight``. To schedule a term that should start at its plain value, give it the
     weight ``1.0``.
 

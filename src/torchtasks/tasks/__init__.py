@@ -1,6 +1,5 @@
 """Tasks: batched, functional evaluation of transitions with per-environment memory in a TensorDict."""
 
-from torchtasks.tasks.base import ForwardingTask, Task, TaskWrapper, all_tasks
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDesiredStateTask
@@ -11,9 +10,11 @@ from torchtasks.tasks.leaf import RewardTask
 from torchtasks.tasks.masked import MaskedTask
 from torchtasks.tasks.output import TaskOutput
 from torchtasks.tasks.parallel import ParallelTasks
+from torchtasks.tasks.protocol import Task
 from torchtasks.tasks.sequential import SequentialTasks
 from torchtasks.tasks.shaping import PotentialShapingTask
 from torchtasks.tasks.success import never_succeeded, proximity_succeeded
+from torchtasks.tasks.wrapper import ForwardingTask, TaskWrapper, all_tasks
 
 __all__ = [
     "BestStateFinalRewardTask",

@@ -10,8 +10,8 @@ from tensordict import TensorDict, TensorDictBase
 from torch import nn
 
 from torchtasks._memory import copy_entries, read
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import make_memory, where_memory
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["CompositeTask"]
 

@@ -18,7 +18,8 @@ import torch
 from torch import nn
 
 from torchtasks.rewards.base import RewardFunction
-from torchtasks.tasks.base import ForwardingTask, Task
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.wrapper import ForwardingTask
 
 __all__ = ["ConstrainedTask", "Constraint"]
 

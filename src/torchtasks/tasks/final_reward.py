@@ -9,7 +9,8 @@ from tensordict import TensorDictBase
 
 from torchtasks._checks import cast_like, check_finite_scalar
 from torchtasks._memory import read
-from torchtasks.tasks.base import Task, TaskWrapper
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.wrapper import TaskWrapper
 
 __all__ = ["BestStateFinalRewardTask", "FinalRewardMode", "FinalRewardTask"]
 

@@ -12,9 +12,9 @@ from torchtasks.rewards.base import RewardFunction
 from torchtasks.rewards.constant import ConstantReward
 from torchtasks.rewards.state_function import StateFunctionReward
 from torchtasks.spaces import Box, EnvSpec, rows_outside
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.desired_state import check_flag
 from torchtasks.tasks.leaf import RewardTask
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["ConditionTask", "DesiredSpaceTask", "GoallessTask", "OptimizationTask"]
 

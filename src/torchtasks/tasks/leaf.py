@@ -10,8 +10,8 @@ from tensordict import TensorDict, TensorDictBase
 from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.memory import make_memory
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["RewardTask"]
 

@@ -7,7 +7,8 @@ from collections.abc import Iterable
 import torch
 
 from torchtasks.spaces import EnvSpec
-from torchtasks.tasks.base import ForwardingTask, Task
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.wrapper import ForwardingTask
 
 __all__ = ["MaskedTask"]
 

@@ -8,9 +8,9 @@ import torch
 from tensordict import TensorDictBase
 
 from torchtasks._memory import copy_entries, read
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.memory import make_memory
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["ParallelTasks"]
 

@@ -11,10 +11,10 @@ from tensordict import TensorDictBase
 
 from torchtasks._checks import check_int
 from torchtasks._memory import copy_entries, read
-from torchtasks.tasks.base import Task
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.goals import replace_entry
 from torchtasks.tasks.memory import MemoryLayout, make_memory
+from torchtasks.tasks.protocol import Task
 
 __all__ = ["SequentialTasks"]
 
@@ -113,11 +113,10 @@ class SequentialTasks(CompositeTask):
     @property
     def _keeps_progress(self) -> tuple[bool, ...]:
         """Per sub-task: whether its memory holds anything a start re-initialises (beyond kept entries)."""
-        flags = self.__dict__.get("_keeps_progress_cache")
-        if flags is None:
-            flags = tuple(bool(_leaf_paths(task.memory_layout) - set(task._kept_paths())) for task in self.tasks)
-            self.__dict__["_keeps_progress_cache"] = flags
-        return flags
+        return self._cached(
+            "_keeps_progress_cache",
+            lambda: tuple(bool(_leaf_paths(task.memory_layout) - set(task._kept_paths())) for task in self.tasks),
+        )
 
     @staticmethod
     def _restart(task: Task, state: torch.Tensor, memory: TensorDictBase) -> TensorDictBase:

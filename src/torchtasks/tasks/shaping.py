@@ -10,8 +10,9 @@ from tensordict import TensorDictBase
 from torchtasks._checks import check_finite_scalar
 from torchtasks._memory import read
 from torchtasks.rewards.base import RewardFunction
-from torchtasks.tasks.base import Task, TaskWrapper
 from torchtasks.tasks.memory import make_memory
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.wrapper import TaskWrapper
 
 __all__ = ["PotentialShapingTask"]
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -9,7 +10,7 @@ from typing import Any, Literal, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey, unravel_key
+from tensordict.utils import NestedKey
 from torch import nn
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs.transforms import RewardSum, StepCounter, Transform, TransformedEnv
@@ -17,10 +18,31 @@ from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
 from torchtasks._memory import td_get, td_set
-from torchtasks._torchrl import EnvDerivedTransform, container_env, flat_transforms, key_parts, keys_text, nested_key
-from torchtasks.tasks.base import Task
+from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
-from torchtasks.tasks.memory import MemoryLayout, where_memory
+from torchtasks.tasks.memory import where_memory
+from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.transition import Transition
+from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.entries import Entry, TaskEntries, task_entries, transition_field
+from torchtasks.transforms.names import (
+    COST_KEY,
+    COST_TERMS_KEY,
+    CURRICULUM_KEY,
+    DONE_KEY,
+    ENDED_BY_KEY,
+    EPISODE_SUM_PREFIX,
+    FAILURE_KEY,
+    FINAL_TERM,
+    MEMORY_KEY,
+    REWARD_KEY,
+    STEP_TERM,
+    SUCCESS_KEY,
+    TERMINATED_KEY,
+    TERMS_KEY,
+    TRUNCATED_KEY,
+    target_name,
+)
 
 __all__ = ["TaskTransform"]
 
@@ -58,7 +80,7 @@ def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: Ne
     """
     written = set(names)
     for name in names:
-        summed = name.removeprefix("episode_")
+        summed = name.removeprefix(EPISODE_SUM_PREFIX)
         if summed != name and summed in written:
             raise ValueError(
                 f"TaskTransform: the {what} {name!r} is written beside {summed!r} under {argument}={key!r}, and "
@@ -71,8 +93,8 @@ def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: Ne
 class RecordedValue(NamedTuple):
     """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
 
-    A :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels` after the
-    :class:`TaskTransform` names these (``_recorded_task_values()``), and offline recomputation evaluates each
+    A :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` after the
+    :class:`TaskTransform` names these (``recorded_task_values()``), and offline recomputation evaluates each
     frame with the value recorded for it, never with the buffer's value of today.
     """
 
@@ -83,6 +105,17 @@ class RecordedValue(NamedTuple):
     #: the shape of one env's value for a buffer holding one value per env (``[*B_env, *row_shape]``, set by
     #: levels); ``None`` for a value shared by all envs (a schedule's value: the buffer's shape, or a scalar)
     row_shape: torch.Size | None
+
+
+class TimeLimit(NamedTuple):
+    """The time limit a :class:`TaskTransform` derives from the env it is in (see ``TaskTransform._time_limit``)."""
+
+    #: the limit for the remaining steps (None: no limit, or a task tree that does not read them)
+    max_steps: int | None
+    #: the entry holding the step count (that of the StepCounter with the limit)
+    step_count_key: NestedKey
+    #: whether a StepCounter of the env truncates at ``max_steps`` (else the step counts met are checked)
+    enforced: bool
 
 
 def buffer_owner(task: nn.Module, name: str) -> tuple[nn.Module, str]:
@@ -118,15 +151,44 @@ def _frame_values(entry: torch.Tensor, buffer: torch.Tensor, batch: torch.Size, 
     return entry if entry.dtype == buffer.dtype and entry.device == buffer.device else entry.to(buffer)
 
 
-def _has_leaves(layout: MemoryLayout) -> bool:
-    """Whether a memory layout holds any tensor (a memory of only empty sub-memories holds none)."""
-    return any(key not in layout.nested or _has_leaves(layout.nested[key]) for key in layout.keys)
-
-
 def _as_entry(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
     """``value`` reshaped to the env's ``[*B, 1]`` entry shape, in the spec's dtype (no cast when it already is)."""
     value = value.reshape(shape)
     return value if value.dtype == dtype else value.to(dtype)
+
+
+def _as_flag(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
+    """A flag ``[*B]`` as the env's ``[*B, 1]`` done-shaped entry (bool, as the task returned it)."""
+    return value.reshape(shape)
+
+
+def _as_is(value: Any, shape: torch.Size, dtype: torch.dtype) -> Any:
+    """The value as the task returned it (the memory)."""
+    return value
+
+
+def _as_stacked(names: tuple[str, ...], values: Mapping[str, torch.Tensor], shape: torch.Size, dtype: torch.dtype):
+    """The named values ``[*B]`` stacked on a last dim in ``names`` order (``[*B, k]``), in the reward's dtype."""
+    return torch.stack([values[name] for name in names], -1).to(dtype)
+
+
+def _as_achieved(slot: GoalSlot, next_state: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
+    """The achieved goal of the next state (``[*B, k]``)."""
+    return slot.achieved(next_state)
+
+
+#: how a value of each kind is written: (value, the done flags' shape, the reward's dtype) -> entry
+_WRITE_AS = {
+    "reward": _as_entry,
+    "term": _as_entry,
+    "cost": _as_entry,
+    "flag": _as_flag,
+    "env_flag": _as_flag,
+    "memory": _as_is,
+}
+
+#: the reward of the task's transition result (read by name, like every field the transform writes)
+_reward_of = transition_field("reward")
 
 
 def _goal_slot(task: Task, goal_name: str | None) -> GoalSlot:
@@ -214,7 +276,7 @@ class TaskTransform(EnvDerivedTransform):
     per-episode sums): ``(terms_key, "step")`` and ``(terms_key, "final")`` when some task of the tree
     pays a final reward (:attr:`~torchtasks.tasks.Task.pays_final_reward`; otherwise the step reward is
     the reward and the final reward is always 0, so neither is written), then one entry per named term
-    of a compound, product or locomotion reward.
+    of a compound, product or locomotion reward. :attr:`entries` lists them all, with when each is written.
 
     Args:
         task: the task to apply.
@@ -231,7 +293,7 @@ class TaskTransform(EnvDerivedTransform):
             sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
         goal_key: read the goal of step ``t`` from this root entry (``[*B, k]``: the goal the policy
-            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.commands.GoalCommand`) and
+            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.transforms.GoalCommand`) and
             pass it to the task (``Task.transition(..., goal=...)``); offline, a relabelled goal there
             re-judges reward, success and the episode end.
         achieved_goal_key: write the achieved goal (the entries of the state the goal is compared
@@ -250,8 +312,8 @@ class TaskTransform(EnvDerivedTransform):
             both are reward-spec entries, so they are not carried to the next step's root. A tree
             without costs writes neither.
         curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
-            values of task buffers that a :class:`~torchtasks.curriculum.Curriculum` or
-            :class:`~torchtasks.levels.DifficultyLevels` set at each step, when this transform is not in their env
+            values of task buffers that a :class:`~torchtasks.transforms.Curriculum` or
+            :class:`~torchtasks.transforms.DifficultyLevels` set at each step, when this transform is not in their env
             (e.g. a replay buffer's transform): every entry under it that names a float buffer of the task
             (``"/"`` for ``"."``) is read. In their env the transform reads their entries and refuses data without
             them. ``None``: look for none (outside such an env, the task's buffers as they are now).
@@ -279,11 +341,11 @@ class TaskTransform(EnvDerivedTransform):
         state_key: NestedKey | Sequence[NestedKey] = "observation",
         action_key: NestedKey = "action",
         reward_on: Literal["next", "state"] = "next",
-        reward_key: NestedKey = "reward",
-        memory_key: NestedKey = "task",
-        success_key: NestedKey = "success",
-        failure_key: NestedKey = "failure",
-        terms_key: NestedKey = "task_reward",
+        reward_key: NestedKey = REWARD_KEY,
+        memory_key: NestedKey = MEMORY_KEY,
+        success_key: NestedKey = SUCCESS_KEY,
+        failure_key: NestedKey = FAILURE_KEY,
+        terms_key: NestedKey = TERMS_KEY,
         log_terms: bool = True,
         max_steps: int | float | None = None,
         reset_overrides: ResetOverrides | None = None,
@@ -291,10 +353,10 @@ class TaskTransform(EnvDerivedTransform):
         goal_key: NestedKey | None = None,
         achieved_goal_key: NestedKey | None = None,
         goal_name: str | None = None,
-        cost_key: NestedKey = "cost",
-        cost_terms_key: NestedKey = "task_cost",
-        ended_by_key: NestedKey = "ended_by",
-        curriculum_key: NestedKey | None = "curriculum",
+        cost_key: NestedKey = COST_KEY,
+        cost_terms_key: NestedKey = COST_TERMS_KEY,
+        ended_by_key: NestedKey = ENDED_BY_KEY,
+        curriculum_key: NestedKey | None = CURRICULUM_KEY,
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -317,7 +379,7 @@ class TaskTransform(EnvDerivedTransform):
                 "feeds; pass goal_key=... too"
             )
         state_keys = _state_keys(state_key)
-        reserved = {"step", "final"} & set(task.term_names)
+        reserved = {STEP_TERM, FINAL_TERM} & set(task.term_names)
         if log_terms and reserved:
             raise ValueError(f"reward terms may not be named {sorted(reserved)}: those names are the breakdown's")
         self.state_keys = state_keys
@@ -330,15 +392,10 @@ class TaskTransform(EnvDerivedTransform):
         self.cost_key = nested_key(cost_key, "TaskTransform: cost_key")
         self.cost_terms_key = nested_key(cost_terms_key, "TaskTransform: cost_terms_key")
         self.cost_names = tuple(task.cost_names)
-        self._cost_keys = [unravel_key((*key_parts(self.cost_terms_key), name)) for name in self.cost_names]
         self.ended_by_key = nested_key(ended_by_key, "TaskTransform: ended_by_key")
         self.curriculum_key = (
             None if curriculum_key is None else nested_key(curriculum_key, "TaskTransform: curriculum_key")
         )
-        # the named end conditions, written when a kind has two or more (else success and failure say it)
-        names = task.termination_names
-        self.termination_names = tuple(names) if log_terms and task._static_facts()[4] else ()
-        self._ended_by_keys = [unravel_key((*key_parts(self.ended_by_key), n)) for n in self.termination_names]
         self.reward_on = reward_on
         self.log_terms = log_terms
         self.goal_key = None if goal_key is None else nested_key(goal_key, "TaskTransform: goal_key")
@@ -351,36 +408,65 @@ class TaskTransform(EnvDerivedTransform):
         self.reset_overrides = reset_overrides
         self.compile = compile
         self._explicit_max_steps = max_steps
+        # every entry the transform writes, once: keys, specs, writes and relabelling read this table
+        entries = task_entries(
+            task,
+            reward_key=self.reward_key,
+            memory_key=self.memory_key,
+            success_key=self.success_key,
+            failure_key=self.failure_key,
+            terms_key=self.terms_key,
+            cost_key=self.cost_key,
+            cost_terms_key=self.cost_terms_key,
+            ended_by_key=self.ended_by_key,
+            achieved_goal_key=self.achieved_goal_key,
+            log_terms=log_terms,
+        )
+        self._entries = entries
+        # the named end conditions, written when a kind has two or more (else success and failure say it)
+        self.termination_names = entries.names("ended_by_key")
+        self._ended_by_keys = entries.keys(argument="ended_by_key")
         # a task tree without memory tensors (e.g. GoallessTask) registers and writes no memory entry: batched
         # envs refuse empty specs; its (empty) memory is built in the step
-        self._has_memory = _has_leaves(task.memory_layout)
+        self._has_memory = bool(entries.select(kinds=("memory",)))
         self._uses_remaining = task.uses_remaining_steps
         self._check_key_collisions()
-        memory_keys = [self.memory_key] if self._has_memory else []
+        memory_keys = entries.keys(kinds=("memory",))
         goal_keys = [] if self.goal_key is None else [self.goal_key]
-        achieved_keys = [] if self.achieved_goal_key is None else [self.achieved_goal_key]
         in_keys = [*state_keys, self.action_key, *memory_keys, *goal_keys]
-        out_keys = [self.reward_key, *memory_keys, self.success_key, self.failure_key, *achieved_keys]
+        out_keys = [row.key for row in entries.rows if row.argument is not None]
         super().__init__(in_keys=in_keys, out_keys=out_keys)
         self.task = task
-        # static per task tree: computed once, read every step
-        self._term_names = tuple(task.term_names) if log_terms else ()
-        # the breakdown: the step and final reward only for a tree that pays a final reward (else the step
-        # reward is the reward and the final reward is 0), then the named terms
-        parts = ("step", "final") if task.pays_final_reward else ()
-        self._term_keys = [self._key(name) for name in (*parts, *self._term_names)] if log_terms else []
-        self._writes_step_final = bool(parts)
+        self._writes = self._write_plans(entries)
+        self._reset_flags = tuple(entries.keys(occasion="reset", kinds=("flag",)))
         if log_terms:
-            _refuse_episode_sums([*parts, *self._term_names], "reward term", "terms_key", self.terms_key)
-        _refuse_episode_sums(self.cost_names, "cost", "cost_terms_key", self.cost_terms_key)
+            _refuse_episode_sums(entries.names("terms_key"), "reward term", "terms_key", self.terms_key)
+        _refuse_episode_sums(entries.names("cost_terms_key"), "cost", "cost_terms_key", self.cost_terms_key)
+
+    def _write_plans(self, entries: TaskEntries) -> dict[tuple[str, bool], tuple[tuple[Any, ...], ...]]:
+        """What a step writes, per occasion and per whether the data holds the env's ``terminated`` flag: rows of
+        ``(key, read the field, the entry of the field or None, write as)``, derived once from the table."""
+        write_as = dict(_WRITE_AS)
+        write_as["costs"] = functools.partial(_as_stacked, entries.names("cost_terms_key"))
+        write_as["goal"] = None if self._goal_slot is None else functools.partial(_as_achieved, self._goal_slot)
+
+        def plan(row: Entry) -> tuple[Any, ...]:
+            read = None if row.source is None else transition_field(row.source)
+            return row.key, read, row.item, write_as[row.kind]
+
+        plans = {}
+        for occasion in ("step", "offline", "relabel"):
+            for has_terminated in (False, True):
+                rows = entries.select(occasion=occasion)
+                if not has_terminated:  # the env's terminated flag is written only where the data holds it
+                    rows = tuple(row for row in rows if row.key != TERMINATED_KEY)
+                plans[occasion, has_terminated] = tuple(plan(row) for row in rows)
+        return plans
 
     def _check_key_collisions(self) -> None:
         """Refuse output keys that would overwrite each other, the env's done flags or the transform's inputs."""
-        names = ["reward_key", "memory_key", "success_key", "failure_key", *(["terms_key"] if self.log_terms else [])]
-        names += ["cost_key", "cost_terms_key"] if self.cost_names else []
-        names += ["ended_by_key"] if self.termination_names else []
-        outputs = [(f"{name}={getattr(self, name)!r}", getattr(self, name)) for name in names]
-        others = [(f"the env's {flag!r} flag", flag) for flag in ("done", "terminated", "truncated")]
+        outputs = [(f"{argument}={key!r}", key) for argument, key in self._entries.claims]
+        others = [(f"the env's {flag!r} flag", flag) for flag in (DONE_KEY, TERMINATED_KEY, TRUNCATED_KEY)]
         others += [(f"the state key {key!r}", key) for key in self.state_keys]
         others.append((f"action_key={self.action_key!r}", self.action_key))
         if self.curriculum_key is not None:  # read offline: the values a Curriculum or levels recorded
@@ -394,24 +480,34 @@ class TaskTransform(EnvDerivedTransform):
                     )
 
     # ------------------------------------------------------------------ configuration
-    def _key(self, *parts: str) -> NestedKey:
-        return unravel_key((*key_parts(self.terms_key), *parts))
+    @property
+    def entries(self) -> TaskEntries:
+        """The table of the entries this transform writes: one row per output (key, kind, source, when written).
+
+        Example:
+            >>> from torchtasks.envs import swing_up_task
+            >>> transform = TaskTransform(swing_up_task(), terms_key="terms")
+            >>> transform.entries.keys(occasion="relabel", kinds=("reward", "flag", "env_flag"))
+            ['reward', 'success', 'failure', 'terminated', 'done']
+        """
+        return self._entries
 
     @property
     def term_keys(self) -> list[NestedKey]:
         """Keys of the reward breakdown: step and final reward (if the tree pays a final reward), then the terms."""
-        return list(self._term_keys)
+        return self._entries.keys(argument="terms_key")
 
     @property
     def cost_keys(self) -> list[NestedKey]:
         """Keys of the per-constraint costs ``(cost_terms_key, name)``, one per cost of the tree (none without)."""
-        return list(self._cost_keys)
+        return self._entries.keys(argument="cost_terms_key")
 
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
 
-    def _time_limit(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
-        """Return ``(max_steps, step_count_key, enforced)`` for the env the transform is in now.
+    def _time_limit(self, observation_spec: Composite | None = None) -> TimeLimit:
+        """Return the :class:`TimeLimit` (``max_steps``, ``step_count_key``, ``enforced``) of the env the transform
+        is in now.
 
         ``max_steps`` is the explicit one or that of the first ``StepCounter`` with a limit preceding this
         transform (in its Compose, or in a TransformedEnv it wraps); ``enforced`` says whether that
@@ -448,7 +544,7 @@ class TaskTransform(EnvDerivedTransform):
                     f"{counter.max_steps}) precedes it. Leave max_steps out (the transform reads the StepCounter's "
                     "limit) or remove the StepCounter's limit."
                 )
-            return None, step_count_key, False
+            return TimeLimit(None, step_count_key, enforced=False)
         if max_steps is None:
             if counter is not None:
                 max_steps, step_count_key = counter.max_steps, counter.step_count_key
@@ -474,7 +570,7 @@ class TaskTransform(EnvDerivedTransform):
                 "Pass TaskTransform(..., max_steps=<the env's limit>), or put StepCounter(max_steps) before "
                 "TaskTransform in the same Compose."
             )
-        return max_steps, step_count_key, counter is not None
+        return TimeLimit(max_steps, step_count_key, enforced=counter is not None)
 
     def _preceding_transforms(self) -> list[tuple[Transform, bool]]:
         """The transforms that run before this one in its env, each with whether it sits in a wrapped env.
@@ -496,12 +592,13 @@ class TaskTransform(EnvDerivedTransform):
 
     def _overwritten_keys(self) -> list[tuple[NestedKey, str]]:
         """The reward-spec entries this transform writes, each with the argument that names it."""
-        keys = [(self.reward_key, "reward_key")]
-        keys += [(key, f"a reward term of terms_key={self.terms_key!r}") for key in self._term_keys]
-        if self.cost_names:
-            keys.append((self.cost_key, "cost_key"))
-            keys += [(key, f"a cost of cost_terms_key={self.cost_terms_key!r}") for key in self._cost_keys]
-        return keys
+        entries, under = self._entries, {"term": "a reward term", "cost": "a cost"}  # entries under an argument's key
+        return [
+            (row.key, f"{under[row.kind]} of {row.argument}={entries.root(row.argument)!r}")
+            if row.kind in under
+            else (row.key, row.argument)
+            for row in entries.select(spec="reward")
+        ]
 
     def _check_reward_sums(self) -> None:
         """Refuse a ``RewardSum`` before this transform that sums an entry this transform overwrites.
@@ -559,7 +656,7 @@ class TaskTransform(EnvDerivedTransform):
             stacklevel=2,
         )
 
-    def _setup(self, observation_spec: Composite | None = None) -> tuple[int | None, NestedKey, bool]:
+    def _setup(self, observation_spec: Composite | None = None) -> TimeLimit:
         """Derive the time limit for the current container and store what the step reads (at spec building).
 
         Given the observation spec (spec building), also check the transforms before this one: a
@@ -573,7 +670,7 @@ class TaskTransform(EnvDerivedTransform):
                 self._warn_no_time_limit(max_steps)
         # the step computes the remaining steps only for a task tree that reads them and a known limit;
         # a limit no StepCounter enforces (given as max_steps) is checked against the step counts it meets
-        limit = (max_steps if self._uses_remaining else None, step_count_key, enforced)
+        limit = TimeLimit(max_steps if self._uses_remaining else None, step_count_key, enforced)
         self.__dict__["_limit"] = limit
         return limit
 
@@ -588,7 +685,7 @@ class TaskTransform(EnvDerivedTransform):
 
         Read from the env the transform is in now (nothing is frozen by reading it).
         """
-        return self._time_limit()[0]
+        return self._time_limit().max_steps
 
     # ------------------------------------------------------------------------- specs
     def _state_spec_size(self, observation_spec: Composite) -> tuple[int, torch.dtype, torch.Size]:
@@ -661,16 +758,15 @@ class TaskTransform(EnvDerivedTransform):
         self.task.to(dtype)
         self.__dict__["_state_dtype"] = dtype
         device = observation_spec.device
-        done_shape = self.parent.full_done_spec["done"].shape if self.parent is not None else (*batch, 1)
-        observation_spec[self.success_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
-        observation_spec[self.failure_key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
-        for key in self._ended_by_keys:
-            observation_spec[key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
-        if self._has_memory:
-            observation_spec[self.memory_key] = self._memory_spec(batch, dtype, device)
-        if self.achieved_goal_key is not None:
-            size = self._goal_slot.size
-            observation_spec[self.achieved_goal_key] = Unbounded(shape=(*batch, size), dtype=dtype, device=device)
+        done_shape = self.parent.full_done_spec[DONE_KEY].shape if self.parent is not None else (*batch, 1)
+        for row in self._entries.select(spec="observation"):
+            if row.kind == "flag":
+                observation_spec[row.key] = Categorical(2, shape=done_shape, dtype=torch.bool, device=device)
+            elif row.kind == "memory":
+                observation_spec[row.key] = self._memory_spec(batch, dtype, device)
+            else:  # the achieved goal
+                size = self._goal_slot.size
+                observation_spec[row.key] = Unbounded(shape=(*batch, size), dtype=dtype, device=device)
         return observation_spec
 
     def transform_state_spec(self, state_spec: Composite) -> Composite:
@@ -679,8 +775,8 @@ class TaskTransform(EnvDerivedTransform):
         _, dtype, batch = self._state_spec_size(observation_spec)
         if state_spec is None:
             state_spec = Composite(shape=batch, device=observation_spec.device)
-        if self._has_memory:
-            state_spec[self.memory_key] = self._memory_spec(batch, dtype, observation_spec.device)
+        for row in self._entries.select(spec="state"):  # the memory: an input of the next step
+            state_spec[row.key] = self._memory_spec(batch, dtype, observation_spec.device)
         return state_spec
 
     def transform_reward_spec(self, reward_spec: Composite) -> Composite:
@@ -688,13 +784,9 @@ class TaskTransform(EnvDerivedTransform):
             raise KeyError(f"TaskTransform: the reward key {self.reward_key!r} is not in the reward spec")
         base = reward_spec[self.reward_key]
         self.__dict__["_reward_dtype"] = base.dtype
-        for key in self.term_keys:
-            reward_spec[key] = Unbounded(shape=base.shape, dtype=base.dtype, device=base.device)
-        if self.cost_names:
-            shape = (*base.shape[:-1], len(self.cost_names))
-            reward_spec[self.cost_key] = Unbounded(shape=shape, dtype=base.dtype, device=base.device)
-            for key in self._cost_keys:
-                reward_spec[key] = Unbounded(shape=base.shape, dtype=base.dtype, device=base.device)
+        for row in self._entries.select(spec="reward", kinds=("term", "cost", "costs")):
+            shape = (*base.shape[:-1], len(self.cost_names)) if row.kind == "costs" else base.shape
+            reward_spec[row.key] = Unbounded(shape=shape, dtype=base.dtype, device=base.device)
         return reward_spec
 
     # ----------------------------------------------------------------------- helpers
@@ -849,7 +941,7 @@ class TaskTransform(EnvDerivedTransform):
         flat, position = home
         found = {}
         for transform in flat[position + 1 :]:
-            recorded = getattr(transform, "_recorded_task_values", None)
+            recorded = getattr(transform, "recorded_task_values", None)
             if recorded is not None:
                 found.update((record.buffer, (record, type(transform).__name__)) for record in recorded())
         return found
@@ -867,7 +959,7 @@ class TaskTransform(EnvDerivedTransform):
         buffers = dict(self.task.named_buffers())
         found = {}
         for name in node.keys():
-            buffer = buffers.get(name.replace("/", "."))
+            buffer = buffers.get(target_name(name))
             if buffer is None or not buffer.is_floating_point():
                 continue  # e.g. the frame count, the levels, a GoalCommand's range or an env field
             trailing, shape = node.get(name).shape[len(batch) :], buffer.shape
@@ -877,7 +969,7 @@ class TaskTransform(EnvDerivedTransform):
                 and shape[len(shape) - len(trailing) :] == trailing
             )
             record = RecordedValue(
-                name.replace("/", "."), (*key_parts(self.curriculum_key), name), trailing if per_env else None
+                target_name(name), (*key_parts(self.curriculum_key), name), trailing if per_env else None
             )
             found[record.buffer] = record
         return found
@@ -897,7 +989,7 @@ class TaskTransform(EnvDerivedTransform):
         for name, record in records.items():
             entry = td_get(tensordict, record.key)
             if entry is None:
-                owner = in_env[name][1]
+                _, owner = in_env[name]
                 raise ValueError(
                     f"TaskTransform: the data lacks {record.key!r}, the value of the task buffer {name!r} that the "
                     f"env's {owner} sets at every step; recomputing with its value of today would pay rewards no step "
@@ -909,13 +1001,14 @@ class TaskTransform(EnvDerivedTransform):
             values.append((module, leaf, _frame_values(entry, module._buffers[leaf], batch, record)))
         return values
 
-    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple) -> tuple:
+    def _evaluate_recorded(self, tensordict: TensorDictBase, arguments: tuple, batch: torch.Size) -> Transition:
         """Evaluate stored transitions; the task buffers the data records hold each frame's value for the call.
 
-        The values go into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the
-        buffers are put back afterwards; kernels take a constant with leading batch dims (one value per row).
+        ``arguments`` are those of :meth:`Task._transition` for the frames of batch shape ``batch``. The values go
+        into the buffers' places (as the Curriculum replaces a buffer under grad mode) and the buffers are put back
+        afterwards; kernels take a constant with leading batch dims (one value per row).
         """
-        values = self._recorded_values(tensordict, arguments[0].shape[:-1])
+        values = self._recorded_values(tensordict, batch)
         if not values:
             return self._evaluator()(*arguments, self.log_terms)
         for module in self.task.modules():  # facts a task derives once (its memory layout probes a reset with its
@@ -935,12 +1028,12 @@ class TaskTransform(EnvDerivedTransform):
         finally:
             for module, leaf, buffer in saved:
                 module._buffers[leaf] = buffer
-        batch = arguments[0].shape[:-1]
-        if outputs[0].shape != batch:
+        reward = _reward_of(outputs)
+        if reward.shape != batch:
             raise ValueError(
                 f"TaskTransform: with one value per frame of the recorded task buffers "
                 f"{[f'{type(m).__name__}.{leaf}' for m, leaf, _ in values]}, the task returned rewards of shape "
-                f"{list(outputs[0].shape)} for a batch {list(batch)}: a reward reads one of them without broadcasting "
+                f"{list(reward.shape)} for a batch {list(batch)}: a reward reads one of them without broadcasting "
                 "over leading batch dims"
             )
         return outputs
@@ -961,9 +1054,9 @@ class TaskTransform(EnvDerivedTransform):
         task did not cause (the env's own termination and the truncation) is kept, so the task
         judges the episode end anew.
         """
-        done = td_get(next_tensordict, "done")
-        terminated = td_get(next_tensordict, "terminated")
-        truncated = td_get(next_tensordict, "truncated")
+        done = td_get(next_tensordict, DONE_KEY)
+        terminated = td_get(next_tensordict, TERMINATED_KEY)
+        truncated = td_get(next_tensordict, TRUNCATED_KEY)
         has_terminated = terminated is not None
         if truncated is None and has_terminated:
             truncated = done & ~terminated
@@ -981,15 +1074,15 @@ class TaskTransform(EnvDerivedTransform):
         self,
         tensordict: TensorDictBase,
         next_tensordict: TensorDictBase,
-        *,
-        offline: bool = False,
-        write_memory: bool | None = None,
+        occasion: Literal["step", "offline", "relabel"] = "step",
     ) -> TensorDictBase:
         """Evaluate the task on one batch of transitions and write its outputs into ``next_tensordict``.
 
-        The evaluation is :meth:`Task._transition`, the function behind :meth:`Task.transition`.
-        Offline, the stored next memory is left as it was, unless ``write_memory`` (:meth:`relabel`).
+        The evaluation is :meth:`Task._transition`, the function behind :meth:`Task.transition`. ``occasion``:
+        the env's step, or stored transitions (``"offline"``: the stored next memory is left as it was;
+        ``"relabel"``: it is rewritten); the entries written are the table's rows for that occasion.
         """
+        offline = occasion != "step"
         state = self._read_state(tensordict)
         next_state = self._read_state(next_tensordict)
         action = td_get(tensordict, self.action_key)
@@ -1013,37 +1106,19 @@ class TaskTransform(EnvDerivedTransform):
         remaining = self._remaining(next_tensordict, state, offline)
         arguments = (state, action, next_state, memory, remaining, env_terminated, truncated, self.reward_on)
         if offline:  # stored data: each frame with the values its step used for the buffers the data records
-            outputs = self._evaluate_recorded(tensordict, arguments)
+            outputs = self._evaluate_recorded(tensordict, arguments, state.shape[:-1])
         else:
             outputs = self._evaluator()(*arguments, self.log_terms)
-        reward, step_reward, final, success, failure, terminated, done_now, memory, terms, costs, ends = outputs
         reward_dtype = self.__dict__.get("_reward_dtype")
         if reward_dtype is None:
             stored = td_get(next_tensordict, self.reward_key)
             reward_dtype = state.dtype if stored is None else stored.dtype
         shape = done.shape
-        td_set(next_tensordict, self.reward_key, _as_entry(reward, shape, reward_dtype))
-        td_set(next_tensordict, self.success_key, success.reshape(shape))
-        td_set(next_tensordict, self.failure_key, failure.reshape(shape))
-        if has_terminated:
-            td_set(next_tensordict, "terminated", terminated.reshape(shape))
-        td_set(next_tensordict, "done", done_now.reshape(shape))
-        if (not offline if write_memory is None else write_memory) and self._has_memory:
-            td_set(next_tensordict, self.memory_key, memory)
-        if not offline and self.achieved_goal_key is not None:
-            td_set(next_tensordict, self.achieved_goal_key, self._goal_slot.achieved(next_state))
-        if self.log_terms:
-            values = [step_reward, final] if self._writes_step_final else []
-            values += [terms[name] for name in self._term_names]
-            for key, value in zip(self._term_keys, values, strict=True):
-                td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
-        for name, key in zip(self.termination_names, self._ended_by_keys, strict=True):
-            td_set(next_tensordict, key, ends[name].reshape(shape))
-        if self.cost_names:
-            values = [costs[name] for name in self.cost_names]
-            td_set(next_tensordict, self.cost_key, torch.stack(values, -1).to(reward_dtype))
-            for key, value in zip(self._cost_keys, values, strict=True):
-                td_set(next_tensordict, key, _as_entry(value, shape, reward_dtype))
+        for key, read, item, write_as in self._writes[occasion, has_terminated]:  # the table's rows, precomputed
+            value = next_state if read is None else read(outputs)
+            if item is not None:
+                value = value[item]
+            td_set(next_tensordict, key, write_as(value, shape, reward_dtype))
         return next_tensordict
 
     # ------------------------------------------------------------------- TorchRL hooks
@@ -1061,21 +1136,19 @@ class TaskTransform(EnvDerivedTransform):
             if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
                 memory = where_memory(reset_mask.reshape(memory.batch_size), memory, old)
             tensordict_reset.set(self.memory_key, memory)
-        done = td_get(tensordict_reset, "done")  # the env's reset flags (TorchRL completes them before transforms)
+        done = td_get(tensordict_reset, DONE_KEY)  # the env's reset flags (TorchRL completes them before transforms)
         if done is not None and done.dtype == torch.bool:
             flags = torch.zeros_like(done)
         else:
             if init_state is None:
                 init_state = self._read_state(tensordict_reset)
             flags = torch.zeros(
-                (*init_state.shape[:-1], 1) if self.parent is None else self.parent.full_done_spec["done"].shape,
+                (*init_state.shape[:-1], 1) if self.parent is None else self.parent.full_done_spec[DONE_KEY].shape,
                 dtype=torch.bool,
                 device=init_state.device,
             )
-        td_set(tensordict_reset, self.success_key, flags)
-        td_set(tensordict_reset, self.failure_key, flags.clone())
-        for key in self._ended_by_keys:
-            td_set(tensordict_reset, key, flags.clone())
+        for i, key in enumerate(self._reset_flags):  # success, failure, the end conditions: False
+            td_set(tensordict_reset, key, flags if i == 0 else flags.clone())
         if self.achieved_goal_key is not None:
             tensordict_reset.set(self.achieved_goal_key, self._goal_slot.achieved(init_state))
         return tensordict_reset
@@ -1090,14 +1163,15 @@ class TaskTransform(EnvDerivedTransform):
         stored success/failure flags attribute to the task is re-judged (a relabelled goal may
         change it); truncation and the env's own termination are kept.
 
-        Task buffers that a :class:`~torchtasks.curriculum.Curriculum` or :class:`~torchtasks.levels.DifficultyLevels`
-        set at every step are evaluated, frame by frame, with the values the data records at the root
-        (``(curriculum_key, <buffer name with "/" for ".">)``: the values that step used), never with their values
-        of today; in the env of such a transform, data lacking one of its entries is a ``ValueError``.
+        Task buffers that a :class:`~torchtasks.transforms.Curriculum` or
+        :class:`~torchtasks.transforms.DifficultyLevels` set at every step are evaluated, frame by frame, with the
+        values the data records at the root (``(curriculum_key, <buffer name with "/" for ".">)``: the values that
+        step used), never with their values of today;
+        in the env of such a transform, data lacking one of its entries is a ``ValueError``.
         The buffers are put back afterwards. (Also for :meth:`reward_fn` and :meth:`relabel`.)
         """
         next_tensordict = self._offline_next(tensordict)
-        self._transition(tensordict, next_tensordict, offline=True)
+        self._transition(tensordict, next_tensordict, "offline")
         return tensordict
 
     def _offline_next(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -1108,7 +1182,7 @@ class TaskTransform(EnvDerivedTransform):
         limit = self.__dict__.get("_limit")
         if limit is None:
             limit = self._setup()
-        if self._uses_remaining and limit[0] is None and "step_count" in next_tensordict.keys():
+        if self._uses_remaining and limit.max_steps is None and "step_count" in next_tensordict.keys():
             raise ValueError(
                 f"TaskTransform: {type(self.task).__name__} reads the remaining steps (a time-dependent final "
                 "reward) and the data holds ('next', 'step_count'), but max_steps is not known: outside an env "
@@ -1129,7 +1203,7 @@ class TaskTransform(EnvDerivedTransform):
         data = tensordict.select(
             *self.state_keys, self.action_key, self.memory_key, *goal_keys, *recorded, strict=False
         )
-        self._transition(data, next_data, offline=True)
+        self._transition(data, next_data, "offline")
         return next_data.get(self.reward_key)
 
     def relabel(self, tensordict: TensorDictBase) -> torch.Tensor:
@@ -1169,7 +1243,7 @@ class TaskTransform(EnvDerivedTransform):
         Example:
             >>> import functools, torch
             >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
-            >>> from torchtasks.commands import GoalCommand
+            >>> from torchtasks.transforms import GoalCommand
             >>> from torchtasks.envs import PendulumEnv
             >>> from torchtasks.rewards import QuadraticErrorReward
             >>> from torchtasks.spaces import Box, EnvSpec
@@ -1189,10 +1263,10 @@ class TaskTransform(EnvDerivedTransform):
         """
         next_tensordict = self._offline_next(tensordict)
         work = next_tensordict.copy()
-        self._transition(tensordict, work, offline=True, write_memory=True)
+        self._transition(tensordict, work, "relabel")
         for key in self._relabelled_keys():
             value = work.get(key, None)
-            if value is None:  # "terminated" in data that has only "done"
+            if value is None:  # the env's terminated flag in data that has only "done"
                 continue
             stored = next_tensordict.get(key, None)
             if stored is None:
@@ -1203,10 +1277,7 @@ class TaskTransform(EnvDerivedTransform):
 
     def _relabelled_keys(self) -> list[NestedKey]:
         """The ``"next"`` entries :meth:`relabel` rewrites: every output of the step that depends on the goal."""
-        memory_keys = [self.memory_key] if self._has_memory else []
-        flags = [self.success_key, self.failure_key, "terminated", "done"]
-        costs = [self.cost_key, *self._cost_keys] if self.cost_names else []
-        return [self.reward_key, *flags, *self._ended_by_keys, *self._term_keys, *costs, *memory_keys]
+        return self._entries.keys(occasion="relabel")
 
     def __repr__(self) -> str:
         name = type(self.task).__name__

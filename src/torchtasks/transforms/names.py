@@ -1,0 +1,95 @@
+"""The default names of the entries torchtasks writes into an env's data, spelt once.
+
+The task's entries (:data:`REWARD_KEY`, :data:`SUCCESS_KEY`, the reward breakdown under :data:`TERMS_KEY`, ...),
+read by :class:`~torchtasks.transforms.TaskTransform`'s entry table (:mod:`torchtasks.transforms.entries`), and the
+run's values.
+
+A :class:`~torchtasks.transforms.Curriculum` and :class:`~torchtasks.transforms.DifficultyLevels` write under
+``curriculum_key`` (default :data:`CURRICULUM_KEY`): the frame count (:data:`FRAMES`), the levels
+(:data:`LEVEL`) and one entry per target, named by :func:`entry_name`. A target names a float buffer of the
+task tree as ``task.named_buffers()`` does, a GoalCommand's range under :data:`COMMAND` and a buffer of the
+base env under :data:`ENV`. The transforms, offline recomputation and :func:`~torchtasks.stats.episode_statistics`
+read these names from here.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "COMMAND",
+    "COST_KEY",
+    "COST_TERMS_KEY",
+    "CURRICULUM_KEY",
+    "DONE_KEY",
+    "ENDED_BY_KEY",
+    "ENV",
+    "EPISODE_SUM_PREFIX",
+    "FAILURE_KEY",
+    "FINAL_TERM",
+    "FRAMES",
+    "LEVEL",
+    "MEMORY_KEY",
+    "REWARD_KEY",
+    "STEP_TERM",
+    "SUCCESS_KEY",
+    "TERMINATED_KEY",
+    "TERMS_KEY",
+    "TRUNCATED_KEY",
+    "entry_name",
+    "target_name",
+]
+
+# ------------------------------------------------------------------------------------------ the task's entries
+#: the reward entry the task's reward replaces (TorchRL's default reward key)
+REWARD_KEY = "reward"
+#: the task memory (``memory_key``)
+MEMORY_KEY = "task"
+#: the task's success and failure flags (``success_key``, ``failure_key``)
+SUCCESS_KEY = "success"
+FAILURE_KEY = "failure"
+#: the reward breakdown (``terms_key``): ``(TERMS_KEY, STEP_TERM)``, ``(TERMS_KEY, FINAL_TERM)``, one entry per term
+TERMS_KEY = "task_reward"
+STEP_TERM = "step"
+FINAL_TERM = "final"
+#: all costs stacked (``cost_key``) and one entry per cost (``cost_terms_key``)
+COST_KEY = "cost"
+COST_TERMS_KEY = "task_cost"
+#: one flag per named end condition (``ended_by_key``)
+ENDED_BY_KEY = "ended_by"
+#: the env's end-of-episode flags (TorchRL's names); the task ORs its verdict into the first two
+DONE_KEY = "done"
+TERMINATED_KEY = "terminated"
+TRUNCATED_KEY = "truncated"
+#: the prefix TorchRL's ``RewardSum`` gives the running episode sum of an entry it sums (``episode_<name>``)
+EPISODE_SUM_PREFIX = "episode_"
+
+# ------------------------------------------------------------------------------------------ the run's values
+#: the default key under which the run's values are written (``curriculum_key``)
+CURRICULUM_KEY = "curriculum"
+#: a Curriculum's frame count, under ``curriculum_key``
+FRAMES = "frames"
+#: the per-env levels of a DifficultyLevels, under ``curriculum_key``
+LEVEL = "level"
+#: the prefix of the targets that name a GoalCommand's sampling range (``"command.low"``, ``"command.goal.high"``)
+COMMAND = "command"
+#: the prefix of the targets that name a buffer of the base env (``"env.step_size"``)
+ENV = "env"
+
+
+def entry_name(target: str) -> str:
+    """The name of the entry recording a target's values under ``curriculum_key``: the target with ``"/"`` for ``"."``.
+
+    Example:
+        >>> entry_name("wrapped_task.reward.Q")
+        'wrapped_task/reward/Q'
+    """
+    return target.replace(".", "/")
+
+
+def target_name(entry: str) -> str:
+    """The target whose values an entry under ``curriculum_key`` records: the inverse of :func:`entry_name`.
+
+    Example:
+        >>> target_name("wrapped_task/reward/Q")
+        'wrapped_task.reward.Q'
+    """
+    return entry.replace("/", ".")

@@ -1,0 +1,441 @@
+"""The one target resolver: where a value of the run goes, the checks it passes, and its write.
+
+A transform that writes values of the run into an env (a :class:`~torchtasks.transforms.Curriculum`'s
+schedules, the level tables of :class:`~torchtasks.transforms.DifficultyLevels`) names each target by a
+string. :func:`resolve_targets` turns the names into :class:`Target`\\ s once, when the env's specs are built:
+
+- a float buffer of the task tree, as ``task.named_buffers()`` names it (``"wrapped_task.reward.Q"``);
+- a buffer of a :class:`~torchtasks.transforms.GoalCommand`'s sampling range, ``"command.low"`` /
+  ``"command.high"`` with one GoalCommand in the env, ``"command.<goal key>.low"`` (a nested goal key joined by
+  ``"/"``) always;
+- with ``env_fields=True``, a float buffer of the base env as ``"env.<name>"``.
+
+A misspelt name is refused with one message listing every name the writer can set. A :class:`Target` checks
+the values a writer may put into it (:meth:`Target.check_values`: the rules of a reward's constants;
+:func:`check_in_goal_space` and :func:`check_low_not_above_high` for a GoalCommand's range) and writes one
+(:meth:`Target.write`). A :class:`TargetWriter` answers which targets it writes, so that a buffer has one owner
+(:func:`check_one_owner`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
+
+import torch
+from torch import nn
+from torchrl.envs.transforms import Transform
+
+from torchtasks._checks import did_you_mean
+from torchtasks._torchrl import container_env, key_parts
+from torchtasks.rewards import RewardFunction
+from torchtasks.rewards.base import check_written_value
+from torchtasks.transforms._base import EnvDerivedTransform, ResetWritingTransform
+from torchtasks.transforms.command import GoalCommand
+from torchtasks.transforms.names import COMMAND, ENV, entry_name
+from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owner
+
+__all__ = [
+    "TASK",
+    "Placement",
+    "ResolvedTargets",
+    "Target",
+    "TargetWriter",
+    "check_in_goal_space",
+    "check_low_not_above_high",
+    "check_one_owner",
+    "command_ranges",
+    "find_placement",
+    "resolve_targets",
+]
+
+#: the source of a target in the task tree (the others are :data:`~torchtasks.transforms.names.COMMAND` and
+#: :data:`~torchtasks.transforms.names.ENV`, the prefixes of their names)
+TASK = "task"
+
+
+class Target(NamedTuple):
+    """A value of the run's destination: the buffer a name resolves to (:func:`resolve_targets`).
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards import QuadraticErrorReward
+        >>> reward = QuadraticErrorReward([1.0, 0.5])
+        >>> target = Target("reward.Q", reward, "Q", TASK, torch.Size([2]), per_env=False)
+        >>> target.entry
+        'reward/Q'
+        >>> target.check_values(torch.tensor([[1.0, 2.0]]), "a schedule")  # a weight the reward accepts
+        >>> target.write(torch.tensor([2.0, 1.0], dtype=torch.float64), replace=False).tolist()
+        [2.0, 1.0]
+    """
+
+    #: the name as the user wrote it
+    name: str
+    #: the module holding the buffer: a module of the task tree, a GoalCommand or the base env
+    module: nn.Module
+    #: the buffer's name in ``module`` (``"Q"``, a GoalCommand's ``"low"`` or ``"high"``)
+    buffer: str
+    #: where it lives: :data:`TASK`, ``"command"`` or ``"env"``
+    source: str
+    #: the shape of one written value: the buffer's shape, or one env's row of a per-env buffer
+    value_shape: torch.Size
+    #: whether the buffer holds one value per env (``[*B, *value_shape]``)
+    per_env: bool
+
+    @property
+    def entry(self) -> str:
+        """The entry's name under ``curriculum_key`` (:func:`~torchtasks.transforms.names.entry_name`)."""
+        return entry_name(self.name)
+
+    @property
+    def value(self) -> torch.Tensor:
+        """The buffer's tensor now (a write under grad mode puts a new one in its place)."""
+        return self.module._buffers[self.buffer]
+
+    def check_values(self, values: Iterable[torch.Tensor], writer: str | Sequence[str]) -> None:
+        """Refuse a value the target's reward would refuse at construction (e.g. a negative cost weight).
+
+        Args:
+            values: the values the writer may put into the target, each of :attr:`value_shape` or broadcastable to
+                it (a scalar); e.g. a schedule's values at its breakpoints, a table's rows.
+            writer: who writes the values, for the message: one string, or one per value.
+        """
+        if not isinstance(self.module, RewardFunction):
+            return
+        shape = self.value.shape
+        for i, value in enumerate(values):
+            label = writer if isinstance(writer, str) else writer[i]
+            check_written_value(self.module, self.buffer, value if self.per_env else value.expand(shape), label)
+
+    def write(self, value: torch.Tensor | float, *, replace: bool) -> torch.Tensor:
+        """Write ``value`` into the buffer and return the buffer that holds it.
+
+        ``value``: a tensor of the buffer's dtype and device, broadcastable to its shape, or a Python float (every
+        element). ``replace=False``: ``copy_`` (``fill_``) into the buffer, as under ``no_grad`` in a collector.
+        ``replace=True``: put a new tensor in the buffer's place, so that the autograd graph of earlier steps (a
+        differentiable ``env.rollout``) keeps the values it saved.
+        """
+        buffer = self.module._buffers[self.buffer]
+        if isinstance(value, float):
+            if not replace:
+                return buffer.fill_(value)
+            buffer = torch.full_like(buffer, value)
+        elif not replace:
+            return buffer.copy_(value)
+        else:
+            buffer = value.expand_as(buffer).clone()
+        self.module._buffers[self.buffer] = buffer
+        return buffer
+
+
+class Placement(NamedTuple):
+    """Where a writer sits: the leaf transforms of its env, its index among them, the TaskTransform before it."""
+
+    transforms: list[Transform]
+    position: int
+    task_transform: TaskTransform
+
+
+class ResolvedTargets(NamedTuple):
+    """The answer of :func:`resolve_targets`: the writer's placement and one :class:`Target` per name."""
+
+    placement: Placement
+    targets: list[Target]
+
+
+class TargetWriter(ResetWritingTransform):
+    """A transform that writes values of the run into :class:`Target`\\ s of its env.
+
+    Subclasses answer :meth:`written_targets` (resolved, e.g. for :func:`check_one_owner`) and
+    :meth:`recorded_task_values` (the task buffers whose every step's value they record, which offline
+    recomputation with the env's :class:`~torchtasks.transforms.TaskTransform` reads).
+    """
+
+    def written_targets(self) -> list[Target]:
+        """The targets this transform writes, resolved in its env (``ValueError`` if one is refused)."""
+        raise NotImplementedError
+
+    def recorded_task_values(self) -> list[RecordedValue]:
+        """The task-tree buffers this transform sets at every step, each with the entry recording its values."""
+        raise NotImplementedError
+
+
+def find_placement(writer: EnvDerivedTransform) -> Placement:
+    """The env's transforms around ``writer``, which must come after exactly one TaskTransform.
+
+    Example:
+        >>> from torchrl.envs import Compose, TransformedEnv
+        >>> from torchtasks.envs import PendulumEnv, swing_up_task
+        >>> from torchtasks.transforms import Curriculum, TaskTransform, constant
+        >>> curriculum = Curriculum({"success_value": constant(1.0)})
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(TaskTransform(swing_up_task()), curriculum))
+        >>> find_placement(curriculum).position
+        1
+    """
+    who = type(writer).__name__
+    home = writer.home_transforms()
+    if home is None:
+        raise ValueError(f"{who} must sit in a TransformedEnv, after the TaskTransform whose task it sets")
+    flat, position = home
+    tasks = [t for t in flat[:position] if isinstance(t, TaskTransform)]
+    if len(tasks) != 1:
+        after = any(isinstance(t, TaskTransform) for t in flat[position:])
+        raise ValueError(
+            f"{who} must come after exactly one TaskTransform in its env, found {len(tasks)} before it"
+            + (f" (put {who} after TaskTransform in the Compose)" if after and not tasks else "")
+        )
+    return Placement(flat, position, tasks[0])
+
+
+class _Candidate(NamedTuple):
+    """A name a writer can set: the module whose ``named_buffers()`` names it, the buffer's name there, its source."""
+
+    root: nn.Module
+    path: str
+    source: str
+
+
+class _Choices(NamedTuple):
+    """The names a writer can set, the short command names that several GoalCommands share (with their qualified
+    choices), and the names an error lists."""
+
+    named: dict[str, _Candidate]
+    ambiguous: dict[str, list[str]]
+    listed: list[str]
+
+
+def _choices(writer: EnvDerivedTransform, placement: Placement, env_fields: bool, names: Sequence[str]) -> _Choices:
+    task = placement.task_transform.task
+    named = {name: _Candidate(task, name, TASK) for name, buffer in task.named_buffers() if buffer.is_floating_point()}
+    listed = sorted(named)
+    if env_fields:
+        base = container_env(writer).base_env
+        fields = {f"{ENV}.{n}": _Candidate(base, n, ENV) for n, b in base.named_buffers() if b.is_floating_point()}
+        named.update(fields)
+        listed += sorted(fields)
+    commands = [t for t in placement.transforms if isinstance(t, GoalCommand)]
+    goal_keys = [command.goal_key for command in commands]
+    if len(set(goal_keys)) < len(goal_keys) and any(name.startswith(COMMAND + ".") for name in names):
+        raise ValueError(
+            f"{type(writer).__name__}: several GoalCommands of the env write the same goal key (goal keys "
+            f"{goal_keys}): their {COMMAND + '.'!r} targets cannot be told apart"
+        )
+    short: dict[str, list[str]] = {}
+    for command in commands:
+        qualifier = "/".join(key_parts(command.goal_key))
+        for leaf, buffer in command.named_buffers(recurse=False):
+            if buffer.is_floating_point():
+                named[f"{COMMAND}.{qualifier}.{leaf}"] = _Candidate(command, leaf, COMMAND)
+                short.setdefault(f"{COMMAND}.{leaf}", []).append(f"{COMMAND}.{qualifier}.{leaf}")
+    if len(commands) == 1:
+        named.update({name: named[full] for name, (full,) in short.items()})
+        return _Choices(named, {}, listed + sorted(short))
+    return _Choices(named, short, listed + sorted(choice for choices in short.values() for choice in choices))
+
+
+def _refuse_unknown(
+    writer: EnvDerivedTransform, placement: Placement, choices: _Choices, names: Sequence[str], env_fields: bool
+) -> None:
+    """The one message for names that are no target: every name the writer can set, and the closest one."""
+    who = type(writer).__name__
+    for name in names:
+        if name in choices.ambiguous:
+            raise ValueError(
+                f"{who}: the target {name!r} is ambiguous: the env has several GoalCommands; name one of "
+                f'{choices.ambiguous[name]} ("{COMMAND}.<goal key>.<buffer>")'
+            )
+    unknown = [name for name in names if name not in choices.named]
+    if not unknown:
+        return
+    commands = [t for t in placement.transforms if isinstance(t, GoalCommand)]
+    samplers = [repr(c.goal_key) for c in commands if not any(b.is_floating_point() for b in c.buffers(False))]
+    where = f"the {type(placement.task_transform.task).__name__} tree" + (", the base env" if env_fields else "")
+    if commands:
+        where += " or the env's GoalCommands"
+    elif any(name.startswith(COMMAND + ".") for name in unknown):
+        where += " (the env has no GoalCommand)"
+    if samplers:
+        where += f" (the GoalCommand(s) writing {', '.join(samplers)} sample with a callable: no range to set)"
+    legend = "float buffers are named as named_buffers() names them"
+    legend += f", those of the base env under {ENV + '.'!r}" if env_fields else ""
+    raise ValueError(
+        f"{who}: unknown target {unknown[0]!r}{did_you_mean(unknown[0], choices.listed) or '.'} "
+        + (f"(Also unknown: {unknown[1:]}.) " if len(unknown) > 1 else "")
+        + f"It is not in {where}; the names {who} can set are {choices.listed} ({legend}, and a GoalCommand's "
+        f"sampling range under {COMMAND + '.'!r})"
+    )
+
+
+def resolve_targets(
+    writer: EnvDerivedTransform,
+    names: Sequence[str],
+    value_shapes: Sequence[torch.Size],
+    *,
+    batch: torch.Size | None = None,
+    rows: int | None = None,
+    env_fields: bool = False,
+) -> ResolvedTargets:
+    """Resolve the target names of ``writer`` in its env: one :class:`Target` per name, shapes checked.
+
+    A GoalCommand's range must come after ``writer`` (the goal drawn in a step uses that step's range).
+
+    Args:
+        writer: the transform that writes the values; it must come after exactly one TaskTransform.
+        names: the targets, as the user wrote them.
+        value_shapes: the shape of the values written into each target. A value shared by all envs has the
+            buffer's shape or ``()``; with ``batch``, one env's row.
+        batch: the env's batch for per-env values: a task-tree or base-env buffer must then hold one value per env
+            (``[*batch, *row]``), and a GoalCommand's range is made per env
+            (:meth:`~torchtasks.transforms.GoalCommand.use_per_env_range`). ``None``: one value for all envs.
+        rows: how many rows the writer's values have (e.g. levels), for the messages; ``None`` for none.
+        env_fields: whether ``"env.<name>"`` names a float buffer of the base env.
+
+    Example:
+        >>> import torch
+        >>> from torchrl.envs import Compose, TransformedEnv
+        >>> from torchtasks.envs import PendulumEnv, swing_up_task
+        >>> from torchtasks.transforms import Curriculum, TaskTransform, constant
+        >>> curriculum = Curriculum({"success_value": constant(1.0)})
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(TaskTransform(swing_up_task()), curriculum))
+        >>> (target,) = resolve_targets(curriculum, ["success_value"], [torch.Size([])]).targets
+        >>> target.buffer, target.source, target.per_env
+        ('success_value', 'task', False)
+        >>> try:
+        ...     resolve_targets(curriculum, ["sucess_value"], [torch.Size([])])
+        ... except ValueError as error:
+        ...     print(str(error).split(" It is")[0])
+        Curriculum: unknown target 'sucess_value'; did you mean 'success_value'?
+    """
+    who = type(writer).__name__
+    placement = find_placement(writer)
+    choices = _choices(writer, placement, env_fields, names)
+    _refuse_unknown(writer, placement, choices, names, env_fields)
+    leading = [] if rows is None else [rows]
+    found = [choices.named[name] for name in names]
+    for command in (t for t in placement.transforms[: placement.position] if isinstance(t, GoalCommand)):
+        ranges = [repr(name) for name, candidate in zip(names, found, strict=True) if candidate.root is command]
+        if ranges:
+            raise ValueError(
+                f"{who} sets {', '.join(ranges)} of the GoalCommand writing {command.goal_key!r}, which comes before "
+                f"it: put {who} before it (before that GoalCommand in the Compose, after the TaskTransform), so that "
+                "the goal drawn in a step uses that step's range"
+            )
+    targets = []
+    for name, candidate, received in zip(names, found, value_shapes, strict=True):
+        module, leaf = buffer_owner(candidate.root, candidate.path)
+        source = candidate.source
+        shape = module._buffers[leaf].shape
+        if batch is None:
+            if received != torch.Size(()) and received != shape:
+                raise ValueError(
+                    f"{who}: the values of {name!r} have shape {tuple(received)}, but the target has shape "
+                    f"{tuple(shape)}; give values of shape {tuple(shape)} or scalars"
+                )
+            targets.append(Target(name, module, leaf, source, shape, per_env=False))
+        elif source == COMMAND:  # made per env below
+            if received != shape[-1:]:
+                raise ValueError(
+                    f"{who}: the values of {name!r} must have shape {[*leading, *shape[-1:]]} (one range bound per "
+                    f"row), got {[*leading, *received]}"
+                )
+            targets.append(Target(name, module, leaf, source, shape[-1:], per_env=True))
+        else:
+            expected = (*batch, *received)
+            if tuple(shape) != expected:
+                raise ValueError(
+                    f"{who}: the target {name!r} has shape {list(shape)}, but a per-env value of shape "
+                    f"{list(received)} needs a buffer of shape {list(expected)} (the env batch {list(batch)} first); "
+                    "a value shared by all envs is scheduled with a Curriculum"
+                )
+            targets.append(Target(name, module, leaf, source, received, per_env=True))
+    if batch is not None:
+        for command in command_ranges(targets):
+            command.use_per_env_range(batch)
+    return ResolvedTargets(placement, targets)
+
+
+def command_ranges(targets: Sequence[Target]) -> dict[GoalCommand, dict[str, int]]:
+    """The GoalCommands whose range ``targets`` set, each with ``{"low" or "high": index in targets}``."""
+    ranges: dict[GoalCommand, dict[str, int]] = {}
+    for i, target in enumerate(targets):
+        if target.source == COMMAND:
+            ranges.setdefault(target.module, {})[target.buffer] = i
+    return ranges
+
+
+def check_in_goal_space(target: Target, values: torch.Tensor, label: str, offenders: Sequence[str]) -> None:
+    """Refuse a value of a GoalCommand's range bound that leaves the command's ``Box`` (its goal spec).
+
+    Args:
+        target: a ``"command"`` target.
+        values: the values the bound may take, stacked on a first dim (``[n, *value_shape]``, or broadcastable).
+        label: who writes them, e.g. ``"Curriculum: the schedule of 'command.high'"``.
+        offenders: what each value is, for the message naming the first one outside.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.spaces import Box
+        >>> from torchtasks.transforms import GoalCommand
+        >>> command = GoalCommand(Box([-1.0], [1.0]))
+        >>> high = Target("command.high", command, "high", "command", torch.Size([1]), per_env=False)
+        >>> try:
+        ...     check_in_goal_space(high, torch.tensor([[0.5], [1.5]]), "a table", ["row 0", "row 1"])
+        ... except ValueError as error:
+        ...     print(str(error).split(" (")[0])
+        a table leaves the GoalCommand's space: row 1 leaves the goal space of the GoalCommand writing 'goal'
+    """
+    command = target.module
+    space_low = command.space.low.to("cpu", torch.float64)
+    space_high = command.space.high.to("cpu", torch.float64)
+    values = values.to("cpu", torch.float64)
+    outside = ((values < space_low) | (values > space_high)).reshape(len(values), -1).any(-1)
+    if outside.any():
+        raise ValueError(
+            f"{label} leaves the GoalCommand's space: {offenders[int(outside.nonzero()[0, 0])]} leaves the goal space "
+            f"of the GoalCommand writing {command.goal_key!r} (its goal spec, low={space_low.tolist()}, "
+            f"high={space_high.tolist()}); build the GoalCommand with a Box that holds the widest range"
+        )
+
+
+def check_low_not_above_high(pairs: Iterable[tuple[torch.Tensor, torch.Tensor]], labels: Sequence[str]) -> None:
+    """Refuse a GoalCommand range with ``low > high`` in some entry.
+
+    Args:
+        pairs: ``(low, high)`` pairs the range may take together (broadcastable tensors).
+        labels: what each pair is, for the message naming the first crossed one.
+
+    Example:
+        >>> import torch
+        >>> pairs = [(torch.tensor([0.0]), torch.tensor([0.5])), (torch.tensor([0.75]), torch.tensor([0.5]))]
+        >>> try:
+        ...     check_low_not_above_high(pairs, ["level 0", "level 1"])
+        ... except ValueError as error:
+        ...     print(error)
+        level 1 has low > high: low=[0.75], high=[0.5]
+    """
+    for i, (low, high) in enumerate(pairs):
+        low, high = low.to("cpu", torch.float64), high.to("cpu", torch.float64)
+        if (low > high).any():
+            raise ValueError(f"{labels[i]} has low > high: low={low.tolist()}, high={high.tolist()}")
+
+
+def check_one_owner(writer: TargetWriter, targets: Sequence[Target], placement: Placement, advice: str = "") -> None:
+    """Refuse a target that another :class:`TargetWriter` of the env also writes, and an entry both write.
+
+    ``advice`` ends the message (e.g. what to do instead).
+    """
+    who = type(writer).__name__
+    mine = {(id(target.module), target.buffer): target.name for target in targets}
+    own_entries = set(writer.out_keys)
+    for i, other in enumerate(placement.transforms):
+        if i == placement.position or not isinstance(other, TargetWriter):  # the writer (or what it was cloned from)
+            continue
+        for target in other.written_targets():
+            if (id(target.module), target.buffer) in mine:
+                raise ValueError(
+                    f"{who} sets {mine[(id(target.module), target.buffer)]!r}, which a {type(other).__name__} of the "
+                    f"env also sets as {target.name!r}: a buffer has one owner{advice}"
+                )
+        for key in other.out_keys:
+            if key in own_entries:
+                raise ValueError(f"{who} writes {key!r}, which a {type(other).__name__} of the env also writes")
