@@ -256,11 +256,10 @@ class UniformActions(TensorDictModuleBase):
         True
     """
 
-    in_keys: list[str] = []
-    out_keys: list[str] = ["action"]
-
     def __init__(self, env: EnvBase) -> None:
         super().__init__()
+        self.in_keys: list[str] = []
+        self.out_keys: list[str] = ["action"]
         space = env.action_spec.space
         self.register_buffer("low", torch.as_tensor(space.low).expand(env.action_spec.shape).clone())
         self.register_buffer("width", torch.as_tensor(space.high).expand(env.action_spec.shape) - self.low)
