@@ -195,6 +195,21 @@ def check_non_negative_int(value: object, name: str) -> int:
     return int(value)  # type: ignore[call-overload]
 
 
+def check_batch_size(value: object, name: str) -> torch.Size:
+    """Return ``value`` as a ``torch.Size``; raise unless it is a sequence of non-negative ints (a batch shape).
+
+    Each entry is accepted as :func:`check_non_negative_int` accepts it; a string, a bare int or another type is a
+    ``TypeError``.
+
+    Example:
+        >>> check_batch_size([4, 2], "batch_size")
+        torch.Size([4, 2])
+    """
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise TypeError(f"{name} must be a torch.Size or a sequence of non-negative ints, got {value!r}")
+    return torch.Size([check_non_negative_int(n, f"{name}[{i}]") for i, n in enumerate(value)])
+
+
 def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """Return ``constant`` in the dtype and on the device of ``x`` (a no-op when they already agree)."""
     if constant.dtype == x.dtype and constant.device == x.device:

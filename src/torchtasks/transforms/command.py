@@ -17,7 +17,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
-from torchtasks._checks import check_int, check_non_negative_int, check_positive_int
+from torchtasks._checks import check_batch_size, check_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
 from torchtasks.spaces import Box
 from torchtasks.transforms.names import SUCCESS_KEY
@@ -229,7 +229,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
                 "GoalCommand.use_per_env_range: this command draws goals with a sampler callable, which has no "
                 "sampling range (low/high buffers); build it with a torchtasks.spaces.Box to give envs their own range"
             )
-        batch = _batch_size(batch_size, "GoalCommand.use_per_env_range: batch_size")
+        batch = check_batch_size(batch_size, "GoalCommand.use_per_env_range: batch_size")
         target = torch.Size([*batch, self.goal_size])
         for name in ("low", "high"):
             shape = self._buffers[name].shape
@@ -426,12 +426,6 @@ class GoalCommand(CheckedLoad, SeededTransform):
             f"{type(self).__name__}(goal_key={self.goal_key!r}, resample_steps={self.timer_range}, "
             f"resample_on_success={self.resample_on_success})"
         )
-
-
-def _batch_size(value: object, name: str) -> torch.Size:
-    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
-        raise TypeError(f"{name} must be a torch.Size or a sequence of non-negative ints, got {value!r}")
-    return torch.Size([check_non_negative_int(n, f"{name}[{i}]") for i, n in enumerate(value)])
 
 
 def _timer_range(resample_steps: object) -> tuple[int, int] | None:
