@@ -1,5 +1,23 @@
-"""Domain randomization's core: the fields an env can vary per env (:mod:`torchtasks.domain.fields`)."""
+"""Domain randomization's core: the fields an env can vary per env (:mod:`torchtasks.domain.fields`) and the
+distributions their values are drawn from (:mod:`torchtasks.domain.parameters`)."""
 
 from torchtasks.domain.fields import DomainEnv, DomainField, check_field_name, check_in_field
+from torchtasks.domain.parameters import (
+    BernoulliDomainParam,
+    DomainParam,
+    MultivariateNormalDomainParam,
+    NormalDomainParam,
+    UniformDomainParam,
+)
 
-__all__ = ["DomainEnv", "DomainField", "check_field_name", "check_in_field"]
+__all__ = [
+    "BernoulliDomainParam",
+    "DomainEnv",
+    "DomainField",
+    "DomainParam",
+    "MultivariateNormalDomainParam",
+    "NormalDomainParam",
+    "UniformDomainParam",
+    "check_field_name",
+    "check_in_field",
+]
