@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from typing import Any, ClassVar
 
 import numpy as np
@@ -202,7 +202,9 @@ class DomainParam(CheckedLoad, nn.Module):
         """``num`` unclipped draws ``[num, *value_shape]`` from ``params`` (rows ``[num, ...]`` or shared)."""
         raise NotImplementedError
 
-    def _noise(self, sampler: Any, num: int, generator: torch.Generator | None, device: torch.device) -> torch.Tensor:
+    def _noise(
+        self, sampler: Callable[..., torch.Tensor], num: int, generator: torch.Generator | None, device: torch.device
+    ) -> torch.Tensor:
         """One call of ``sampler`` (``torch.rand``/``torch.randn``) for ``[num, *value_shape]`` on the CPU, moved."""
         shape = (num, *self._value_shape)
         return sampler(shape, generator=generator, dtype=FLOAT64, device="cpu").to(device)
