@@ -18,6 +18,7 @@ import torch
 from tensordict.nn import TensorDictModule
 from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
+from torchtasks.domain import BernoulliDomainParam, NormalDomainParam, UniformDomainParam
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
 from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward
 from torchtasks.rewards.terms import HealthyReward
@@ -31,7 +32,15 @@ from torchtasks.tasks import (
     PotentialShapingTask,
     proximity_succeeded,
 )
-from torchtasks.transforms import BaseEnvState, Curriculum, DifficultyLevels, GoalCommand, TaskTransform, linear
+from torchtasks.transforms import (
+    BaseEnvState,
+    Curriculum,
+    DifficultyLevels,
+    DomainRandomization,
+    GoalCommand,
+    TaskTransform,
+    linear,
+)
 
 MAX_STEPS = 12
 SCHEDULED = "wrapped_task.reward.rewards.effort.R"  # swing_up_task's effort weight, ramped by the curriculum feature
@@ -99,6 +108,30 @@ def levels(batch: int, seed: int) -> TransformedEnv:
     command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), seed=seed)
     task = TaskTransform(_masked_reach(), goal_key="goal")
     return _finish(PointMassEnv(batch_size=[batch], seed=seed), task, DifficultyLevels(3, tables), command)
+
+
+def _pendulum_params() -> list:
+    return [
+        UniformDomainParam("mass", mean=1.0, halfspan=0.0),
+        NormalDomainParam("length", mean=1.0, std=0.1, clip_lo=0.7, clip_up=1.3),
+        BernoulliDomainParam("gravity", val_0=9.0, val_1=11.0, prob_1=0.5),
+    ]
+
+
+def domain(batch: int, seed: int) -> TransformedEnv:
+    """Per-env pendulum physics drawn at every reset, the mass's range widened by a Curriculum."""
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
+    randomization = DomainRandomization(_pendulum_params(), seed=seed)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum, randomization)
+
+
+def domain_levels(batch: int, seed: int) -> TransformedEnv:
+    """Per-env physics redrawn every 4 steps (across episodes), each env's mass range set by its level."""
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    levels = DifficultyLevels(3, {"domain.mass.halfspan": [0.0, 0.2, 0.4]})
+    randomization = DomainRandomization(_pendulum_params(), when="interval", every=4, seed=seed)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, levels, randomization)
 
 
 def _fast(state: torch.Tensor) -> torch.Tensor:
@@ -171,6 +204,8 @@ FEATURES: dict[str, Feature] = {
     "levels": Feature(levels, functools.partial(point_policy, True)),
     "constraints": Feature(constraints, pendulum_policy),
     "end_conditions": Feature(end_conditions, functools.partial(point_policy, False)),
+    "domain": Feature(domain, pendulum_policy),
+    "domain_levels": Feature(domain_levels, pendulum_policy),
 }
 
 

@@ -20,6 +20,7 @@ from torchtasks._torchrl import key_parts, keys_text, nested_key
 from torchtasks.transforms.names import (
     COST_TERMS_KEY,
     CURRICULUM_KEY,
+    DOMAIN_KEY,
     DONE_KEY,
     ENDED_BY_KEY,
     EPISODE_SUM_PREFIX,
@@ -158,6 +159,7 @@ def episode_statistics(
     goal_key: NestedKey | None = None,
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = CURRICULUM_KEY,
+    domain_key: NestedKey | None = DOMAIN_KEY,
     cost_terms_key: NestedKey | None = COST_TERMS_KEY,
     ended_by_key: NestedKey | None = ENDED_BY_KEY,
     cost_limits: Mapping[str, float] | None = None,
@@ -249,6 +251,10 @@ def episode_statistics(
       them): the mean over the complete episodes of the episode's summed cost, per constraint; with
       ``cost_limits={name: limit}`` also ``cost_violation_rate/<name>``, the fraction of those episodes
       whose summed cost exceeds the limit.
+    - ``domain/<field>`` (when the data holds a :class:`~torchtasks.transforms.DomainRandomization`'s entries
+      ``("next", domain_key, field)``): the mean over the ended episodes of the field's value at the episode's
+      last frame (the physics that episode ended with), beside the outcome rates; a vector field gives one key
+      per entry, ``domain/<field>/<i>`` (e.g. ``domain/gravity/2``).
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
       :class:`~torchtasks.transforms.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
@@ -275,6 +281,8 @@ def episode_statistics(
             ``None`` ones); a name that is not a cost of the data is a ``KeyError``.
         curriculum_key: the Curriculum's ``curriculum_key`` (its entries are read under ``"next"``);
             data without it report no scheduled values; ``None`` skips them.
+        domain_key: the DomainRandomization's ``entry_key`` (the drawn physics under ``"next"``); data without it
+            report no domain values; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
         mask_key: the padding mask of a padded batch (bool, at the root, False on padding; TorchRL writes
@@ -313,6 +321,7 @@ def episode_statistics(
             ("goal_key", goal_key),
             ("achieved_goal_key", achieved_goal_key),
             ("curriculum_key", curriculum_key),
+            ("domain_key", domain_key),
             ("cost_terms_key", cost_terms_key),
             ("ended_by_key", ended_by_key),
             ("mask_key", mask_key),
@@ -368,6 +377,12 @@ def _statistics(
         )
     for name, value in costs.items():
         returns["cost_mean/" + name] = value
+    # per domain field: its values at every frame, [F, elements]
+    domain_entries = None if keys["domain_key"] is None else batch.get(("next", *keys["domain_key"]), None)
+    domain = {
+        name: _required_vector(frames, (*keys["domain_key"], name), "domain_key", where="next")
+        for name in ([] if not isinstance(domain_entries, TensorDictBase) else list(domain_entries.keys()))
+    }
     goals = None
     if keys["goal_key"] is not None:
         goals = (  # the goal that judged step t, and the goal achieved by it
@@ -462,6 +477,12 @@ def _statistics(
             name = stat[len("cost_mean/") :]
             if stat.startswith("cost_mean/") and name in limits:
                 results["cost_violation_rate/" + name] = _mean(sums[episode][complete] > limits[name])
+    for name, values in domain.items():  # the physics each ended episode ended with
+        means = values[ends].to(torch.float64).mean(0)
+        if means.numel() == 1:
+            results[f"{DOMAIN_KEY}/{name}"] = means[0]
+        else:
+            results.update({f"{DOMAIN_KEY}/{name}/{i}": mean for i, mean in enumerate(means)})
     if goals is not None:
         goal, achieved = (value[ends].to(torch.float64) for value in goals)
         results["final_goal_distance_mean"] = torch.linalg.vector_norm(goal - achieved, dim=-1).mean()

@@ -25,6 +25,6 @@ def test_an_old_path_exports_the_package_objects(path: str) -> None:
         assert getattr(module, name) is getattr(transforms, name), name
 
 
-def test_the_package_exports_every_old_name_and_the_task_transform() -> None:
-    names = {name for names in OLD_PATHS.values() for name in names} | {"TaskTransform"}
+def test_the_package_exports_every_old_name_the_task_transform_and_domain_randomization() -> None:
+    names = {name for names in OLD_PATHS.values() for name in names} | {"TaskTransform", "DomainRandomization"}
     assert names == set(transforms.__all__)

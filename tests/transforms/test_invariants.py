@@ -1,7 +1,8 @@
 """Every feature holds in every layout: one invariant suite over the combinations users build.
 
 Features (``feature_envs.FEATURES``): a plain task without terms, named terms with a final reward, shaping, a
-GoalCommand, a Curriculum, DifficultyLevels, constraints and named end conditions. Layouts: ``env.rollout``
+GoalCommand, a Curriculum, DifficultyLevels, constraints, named end conditions and per-env physics drawn by a
+DomainRandomization (at resets under a Curriculum, at intervals under DifficultyLevels). Layouts: ``env.rollout``
 ``[B, T]``, a Collector's batch ``[B, T]``, the same flattened to ``[N]`` (grouped by trajectory ids),
 ``split_trajs`` (padded rows with a mask), a replay-buffer sample (random frames of a flat batch), and data
 collected through a ``ParallelEnv`` or by a ``MultiSyncCollector`` (worker processes). Invariants:
@@ -11,7 +12,7 @@ collected through a ``ParallelEnv`` or by a ``MultiSyncCollector`` (worker proce
   exactly what the online step wrote: reward, flags, breakdown, costs and end conditions;
 - statistics == an independent count: ``episode_statistics`` on every layout equals a plain loop over the frames
   of the time-major collection, written here (episodes, outcome rates, lengths, returns per entry, costs, end
-  conditions, the schedule and the levels at the end of the batch).
+  conditions, the drawn physics episodes ended with, the schedule and the levels at the end of the batch).
 
 A defect that holds for one layout only (padding read as a frame, today's buffers used offline, the first
 episode of a row taken as complete) fails here.
@@ -41,6 +42,7 @@ from torchtasks.stats import episode_statistics
 from torchtasks.transforms import (
     Curriculum,
     DifficultyLevels,
+    DomainRandomization,
     GoalCommand,
     TaskTransform,
     collector_state,
@@ -209,6 +211,11 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
         if complete_sums["return_mean"]:
             for stat, sums in complete_sums.items():
                 stats[stat] = sum(sums) / len(sums)
+        for name in nxt["domain"].keys() if "domain" in nxt.keys() else []:  # the physics each episode ended with
+            values = [nxt["domain", name][row, t].reshape(-1) for row, t, _ in ends]
+            for i in range(len(values[0])):
+                key = f"domain/{name}" if len(values[0]) == 1 else f"domain/{name}/{i}"
+                stats[key] = sum(float(value[i]) for value in values) / len(ends)
     if "curriculum" in nxt.keys():
         for name in nxt["curriculum"].keys():
             last = nxt["curriculum", name][:, -1].reshape(rows, -1)
@@ -281,7 +288,7 @@ def test_a_replay_sample_counts_the_episodes_it_holds_whole():
 
 
 # ------------------------------------------------------------------------------------------------ worker processes
-PROCESS_FEATURES = ["curriculum", "levels", "constraints"]
+PROCESS_FEATURES = ["curriculum", "levels", "constraints", "domain"]
 
 
 @pytest.mark.multiprocess
@@ -382,7 +389,16 @@ def _other_goal_command(batch: int, seed: int):
     return feature_envs._finish(PointMassEnv(batch_size=[batch], seed=seed), task, command)
 
 
+def _other_domain(batch: int, seed: int):
+    """The domain feature drawing once per env instead of at every reset."""
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
+    randomization = DomainRandomization(feature_envs._pendulum_params(), when="startup", seed=seed)
+    return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum, randomization)
+
+
 OTHER_CONFIGURATIONS = {
+    "domain": (_other_domain, "when: saved 'reset', here 'startup'"),
     "curriculum": (_other_curriculum, "'success_value' is staged here, but the checkpoint holds a linear"),
     "levels": (_other_levels, r"shape \[2, 2\] here"),
     "goal_command": (_other_goal_command, "must lie in this command's goal space"),

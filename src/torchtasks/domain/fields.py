@@ -19,7 +19,9 @@ from typing import NamedTuple, Protocol, runtime_checkable
 
 import torch
 
-__all__ = ["DomainEnv", "DomainField", "check_field_name", "check_in_field"]
+from torchtasks._checks import did_you_mean
+
+__all__ = ["DomainEnv", "DomainField", "check_domain_values", "check_field_name", "check_in_field", "select_fields"]
 
 
 class DomainField(NamedTuple):
@@ -106,6 +108,92 @@ def check_in_field(field: DomainField, lowest: torch.Tensor, highest: torch.Tens
                 f"{what} can write {value} into {field.name!r} ({field.description}), which must be {field.rule}; "
                 "narrow the distribution or clip it (clip_lo, clip_up)"
             )
+
+
+def select_fields(
+    table: Mapping[str, DomainField],
+    names: Sequence[str] | None,
+    owner: str,
+    writes: Mapping[str, frozenset] | None = None,
+) -> list[DomainField]:
+    """The fields of ``table`` that ``names`` names, in order (``None``: all): what ``domain_fields`` answers.
+
+    Refuses a name that is not a string, an unknown name (the closest one and how many there are), a name twice,
+    and, with ``writes`` (``name -> the model values it writes``), two names writing a value in common.
+
+    Example:
+        >>> import math, torch
+        >>> nominal = torch.tensor(1.0, dtype=torch.float64)
+        >>> table = {"mass": DomainField("mass", torch.Size([]), nominal, 0.0, math.inf, True, (), False, "mass")}
+        >>> [field.name for field in select_fields(table, ["mass"], "MyEnv")]
+        ['mass']
+        >>> try:
+        ...     select_fields(table, ["mas"], "MyEnv")
+        ... except ValueError as error:
+        ...     print(str(error).split(" The")[0])
+        MyEnv: unknown domain field 'mas'; did you mean 'mass'?
+    """
+    if names is None:
+        return list(table.values())
+    if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
+        raise TypeError(f"{owner}: names must be a sequence of domain field names, got {names!r}")
+    listed = list(table)
+    for name in names:
+        if not isinstance(name, str):
+            raise TypeError(f"{owner}: a domain field name must be a string, got {name!r}")
+        if name not in table:
+            shown = listed if len(listed) <= 12 else [*listed[:12], f"... ({len(listed)} in all)"]
+            raise ValueError(
+                f"{owner}: unknown domain field {name!r}{did_you_mean(name, listed) or '.'} The env's fields: {shown} "
+                "(env.domain_fields() lists them)"
+            )
+    if len(set(names)) < len(names):
+        raise ValueError(f"{owner}: a domain field is named twice in {list(names)}")
+    for i, first in enumerate(names):
+        for second in names[i + 1 :]:
+            if writes is not None and writes[first] & writes[second]:
+                raise ValueError(
+                    f"{owner}: the domain fields {first!r} and {second!r} write the same model values: give one of them"
+                )
+    return [table[name] for name in names]
+
+
+def check_domain_values(
+    fields: Mapping[str, DomainField],
+    values: Mapping[str, torch.Tensor],
+    mask: torch.Tensor | None,
+    batch: torch.Size,
+    owner: str,
+) -> torch.Tensor:
+    """Check what ``set_domain`` received; return the mask (bool ``batch``, all True for ``None``).
+
+    Each value must be a float64 tensor ``[*batch, *value_shape]`` of a known field, finite and in the field's range
+    in the envs of ``mask``. A host check: ``set_domain`` runs at resets and draws, not in every step's tensor code.
+    """
+    if not isinstance(values, Mapping):
+        raise TypeError(f"{owner}.set_domain: values must be a mapping of field name -> tensor, got {values!r}")
+    if mask is None:
+        mask = torch.ones(batch, dtype=torch.bool)
+    elif not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool or mask.shape != batch:
+        got = f"{mask.dtype} {list(mask.shape)}" if isinstance(mask, torch.Tensor) else repr(mask)
+        raise ValueError(f"{owner}.set_domain: mask must be a bool tensor of shape {list(batch)}, got {got}")
+    select_fields(fields, list(values), f"{owner}.set_domain")
+    for name, value in values.items():
+        field = fields[name]
+        shape = [*batch, *field.value_shape]
+        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64 or list(value.shape) != shape:
+            got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+            raise ValueError(
+                f"{owner}.set_domain: values[{name!r}] must be a float64 tensor of shape {shape}, got {got}"
+            )
+        rows = mask.to(value.device).reshape(*batch, *([1] * len(field.value_shape))).expand_as(value)
+        bad = rows & ~field.allows(value)
+        if bool(bad.any()):
+            raise ValueError(
+                f"{owner}.set_domain: values[{name!r}] holds {value[bad].flatten()[0].item()}, but {name!r} "
+                f"({field.description}) must be {field.rule}"
+            )
+    return mask
 
 
 @runtime_checkable

@@ -5,16 +5,17 @@
 - :class:`GoalCommand` (:mod:`.command`): per-env goals drawn from a box and resampled;
 - :class:`Curriculum` (:mod:`.curriculum`) with the schedules of :mod:`.schedules`, and
   :class:`DifficultyLevels` (:mod:`.levels`): values of the run written into the task (or the command);
+- :class:`DomainRandomization` (:mod:`.domain`): per-env physics drawn from domain distributions;
 - :class:`SeededTransform` and :func:`seed_transforms` (:mod:`.seeding`): per-worker seeds from ``set_seed``;
 - :class:`BaseEnvState`, :func:`collector_state`, :func:`load_collector_state` (:mod:`.checkpoint`): saving
   and resuming a run, episodes included.
 
 :mod:`.targets` is the one resolver of the values of the run (a name to a buffer of the task tree, a GoalCommand's
-range or the base env; the checks; the write) that curricula and levels share; :mod:`.entries` is the table of
-the entries a task writes; :mod:`.names` spells every default entry name once.
+range, the base env or a domain distribution; the checks; the write) that curricula and levels share;
+:mod:`.entries` is the table of the entries a task writes; :mod:`.names` spells every default entry name once.
 
 The modules of the package import only from below it (rewards, tasks, spaces) and from one another in this
-order: ``names``, ``_base``, ``entries``, ``seeding``, ``task``, ``command``, ``schedules``, ``targets``,
+order: ``names``, ``_base``, ``entries``, ``seeding``, ``task``, ``command``, ``domain``, ``schedules``, ``targets``,
 ``curriculum``, ``levels``, ``checkpoint``.
 The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.levels``,
 ``torchtasks.seeding``, ``torchtasks.checkpoint``) re-export the same objects.
@@ -23,6 +24,7 @@ The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.
 from torchtasks.transforms.checkpoint import BaseEnvState, collector_state, load_collector_state
 from torchtasks.transforms.command import GoalCommand
 from torchtasks.transforms.curriculum import Curriculum
+from torchtasks.transforms.domain import DomainRandomization
 from torchtasks.transforms.levels import DifficultyLevels, LevelRule
 from torchtasks.transforms.schedules import GatedSchedule, Schedule, constant, gated, linear, staged
 from torchtasks.transforms.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
@@ -32,6 +34,7 @@ __all__ = [
     "BaseEnvState",
     "Curriculum",
     "DifficultyLevels",
+    "DomainRandomization",
     "GatedSchedule",
     "GoalCommand",
     "LevelRule",

@@ -25,7 +25,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import key_parts, nested_key
-from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, entry_name
+from torchtasks.transforms.names import CURRICULUM_KEY, FRAMES, entry_name, names_task_buffer
 from torchtasks.transforms.schedules import (
     GatedSchedule,
     Schedule,
@@ -341,7 +341,7 @@ class Curriculum(CheckedLoad, TargetWriter):
         return [
             RecordedValue(target, key, None)
             for target, key in zip(self.targets, self._value_keys, strict=True)
-            if not target.startswith(COMMAND + ".")
+            if names_task_buffer(target)
         ]
 
     def written_targets(self) -> list[Target]:

@@ -29,7 +29,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
-from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, ENV, FRAMES, LEVEL, entry_name
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, entry_name, names_task_buffer
 from torchtasks.transforms.targets import (
     Target,
     TargetWriter,
@@ -314,7 +314,7 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         return [
             RecordedValue(self.targets[i], key, self._table(i).shape[1:])
             for i, key in self._value_keys.items()
-            if not self.targets[i].startswith(ENV + ".")
+            if names_task_buffer(self.targets[i])
         ]
 
     def written_targets(self) -> list[Target]:

@@ -7,9 +7,10 @@ run's values.
 A :class:`~torchtasks.transforms.Curriculum` and :class:`~torchtasks.transforms.DifficultyLevels` write under
 ``curriculum_key`` (default :data:`CURRICULUM_KEY`): the frame count (:data:`FRAMES`), the levels
 (:data:`LEVEL`) and one entry per target, named by :func:`entry_name`. A target names a float buffer of the
-task tree as ``task.named_buffers()`` does, a GoalCommand's range under :data:`COMMAND` and a buffer of the
-base env under :data:`ENV`. The transforms, offline recomputation and :func:`~torchtasks.stats.episode_statistics`
-read these names from here.
+task tree as ``task.named_buffers()`` does, a GoalCommand's range under :data:`COMMAND`, a buffer of the
+base env under :data:`ENV` and a DomainRandomization's distribution parameter under :data:`DOMAIN`; the drawn
+physics values are written under :data:`DOMAIN_KEY`. The transforms, offline recomputation and
+:func:`~torchtasks.stats.episode_statistics` read these names from here.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ __all__ = [
     "COST_KEY",
     "COST_TERMS_KEY",
     "CURRICULUM_KEY",
+    "DOMAIN",
+    "DOMAIN_KEY",
     "DONE_KEY",
     "ENDED_BY_KEY",
     "ENV",
@@ -35,6 +38,7 @@ __all__ = [
     "TERMS_KEY",
     "TRUNCATED_KEY",
     "entry_name",
+    "names_task_buffer",
     "target_name",
 ]
 
@@ -73,6 +77,22 @@ LEVEL = "level"
 COMMAND = "command"
 #: the prefix of the targets that name a buffer of the base env (``"env.step_size"``)
 ENV = "env"
+#: the prefix of the targets that name a distribution parameter of a DomainRandomization
+#: (``"domain.body_mass:torso.halfspan"``)
+DOMAIN = "domain"
+#: the default key under which a DomainRandomization writes every env's drawn values (``entry_key``), one entry
+#: per domain field (``("domain", "body_mass:torso")``)
+DOMAIN_KEY = "domain"
+
+
+def names_task_buffer(target: str) -> bool:
+    """Whether a target names a buffer of the task tree (not a GoalCommand's range, a base-env or a domain buffer).
+
+    Example:
+        >>> names_task_buffer("wrapped_task.reward.Q"), names_task_buffer("domain.body_mass_scale.halfspan")
+        (True, False)
+    """
+    return not target.startswith((COMMAND + ".", ENV + ".", DOMAIN + "."))
 
 
 def entry_name(target: str) -> str:

@@ -8,13 +8,15 @@ string. :func:`resolve_targets` turns the names into :class:`Target`\\ s once, w
 - a buffer of a :class:`~torchtasks.transforms.GoalCommand`'s sampling range, ``"command.low"`` /
   ``"command.high"`` with one GoalCommand in the env, ``"command.<goal key>.low"`` (a nested goal key joined by
   ``"/"``) always;
-- with ``env_fields=True``, a float buffer of the base env as ``"env.<name>"``.
+- with ``env_fields=True``, a float buffer of the base env as ``"env.<name>"``;
+- a distribution parameter of a :class:`~torchtasks.transforms.DomainRandomization`'s param,
+  ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``).
 
 A misspelt name is refused with one message listing every name the writer can set. A :class:`Target` checks
-the values a writer may put into it (:meth:`Target.check_values`: the rules of a reward's constants;
-:func:`check_in_goal_space` and :func:`check_low_not_above_high` for a GoalCommand's range) and writes one
-(:meth:`Target.write`). A :class:`TargetWriter` answers which targets it writes, so that a buffer has one owner
-(:func:`check_one_owner`).
+the values a writer may put into it (:meth:`Target.check_values`: the rules of a reward's constants and of a
+domain distribution, whose draws must stay in the env's field; :func:`check_in_goal_space` and
+:func:`check_low_not_above_high` for a GoalCommand's range) and writes one (:meth:`Target.write`). A
+:class:`TargetWriter` answers which targets it writes, so that a buffer has one owner (:func:`check_one_owner`).
 """
 
 from __future__ import annotations
@@ -28,11 +30,13 @@ from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import did_you_mean
 from torchtasks._torchrl import container_env, key_parts
+from torchtasks.domain import DomainParam
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
 from torchtasks.transforms._base import EnvDerivedTransform, ResetWritingTransform
 from torchtasks.transforms.command import GoalCommand
-from torchtasks.transforms.names import COMMAND, ENV, entry_name
+from torchtasks.transforms.domain import DomainRandomization
+from torchtasks.transforms.names import COMMAND, DOMAIN, ENV, entry_name
 from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owner
 
 __all__ = [
@@ -49,8 +53,9 @@ __all__ = [
     "resolve_targets",
 ]
 
-#: the source of a target in the task tree (the others are :data:`~torchtasks.transforms.names.COMMAND` and
-#: :data:`~torchtasks.transforms.names.ENV`, the prefixes of their names)
+#: the source of a target in the task tree (the others are :data:`~torchtasks.transforms.names.COMMAND`,
+#: :data:`~torchtasks.transforms.names.ENV` and :data:`~torchtasks.transforms.names.DOMAIN`, the prefixes of their
+#: names)
 TASK = "task"
 
 
@@ -71,11 +76,11 @@ class Target(NamedTuple):
 
     #: the name as the user wrote it
     name: str
-    #: the module holding the buffer: a module of the task tree, a GoalCommand or the base env
+    #: the module holding the buffer: a module of the task tree, a GoalCommand, the base env or a DomainParam
     module: nn.Module
     #: the buffer's name in ``module`` (``"Q"``, a GoalCommand's ``"low"`` or ``"high"``)
     buffer: str
-    #: where it lives: :data:`TASK`, ``"command"`` or ``"env"``
+    #: where it lives: :data:`TASK`, ``"command"``, ``"env"`` or ``"domain"``
     source: str
     #: the shape of one written value: the buffer's shape, or one env's row of a per-env buffer
     value_shape: torch.Size
@@ -100,12 +105,16 @@ class Target(NamedTuple):
                 it (a scalar); e.g. a schedule's values at its breakpoints, a table's rows.
             writer: who writes the values, for the message: one string, or one per value.
         """
-        if not isinstance(self.module, RewardFunction):
+        if not isinstance(self.module, (RewardFunction, DomainParam)):
             return
         shape = self.value.shape
         for i, value in enumerate(values):
             label = writer if isinstance(writer, str) else writer[i]
-            check_written_value(self.module, self.buffer, value if self.per_env else value.expand(shape), label)
+            value = value if self.per_env else value.expand(shape)
+            if isinstance(self.module, DomainParam):
+                self.module.check_written_value(self.buffer, value, label)
+            else:
+                check_written_value(self.module, self.buffer, value, label)
 
     def write(self, value: torch.Tensor | float, *, replace: bool) -> torch.Tensor:
         """Write ``value`` into the buffer and return the buffer that holds it.
@@ -213,6 +222,10 @@ def _choices(writer: EnvDerivedTransform, placement: Placement, env_fields: bool
         fields = {f"{ENV}.{n}": _Candidate(base, n, ENV) for n, b in base.named_buffers() if b.is_floating_point()}
         named.update(fields)
         listed += sorted(fields)
+    for randomization in (t for t in placement.transforms if isinstance(t, DomainRandomization)):
+        for name, _ in randomization.params.named_buffers():
+            named[f"{DOMAIN}.{name}"] = _Candidate(randomization.params, name, DOMAIN)
+            listed.append(f"{DOMAIN}.{name}")
     commands = [t for t in placement.transforms if isinstance(t, GoalCommand)]
     goal_keys = [command.goal_key for command in commands]
     if len(set(goal_keys)) < len(goal_keys) and any(name.startswith(COMMAND + ".") for name in names):
@@ -256,13 +269,17 @@ def _refuse_unknown(
         where += " (the env has no GoalCommand)"
     if samplers:
         where += f" (the GoalCommand(s) writing {', '.join(samplers)} sample with a callable: no range to set)"
+    if any(isinstance(t, DomainRandomization) for t in placement.transforms):
+        where += " or the env's DomainRandomizations"
+    elif any(name.startswith(DOMAIN + ".") for name in unknown):
+        where += " (the env has no DomainRandomization)"
     legend = "float buffers are named as named_buffers() names them"
     legend += f", those of the base env under {ENV + '.'!r}" if env_fields else ""
     raise ValueError(
         f"{who}: unknown target {unknown[0]!r}{did_you_mean(unknown[0], choices.listed) or '.'} "
         + (f"(Also unknown: {unknown[1:]}.) " if len(unknown) > 1 else "")
-        + f"It is not in {where}; the names {who} can set are {choices.listed} ({legend}, and a GoalCommand's "
-        f"sampling range under {COMMAND + '.'!r})"
+        + f"It is not in {where}; the names {who} can set are {choices.listed} ({legend}, a GoalCommand's "
+        f"sampling range under {COMMAND + '.'!r}, a domain distribution under {DOMAIN + '.<field>.'!r})"
     )
 
 
@@ -320,6 +337,18 @@ def resolve_targets(
                 f"it: put {who} before it (before that GoalCommand in the Compose, after the TaskTransform), so that "
                 "the goal drawn in a step uses that step's range"
             )
+    for randomization in placement.transforms[: placement.position]:
+        if not isinstance(randomization, DomainRandomization):
+            continue
+        params = [
+            repr(name) for name, candidate in zip(names, found, strict=True) if candidate.root is randomization.params
+        ]
+        if params:
+            raise ValueError(
+                f"{who} sets {', '.join(params)} of a DomainRandomization that comes before it: put {who} before it "
+                "(after the TaskTransform, before the DomainRandomization in the Compose), so that a draw uses the "
+                "distribution of its step"
+            )
     targets = []
     for name, candidate, received in zip(names, found, value_shapes, strict=True):
         module, leaf = buffer_owner(candidate.root, candidate.path)
@@ -332,6 +361,14 @@ def resolve_targets(
                     f"{tuple(shape)}; give values of shape {tuple(shape)} or scalars"
                 )
             targets.append(Target(name, module, leaf, source, shape, per_env=False))
+        elif source == DOMAIN:  # made per env below (a parameter of one env: the shared buffer's shape)
+            own = shape[len(batch) :] if shape[: len(batch)] == batch and shape[len(batch) :] == received else shape
+            if received != own:
+                raise ValueError(
+                    f"{who}: the values of {name!r} must have shape {[*leading, *own]} (one distribution parameter "
+                    f"per row), got {[*leading, *received]}"
+                )
+            targets.append(Target(name, module, leaf, source, own, per_env=True))
         elif source == COMMAND:  # made per env below
             if received != shape[-1:]:
                 raise ValueError(
@@ -351,6 +388,9 @@ def resolve_targets(
     if batch is not None:
         for command in command_ranges(targets):
             command.use_per_env_range(batch)
+        for target in targets:
+            if target.source == DOMAIN:
+                target.module.use_per_env(batch)
     return ResolvedTargets(placement, targets)
 
 

@@ -1,0 +1,435 @@
+"""Domain randomization: per-env physics drawn from domain distributions, as a TorchRL transform.
+
+:class:`DomainRandomization` draws a value of each of its :class:`~torchtasks.domain.DomainParam`\\ s for
+every env and gives it to the base env (a :class:`~torchtasks.domain.DomainEnv`: a
+:class:`~torchtasks.envs.BatchedMujocoEnv`, a :class:`~torchtasks.envs.PendulumEnv`), once per env
+(``when="startup"``), at each env's own reset (``"reset"``, Pyrado's ``DomainRandWrapperLive``) or every
+``every`` steps (``"interval"``); with ``cycle`` the values come from a stored set of domains, in turn
+(Pyrado's ``DomainRandWrapperBuffer``). The drawn values are entries of the data, and run state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torch import nn
+from torchrl.data import Composite, Unbounded
+
+from torchtasks._checked_load import CheckedLoad
+from torchtasks._checks import check_int, check_positive_int
+from torchtasks._torchrl import container_env, key_parts, nested_key
+from torchtasks.domain import DomainEnv, DomainField, DomainParam
+from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.names import DOMAIN_KEY
+from torchtasks.transforms.seeding import SeededTransform
+
+__all__ = ["DomainRandomization"]
+
+#: the moments a DomainRandomization draws
+WHEN = ("startup", "reset", "interval")
+
+
+class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
+    """Draw per-env physics from domain distributions and give them to the base env, at startup, resets or intervals.
+
+    Each :class:`~torchtasks.domain.DomainParam` names a domain field of the base env
+    (``env.base_env.domain_fields()`` lists them: ``"body_mass:torso"``, ``"geom_friction_scale"``,
+    ``"gravity"``, ...). The transform draws one value per env and param and writes it into the env
+    with :meth:`~torchtasks.domain.DomainEnv.set_domain` before the env uses it:
+
+    - ``when="reset"`` (default): at every reset of an env, before the base env resets (so the reset
+      state is computed with the new physics), for the envs of TorchRL's ``"_reset"`` mask only;
+    - ``when="startup"``: once per env, at its first reset;
+    - ``when="interval"``: at each env's first reset and then every ``every`` steps of that env (counted
+      across episodes); a value drawn in a step applies from the next step on.
+
+    With ``cycle=K`` the transform draws ``K`` domains (a value of every param each) at the first draw and
+    then gives each env that needs values the next domain of that stored set, in turn (envs in index
+    order), as Pyrado's ``DomainRandWrapperBuffer``; ``cycle={name: values [K, *value_shape]}`` gives the
+    set. Without ``cycle`` every draw is fresh (Pyrado's ``DomainRandWrapperLive``).
+
+    Entries: every env's current values, float64 ``[*B, *value_shape]`` under ``(entry_key, name)``, at
+    reset and at every step (observation spec; collectors keep them, a privileged critic can read them,
+    :func:`~torchtasks.stats.episode_statistics` averages them over finished episodes).
+
+    Run state: the drawn values (``drawn.<name>``), the interval counters, the stored domains and the
+    generator are in ``state_dict``; ``env.set_seed(s)`` seeds the generator per worker (see
+    :mod:`torchtasks.transforms.seeding`); ``seed=None`` draws from torch's global generator until then. A
+    load is refused unless the checkpoint has the same params (names and kinds), ``when``, ``every`` and
+    ``cycle``; loaded into a built env, the drawn values are written into the env at once, so a resumed
+    run continues with the physics it had.
+
+    Scheduling: the params' distribution parameters are targets of a
+    :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` placed
+    before this transform, named ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``);
+    every value a schedule or a level table can write is checked against the field's range when the specs
+    are built.
+
+    Args:
+        params: the domain parameters, one per field (a name twice, or two params writing the same model values,
+            is refused when the specs are built).
+        when: ``"reset"``, ``"startup"`` or ``"interval"``.
+        every: the steps between draws of ``when="interval"`` (required there, refused otherwise).
+        cycle: ``None`` (fresh draws), the number of stored domains to draw, or the stored domains.
+        entry_key: where the drawn values are written (a nested key; one entry per param).
+        seed: seed of the transform's own generator (``None``: torch's global one until ``env.set_seed``).
+
+    Example:
+        >>> import torch
+        >>> from torchrl.envs import TransformedEnv
+        >>> from torchtasks.domain import UniformDomainParam
+        >>> from torchtasks.envs import PendulumEnv
+        >>> from torchtasks.transforms import DomainRandomization
+        >>> randomization = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.5)], seed=0)
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), randomization)
+        >>> masses = env.reset()["domain", "mass"]
+        >>> masses.shape, bool(((masses >= 0.5) & (masses <= 1.5)).all())
+        (torch.Size([4]), True)
+        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses)
+        True
+    """
+
+    def __init__(
+        self,
+        params: Sequence[DomainParam],
+        *,
+        when: str = "reset",
+        every: int | None = None,
+        cycle: int | Mapping[str, torch.Tensor] | None = None,
+        entry_key: str | tuple[str, ...] = DOMAIN_KEY,
+        seed: int | None = None,
+    ) -> None:
+        if isinstance(params, DomainParam) or not isinstance(params, Sequence) or not params:
+            raise TypeError(f"DomainRandomization: params must be a non-empty sequence of DomainParams, got {params!r}")
+        for i, param in enumerate(params):
+            if not isinstance(param, DomainParam):
+                raise TypeError(f"DomainRandomization: params[{i}] must be a DomainParam, got {type(param).__name__}")
+        names = [param.name for param in params]
+        if len(set(names)) < len(names):
+            raise ValueError(f"DomainRandomization: params must name distinct domain fields, got {names}")
+        if when not in WHEN:
+            raise ValueError(f"DomainRandomization: when must be one of {list(WHEN)}, got {when!r}")
+        if (when == "interval") != (every is not None):
+            raise ValueError(
+                "DomainRandomization: every (the steps between draws) is required with when='interval' and refused "
+                f"otherwise, got when={when!r}, every={every!r}"
+            )
+        self.entry_key = nested_key(entry_key, "DomainRandomization: entry_key")
+        keys = [(*key_parts(self.entry_key), name) for name in names]
+        super().__init__(in_keys=[], out_keys=keys)
+        self.when = when
+        self.every = None if every is None else check_positive_int(every, "DomainRandomization: every")
+        self.names = tuple(names)
+        self.__dict__["_keys"] = keys
+        #: the domain parameters by field name
+        self.params = nn.ModuleDict({param.name: param for param in params})
+        #: every env's current values, one buffer per field (``[*B, *value_shape]``, made with the specs)
+        self.drawn = nn.Module()
+        for param in params:
+            self.drawn.register_buffer(param.name, torch.empty(0, dtype=torch.float64))
+        #: whether each env has had its first draw, and its steps since its last draw (when="interval")
+        self.register_buffer("started", torch.empty(0, dtype=torch.bool))
+        self.register_buffer("steps", torch.empty(0, dtype=torch.int64))
+        self.cycle_size = self._register_cycle(cycle, params)
+        self.generator = None if seed is None else torch.Generator().manual_seed(check_int(seed, "seed"))
+
+    def _register_cycle(self, cycle: object, params: Sequence[DomainParam]) -> int | None:
+        """Register the stored domains (``domains.<name>``), whether they are drawn yet, and the next one's index."""
+        self.domains = nn.Module()
+        self.register_buffer("next_domain", torch.zeros((), dtype=torch.int64))
+        self.register_buffer("domains_drawn", torch.tensor(False))
+        if cycle is None:
+            return None
+        if isinstance(cycle, Mapping):
+            if set(cycle) != set(self.names):
+                raise ValueError(
+                    "DomainRandomization: cycle must give stored values for exactly the params' fields "
+                    f"{list(self.names)}, got {sorted(map(str, cycle))}"
+                )
+            sizes = set()
+            for param in params:
+                values = cycle[param.name]
+                expected = f"a float64 tensor [K, {', '.join(map(str, param.value_shape))}]".replace(", ]", "]")
+                if not isinstance(values, torch.Tensor) or values.dtype != torch.float64:
+                    raise TypeError(
+                        f"DomainRandomization: cycle[{param.name!r}] must be {expected}, got "
+                        + (f"{values.dtype} {list(values.shape)}" if isinstance(values, torch.Tensor) else repr(values))
+                    )
+                if values.dim() < 1 or values.shape[1:] != param.value_shape or values.shape[0] == 0:
+                    raise ValueError(
+                        f"DomainRandomization: cycle[{param.name!r}] must have shape [K, *{list(param.value_shape)}] "
+                        f"with K >= 1 (one row per stored domain), got {list(values.shape)}"
+                    )
+                sizes.add(values.shape[0])
+                self.domains.register_buffer(param.name, values.detach().clone())
+            if len(sizes) > 1:
+                raise ValueError(
+                    "DomainRandomization: cycle's values must hold the same number of domains (rows), got "
+                    f"{sorted(sizes)}"
+                )
+            self.domains_drawn.fill_(True)
+            return sizes.pop()
+        size = check_positive_int(cycle, "DomainRandomization: cycle (the number of stored domains)")
+        for param in params:
+            self.domains.register_buffer(param.name, torch.empty(size, *param.value_shape, dtype=torch.float64))
+        return size
+
+    # ------------------------------------------------------------------ seeding
+    def set_seed(self, seed: int) -> None:
+        """Seed the transform's own generator with ``seed`` (``env.set_seed`` calls it with a derived seed)."""
+        self.generator = torch.Generator().manual_seed(check_int(seed, "DomainRandomization.set_seed: seed"))
+
+    def seed_identity(self) -> str:
+        """``"DomainRandomization(<field names>)"``: mixed into the seed ``env.set_seed`` derives for it."""
+        return f"{type(self).__name__}({list(self.names)!r})"
+
+    # ------------------------------------------------------------------ set-up
+    def _forget_setup(self) -> None:
+        self.__dict__.pop("_fields", None)
+
+    def _base_env(self) -> DomainEnv:
+        env = container_env(self)
+        base = getattr(env, "base_env", None)
+        if not isinstance(base, DomainEnv):
+            raise TypeError(
+                "DomainRandomization: the base env must offer per-env physics (domain_fields, set_domain, "
+                f"domain_values: a torchtasks BatchedMujocoEnv or PendulumEnv), got {type(base).__name__}"
+            )
+        return base
+
+    def _others(self) -> list[DomainRandomization]:
+        home = self.home_transforms()
+        if home is None:
+            return []
+        flat, position = home
+        return [t for i, t in enumerate(flat) if i != position and isinstance(t, DomainRandomization)]
+
+    def _resolve(self) -> list[DomainField]:
+        """The base env's fields of the params (checked: names, overlaps, shapes, ranges), cached until it changes."""
+        fields = self.__dict__.get("_fields")
+        if fields is not None:
+            return fields
+        base = self._base_env()
+        others = [name for other in self._others() for name in other.names]
+        clash = sorted(set(others) & set(self.names))
+        if clash:
+            raise ValueError(
+                f"DomainRandomization: another DomainRandomization of the env also draws {clash}: a field has one owner"
+            )
+        fields = base.domain_fields([*self.names, *others])[: len(self.names)]  # refuses overlaps across transforms
+        for param, field in zip(self.params.values(), fields, strict=True):
+            param.bind_field(field)
+        for name, field in zip(self.names, fields, strict=True):
+            if self.cycle_size is not None and bool(self.domains_drawn):
+                stored = self.domains._buffers[name]
+                bad = ~field.allows(stored).reshape(len(stored), -1).all(-1)
+                if bool(bad.any()):
+                    row = int(bad.nonzero()[0, 0])
+                    raise ValueError(
+                        f"DomainRandomization: the stored domain {row} gives {name!r} the value "
+                        f"{stored[row].tolist()}, "
+                        f"but {name!r} ({field.description}) must be {field.rule}"
+                    )
+        self.__dict__["_fields"] = fields
+        return fields
+
+    def _make_state(self, batch: torch.Size, device: torch.device | None) -> None:
+        """Give the per-env buffers the env's batch (the env's current values, no env started) unless they have it."""
+        base = self._base_env()
+        fields = self._resolve()
+        if self.started.shape != batch:
+            self.started = torch.zeros(batch, dtype=torch.bool, device=device)
+            self.steps = torch.zeros(batch, dtype=torch.int64, device=device)
+        current = None
+        for name, field in zip(self.names, fields, strict=True):
+            if self.drawn._buffers[name].shape != (*batch, *field.value_shape):
+                current = base.domain_values(list(self.names)) if current is None else current
+                self.drawn._buffers[name] = current[name].to(device=device, dtype=torch.float64).clone()
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        batch, device = observation_spec.shape, observation_spec.device
+        self._make_state(batch, device)
+        for key, field in zip(self.__dict__["_keys"], self._resolve(), strict=True):
+            observation_spec[key] = Unbounded(shape=(*batch, *field.value_shape), dtype=torch.float64, device=device)
+        return observation_spec
+
+    # ------------------------------------------------------------------ drawing
+    def _draw(self, need: torch.Tensor) -> dict[str, torch.Tensor]:
+        """New values for the envs of ``need`` (bool ``[*B]``), the others' kept: one draw of every env per call.
+
+        Fresh draws sample every env (the generator's use does not depend on which envs need values); a cycle
+        gives the envs of ``need`` the next stored domains in index order.
+        """
+        batch = need.shape
+        if self.cycle_size is None:
+            new = {name: self._sample(param, batch) for name, param in self.params.items()}
+        else:
+            if not bool(self.domains_drawn):  # the first draw of the run: fill the stored set (a host fact, once)
+                for name, param in self.params.items():
+                    self.domains._buffers[name].copy_(param.sample(self.cycle_size, self.generator))
+                self.domains_drawn.fill_(True)
+            flat = need.reshape(-1)
+            rank = torch.cumsum(flat.to(torch.int64), 0) - 1
+            index = (self.next_domain + rank).remainder(self.cycle_size)
+            self.next_domain.copy_((self.next_domain + flat.sum()).remainder(self.cycle_size))
+            new = {
+                name: self.domains._buffers[name].to(need.device)[index].reshape(*batch, *param.value_shape)
+                for name, param in self.params.items()
+            }
+        drawn = {}
+        for name, param in self.params.items():
+            old = self.drawn._buffers[name]
+            mask = need.reshape(*batch, *([1] * len(param.value_shape)))
+            drawn[name] = torch.where(mask, new[name].to(old.device), old)
+            self.drawn._buffers[name] = drawn[name]
+        return drawn
+
+    def _sample(self, param: DomainParam, batch: torch.Size) -> torch.Tensor:
+        return param.sample(batch.numel(), self.generator).reshape(*batch, *param.value_shape)
+
+    def _apply_draw(self, need: torch.Tensor) -> None:
+        """Draw for the envs of ``need`` and give the values to the base env."""
+        drawn = self._draw(need)
+        self._base_env().set_domain(drawn, need)
+        self.started = self.started | need
+
+    def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
+        tensordict = super()._reset_env_preprocess(tensordict)
+        env = container_env(self)
+        if env is None:
+            return tensordict
+        batch = env.batch_size
+        if self.started.shape != batch:
+            self._make_state(batch, env.device)
+        reset = None if tensordict is None else tensordict.get("_reset", None)
+        need = torch.ones(batch, dtype=torch.bool, device=self.started.device)
+        if reset is not None:
+            need = reset.reshape(batch).to(need.device)
+        if self.when != "reset":
+            need = need & ~self.started
+        with torch.no_grad():
+            self._apply_draw(need)
+        return tensordict
+
+    def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Write every env's current values under ``entry_key``."""
+        values = {name: self.drawn._buffers[name].clone() for name in self.names}
+        prefix = key_parts(self.entry_key)
+        batch = tensordict.batch_size
+        node = TensorDict._new_unsafe(values, batch_size=batch, device=tensordict.device)
+        if len(prefix) == 1 and tensordict.get(prefix[0], None) is None:
+            tensordict.set(prefix[0], node)
+        else:
+            for name, value in values.items():
+                tensordict.set((*prefix, name), value)
+        return tensordict
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._entries(tensordict_reset)
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        if self.when == "interval":
+            with torch.no_grad():
+                steps = self.steps + 1
+                due = steps >= self.every
+                self.steps = torch.where(due, torch.zeros_like(steps), steps)
+                self._apply_draw(due)
+        return self._entries(next_tensordict)
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Leave stored data as it is: the drawn values are in it."""
+        return tensordict
+
+    # ------------------------------------------------------------------ checkpoints
+    def get_extra_state(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match and the generator (``None`` without an own generator)."""
+        generator = self.generator
+        return {
+            "params": {name: type(param).__name__ for name, param in self.params.items()},
+            "when": self.when,
+            "every": self.every,
+            "cycle": self.cycle_size,
+            "generator_state": None if generator is None else generator.get_state(),
+        }
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the generator (checked with the configuration in :meth:`_check_saved`)."""
+        saved = state.get("generator_state") if isinstance(state, Mapping) else None
+        if saved is None:
+            self.generator = None
+            return
+        generator = torch.Generator()
+        generator.set_state(saved.cpu())
+        self.generator = generator
+
+    def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        """Refuse the checkpoint of another randomization: other fields, kinds, moments or stored set."""
+        saved = state_dict.get(prefix + "_extra_state")
+        own = self.get_extra_state()
+        keys = ("params", "when", "every", "cycle")
+        if not isinstance(saved, Mapping) or not set(keys) <= set(saved):
+            raise ValueError(
+                "DomainRandomization.load_state_dict: the checkpoint has no DomainRandomization configuration "
+                f"(_extra_state with {list(keys)}), got {saved!r}"
+            )
+        differ = [key for key in keys if saved[key] != own[key]]
+        if differ:
+            raise ValueError(
+                "DomainRandomization.load_state_dict: the checkpoint is of another randomization ("
+                + ", ".join(f"{key}: saved {saved[key]!r}, here {own[key]!r}" for key in differ)
+                + "); build the DomainRandomization as saved"
+            )
+        generator = saved.get("generator_state")
+        if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
+            raise ValueError(
+                "DomainRandomization.load_state_dict: 'generator_state' must be a uint8 tensor "
+                "(torch.Generator.get_state), "
+                f"got {type(generator).__name__}"
+            )
+
+    def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        # the per-env buffers take the saved shapes (a transform not yet in an env has empty ones)
+        for module, head in ((self.drawn, "drawn."), (self, "")):
+            for name in list(module._buffers):
+                saved = state_dict.get(prefix + head + name)
+                own = module._buffers[name]
+                if isinstance(saved, torch.Tensor) and own is not None and saved.shape != own.shape:
+                    module._buffers[name] = torch.empty(saved.shape, dtype=own.dtype, device=own.device)
+
+    def _check_loaded(self) -> None:
+        """Refuse loaded values the env would refuse; in a built env, give the env the loaded values at once."""
+        batches = {self.drawn._buffers[name].shape[: self.started.dim()] for name in self.names}
+        if batches != {self.started.shape} or self.steps.shape != self.started.shape:
+            raise ValueError(
+                "DomainRandomization.load_state_dict: the drawn values, 'started' and 'steps' must share one env "
+                "batch, "
+                f"got {sorted(map(list, batches))}, {list(self.started.shape)} and {list(self.steps.shape)}"
+            )
+        self._forget_setup()
+        env = container_env(self)
+        if env is None or not isinstance(getattr(env, "base_env", None), DomainEnv):
+            return
+        if self.started.shape != env.batch_size:
+            raise ValueError(
+                f"DomainRandomization.load_state_dict: the checkpoint holds the values of a batch "
+                f"{list(self.started.shape)}, but the env's batch is {list(env.batch_size)}"
+            )
+        for name, field in zip(self.names, self._resolve(), strict=True):
+            values = self.drawn._buffers[name]
+            if not bool(field.allows(values).all()):
+                raise ValueError(
+                    f"DomainRandomization.load_state_dict: the saved values of {name!r} leave its range "
+                    f"({field.description} must be {field.rule}): {values.tolist()}"
+                )
+        self._base_env().set_domain(
+            {name: self.drawn._buffers[name] for name in self.names},
+            torch.ones(env.batch_size, dtype=torch.bool, device=self.started.device),
+        )
+
+    def __repr__(self) -> str:
+        every = f", every={self.every}" if self.every is not None else ""
+        cycle = f", cycle={self.cycle_size}" if self.cycle_size is not None else ""
+        return f"{type(self).__name__}({list(self.params.values())}, when={self.when!r}{every}{cycle})"
