@@ -429,7 +429,9 @@ class BatchedMujocoEnv(EnvBase):
         # substep, which only its whole MjData holds. get_data copies it (persistent batch) and the forces are
         # computed on the copy: ~10 us per env on an idle machine (Ant/Humanoid x6, 2026-11-27); at x64 on a loaded
         # 2-core machine 2.1 ms of a 17 ms Ant step (2.2 of 22 ms Humanoid), about 12%.
-        # With per-env physics each env's forces come from its own model (gravity, masses): self._env_models.
+        # With per-env physics each env's forces are computed with its own model (self._env_models). Of the fields
+        # offered today cfrc_ext reads none (contacts and constraint forces are MjData's; gravity only enters cacc
+        # and cfrc_int), but the call is given the model the simulation ran on, whatever a field kind may add.
         model, models, batch, scratch = self.model, self._env_models, self.batch, self._scratch
         for i in range(self.num_envs) if ids is None else ids.tolist():
             batch.get_data(i, scratch)

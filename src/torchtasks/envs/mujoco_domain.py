@@ -219,6 +219,19 @@ class BatchDomain:
     def __init__(self, model: mujoco.MjModel, batch: Batch, owner: str) -> None:
         self.model, self.batch, self.owner = model, batch, owner
         self.table = _table(model)
+        #: the model values each field writes: (model field, column of the kind's values); two fields named together
+        #: must write none in common
+        self.writes = {
+            name: frozenset(
+                (entry.kind.model_field, int(slot))
+                for slot in (
+                    range(_kind_values(_model_value(model, entry.kind.model_field), entry.kind).shape[0])
+                    if entry.slots is None
+                    else entry.slots
+                )
+            )
+            for name, entry in self.table.items()
+        }
         self.values: dict[str, np.ndarray] = {}
 
     # ------------------------------------------------------------------ names
@@ -247,19 +260,15 @@ class BatchDomain:
                 )
         if overlap:
             return names
-        seen: dict[str, str] = {}
-        for name in names:
-            if name in seen:
+        for i, name in enumerate(names):
+            if name in names[:i]:
                 raise ValueError(f"{self.owner}: the domain field {name!r} is named twice in {names}")
-            entry = self.table[name]
-            for other in seen:
-                known = self.table[other]
-                if known.kind is entry.kind and (known.slots is None) != (entry.slots is None):
+            for other in names[:i]:
+                if self.writes[name] & self.writes[other]:
                     raise ValueError(
-                        f"{self.owner}: {other!r} and {name!r} both write {entry.kind.model_field} of the same "
-                        f"objects; name one of them (a scale and one object's value are not drawn together)"
+                        f"{self.owner}: {other!r} and {name!r} both write {self.table[name].kind.model_field} of the "
+                        "same objects; name one of them (a scale and one object's value are not drawn together)"
                     )
-            seen[name] = name
         return names
 
     # ------------------------------------------------------------------ checks
