@@ -76,32 +76,40 @@ class FieldKind(NamedTuple):
 #: ``mj_setConst`` for every supported env), and ``mujoco.batch``'s own test steps per-simulation gravity without it.
 FIELD_KINDS: tuple[FieldKind, ...] = (
     FieldKind(
-        "body_mass", "body_mass", "body", None, 0.0, True, True, ("body_inertia",), True,
-        "mass of body {} (kg; its inertia follows)", "every body's mass and inertia times this factor",
+        stem="body_mass", model_field="body_mass", objects="body", column=None, low=0.0, low_open=True,
+        scale_low_open=True, scaled_with=("body_inertia",), set_const=True,
+        what="mass of body {} (kg; its inertia follows)", scale_what="every body's mass and inertia times this factor",
     ),
     FieldKind(
-        "geom_friction", "geom_friction", "geom", 0, 0.0, False, False, (), False,
-        "sliding friction of geom {}", "every geom's sliding friction times this factor",
+        stem="geom_friction", model_field="geom_friction", objects="geom", column=0, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=False,
+        what="sliding friction of geom {}", scale_what="every geom's sliding friction times this factor",
     ),
     FieldKind(
-        "dof_damping", "dof_damping", "joint", None, 0.0, False, False, (), False,
-        "damping of joint {} (per dof)", "every dof's damping times this factor",
+        stem="dof_damping", model_field="dof_damping", objects="joint", column=None, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=False,
+        what="damping of joint {} (per dof)", scale_what="every dof's damping times this factor",
     ),
     FieldKind(
-        "dof_armature", "dof_armature", "joint", None, 0.0, False, False, (), True,
-        "armature of joint {} (per dof)", "every dof's armature times this factor",
+        stem="dof_armature", model_field="dof_armature", objects="joint", column=None, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=True,
+        what="armature of joint {} (per dof)", scale_what="every dof's armature times this factor",
     ),
     FieldKind(
-        "actuator_gear", "actuator_gear", "actuator", 0, -math.inf, False, True, (), True,
-        "gear of actuator {} (any finite value: a negative gear reverses the actuator)",
-        "every actuator's gear times this factor (> 0: a scale never reverses an actuator)",
+        stem="actuator_gear", model_field="actuator_gear", objects="actuator", column=0, low=-math.inf, low_open=False,
+        scale_low_open=True, scaled_with=(), set_const=True,
+        what="gear of actuator {} (any finite value: a negative gear reverses the actuator)",
+        scale_what="every actuator's gear times this factor (> 0: a scale never reverses an actuator)",
     ),
     FieldKind(
-        "gravity", "opt.gravity", None, None, -math.inf, False, None, (), False,
-        "gravity (m/s^2, world frame)", "",
+        stem="gravity", model_field="opt.gravity", objects=None, column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=False,
+        what="gravity (m/s^2, world frame)", scale_what="",
     ),
 )  # fmt: skip
 
+#: the model's count of each kind of object
+_COUNTS = {"body": "nbody", "geom": "ngeom", "joint": "njnt", "actuator": "nu"}
 #: the dofs of a joint, by type
 _JOINT_DOFS = {
     int(mujoco.mjtJoint.mjJNT_FREE): 6,
@@ -121,7 +129,7 @@ class _Entry(NamedTuple):
 
     field: DomainField
     kind: FieldKind
-    #: the columns of the kind's values (see :meth:`BatchDomain._nominal`) this field writes; ``None``: a scale
+    #: the columns of the kind's values (one per body, geom, dof or actuator; gravity's 3) it writes; ``None``: a scale
     slots: np.ndarray | None
 
 
@@ -140,7 +148,7 @@ def _objects(model: mujoco.MjModel, kind: FieldKind, nominal: np.ndarray) -> lis
     if kind.objects is None:
         return []
     offered = []
-    for i in range(getattr(model, {"body": "nbody", "geom": "ngeom", "joint": "njnt", "actuator": "nu"}[kind.objects])):
+    for i in range(getattr(model, _COUNTS[kind.objects])):
         name = getattr(model, kind.objects)(i).name
         if not name or "." in name or "/" in name or (kind.objects == "body" and i == 0):
             continue
