@@ -44,7 +44,9 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
 
+from torchtasks.domain.fields import DomainField
 from torchtasks.envs.gymnasium_v5 import LocomotionEnvRecord, ModelFacts, gymnasium_config, locomotion_record
+from torchtasks.envs.mujoco_domain import BatchDomain, FieldKind
 
 __all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
 
@@ -67,6 +69,9 @@ _WARNING_NUMBER = 1
 _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 #: the entries of the running-episode state (``state_dict()["_extra_state"]["running_episodes"]``)
 _RUNNING_KEYS = ("model", "integration_state", "warnings", "time", "previous_position", "gathered")
+#: the entry of the per-env physics (the values of every domain field ever set), absent from checkpoints written
+#: before the env had one (they load as nominal physics)
+_DOMAIN_KEY = "domain"
 #: attributes rebuilt when a copy or a pickle is restored: the batch (its C threads and state rows, restored from
 #: the integration states on the one MjModel) and the bound arrays, buffers and observation plan (numpy views of
 #: the batch and of each other, which a copy would turn into independent arrays)
@@ -85,6 +90,8 @@ _REBUILT = (
     "_entry_sources",
     "_position",
     "_mass_weights",
+    "_domain",
+    "_env_models",
 )
 
 
@@ -179,6 +186,14 @@ class BatchedMujocoEnv(EnvBase):
     ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
     ``TransformedEnv``, not its base env: put a :class:`~torchtasks.transforms.BaseEnvState` in it.
 
+    Per-env physics: the env is a :class:`~torchtasks.domain.DomainEnv`. :meth:`domain_fields` lists the values it
+    can give each env (a named body's mass, its inertia following; a geom's sliding friction; a joint's damping and
+    armature; an actuator's gear; each kind also as a factor on every object's value; gravity), :meth:`set_domain`
+    writes them into the envs of a mask, from their next step or reset on (a running episode continues from its
+    state), and :meth:`domain_values` reads them. The values persist until set again; checkpoints, copies and
+    pickles keep them. The trajectories equal those of per-env ``MjModel`` copies set to the same values, bit for
+    bit; an env never given values runs exactly as before (no model field is made per-env).
+
     Args:
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
         num_envs: number of environments.
@@ -205,7 +220,13 @@ class BatchedMujocoEnv(EnvBase):
         <All keys matched successfully>
         >>> bool((fresh.reset()["qpos"] == env.reset()["qpos"]).all())
         True
-        >>> env.close(); fresh.close()
+        >>> nominal, heavy = (BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0) for _ in range(2))
+        >>> heavy.set_domain({"body_mass_scale": torch.tensor([1.0, 1.5], dtype=torch.float64)})  # env 1: 1.5 x
+        >>> still = lambda td: td.set("action", torch.zeros(2, 3))
+        >>> same = nominal.rollout(20, still)["next", "qpos"] == heavy.rollout(20, still)["next", "qpos"]
+        >>> bool(same[0].all()), bool(same[1].all())
+        (True, False)
+        >>> for e in (env, fresh, nominal, heavy): e.close()
     """
 
     batch_locked = True
@@ -303,6 +324,11 @@ class BatchedMujocoEnv(EnvBase):
         self._warnings = batch.warning[:, :, _WARNING_NUMBER]
         self._time = np.zeros(n)
         self._half_timestep = 0.5 * float(model.opt.timestep)
+        #: the domain fields and the per-env values set so far (model fields expanded only once written)
+        self._domain = BatchDomain(model, batch, f"BatchedMujocoEnv({self.env_id})")
+        #: each env's model for mj_rnePostConstraint (the shared one until its per-env fields are written); None: all
+        #: envs have the shared model
+        self._env_models: list[mujoco.MjModel] | None = None
         #: (buffer, source): buffer[ids] = source[ids] after every call on simulations ids (source: a bound output;
         #: None for the contact forces, computed into their buffer)
         self._readers: list[tuple[np.ndarray, np.ndarray | None]] = []
@@ -403,11 +429,14 @@ class BatchedMujocoEnv(EnvBase):
         # substep, which only its whole MjData holds. get_data copies it (persistent batch) and the forces are
         # computed on the copy: ~10 us per env on an idle machine (Ant/Humanoid x6, 2026-11-27); at x64 on a loaded
         # 2-core machine 2.1 ms of a 17 ms Ant step (2.2 of 22 ms Humanoid), about 12%.
-        model, batch, scratch = self.model, self.batch, self._scratch
+        # With per-env physics each env's forces are computed with its own model (self._env_models). Of the fields
+        # offered today cfrc_ext reads none (contacts and constraint forces are MjData's; gravity only enters cacc
+        # and cfrc_int), but the call is given the model the simulation ran on, whatever a field kind may add.
+        model, models, batch, scratch = self.model, self._env_models, self.batch, self._scratch
         for i in range(self.num_envs) if ids is None else ids.tolist():
             batch.get_data(i, scratch)
             if post_constraint:
-                mujoco.mj_rnePostConstraint(model, scratch)
+                mujoco.mj_rnePostConstraint(model if models is None else models[i], scratch)
             forces[i] = scratch.cfrc_ext
 
     def _restart(self, ids: np.ndarray) -> None:
@@ -462,6 +491,8 @@ class BatchedMujocoEnv(EnvBase):
         if self._mass_weights is None:
             return self._position.copy()
         weights = self._mass_weights
+        if weights.ndim == 2:  # per-env masses (set_domain)
+            return (np.einsum("nb,nbj->nj", weights, self._position) / weights.sum(axis=1, keepdims=True))[:, :2]
         return (np.einsum("b,nbj->nj", weights, self._position) / weights.sum())[:, :2]
 
     def _check_action(self, action: object) -> np.ndarray:
@@ -561,6 +592,109 @@ class BatchedMujocoEnv(EnvBase):
         children = np.random.SeedSequence(None if seed is None else int(seed)).spawn(self.num_envs)
         self.np_random = [np.random.Generator(np.random.PCG64(child)) for child in children]
 
+    # ------------------------------------------------------------------ per-env physics
+    def domain_fields(self, names: Sequence[str] | None = None) -> list[DomainField]:
+        """The physics values this env can give each of its envs, with their nominal values and allowed ranges.
+
+        Args:
+            names: the fields to describe, in order; ``None``: every field of the env (``"body_mass:<body>"``,
+                ``"body_mass_scale"``, ``"geom_friction:<geom>"``, ..., ``"gravity"``; the kinds are
+                :data:`~torchtasks.envs.mujoco_domain.FIELD_KINDS`).
+
+        Raises ``ValueError`` for an unknown name (naming the close ones), a name given twice, and a scale named
+        with one object's value of the same kind (``"body_mass_scale"`` with ``"body_mass:torso"``).
+
+        Example:
+            >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2)
+            >>> torso, friction = env.domain_fields(["body_mass:torso", "geom_friction_scale"])
+            >>> torso.rule, torso.set_const, friction.nominal.item(), friction.rule, friction.set_const
+            ('in (0.0, inf)', True, 1.0, 'in [0.0, inf)', False)
+            >>> env.close()
+        """
+        return self._domain.fields(names)
+
+    def set_domain(self, values: Mapping[str, torch.Tensor], mask: torch.Tensor | None = None) -> None:
+        """Give the envs of ``mask`` the physics ``values[name][i]``, from their next step or reset on.
+
+        The values persist until set again (resets keep them) and checkpoints keep them. Only the model fields of
+        the kinds written become per-env (``Batch.expand``), and ``Batch.set_const`` runs once over the envs written
+        if some field written needs it (masses, armatures, gears). A running episode continues from its state.
+
+        Args:
+            values: by field name (:meth:`domain_fields`), a float64 tensor ``[num_envs, *value_shape]`` on any
+                device; the rows of envs outside ``mask`` are ignored. The rows of the envs written must be finite
+                and in the field's range (``ValueError`` naming the field, the env and the value).
+            mask: bool ``[num_envs]``, the envs to write; ``None``: all.
+
+        Example:
+            >>> import torch
+            >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=3, seed=0)
+            >>> torso = env.domain_fields(["body_mass:torso"])[0].nominal
+            >>> masses = torch.tensor([0.0, 5.0, 6.0], dtype=torch.float64)  # env 0 is not written: its 0 is ignored
+            >>> env.set_domain({"body_mass:torso": masses}, mask=torch.tensor([False, True, True]))
+            >>> now = env.domain_values(["body_mass:torso"])["body_mass:torso"]
+            >>> bool(now[0] == torso), now[1:].tolist()
+            (True, [5.0, 6.0])
+            >>> env.close()
+        """
+        ids = self._domain_ids(mask)
+        rows = self._domain.checked(values, ids, "values")
+        if rows and (ids is None or ids.size):
+            self._follow_domain(self._domain.write(rows, ids), ids)
+
+    def domain_values(self, names: Sequence[str] | None = None) -> dict[str, torch.Tensor]:
+        """Every env's current value of each field named (``None``: all), as float64 ``[num_envs, *value_shape]``.
+
+        A field never set holds its nominal value. An object's model value is its value times its kind's scale.
+
+        Example:
+            >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2)
+            >>> env.domain_values(["gravity"])["gravity"]
+            tensor([[ 0.0000,  0.0000, -9.8100],
+                    [ 0.0000,  0.0000, -9.8100]], dtype=torch.float64)
+            >>> env.close()
+        """
+        device = self.device
+        return {name: torch.from_numpy(value).to(device) for name, value in self._domain.read(names).items()}
+
+    def _domain_ids(self, mask: object) -> np.ndarray | None:
+        """The envs of a ``set_domain`` mask (None: all)."""
+        if mask is None:
+            return None
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+            got = f"dtype {mask.dtype}" if isinstance(mask, torch.Tensor) else f"a {type(mask).__name__}"
+            raise TypeError(f"set_domain: mask must be a bool tensor of shape [{self.num_envs}] or None, got {got}")
+        if mask.shape != (self.num_envs,):
+            raise ValueError(
+                f"set_domain: mask must be a bool tensor of shape [{self.num_envs}] ([num_envs]), "
+                f"got shape {list(mask.shape)}"
+            )
+        ids = np.flatnonzero(mask.detach().cpu().numpy())
+        return None if ids.size == self.num_envs else ids
+
+    def _follow_domain(self, kinds: set[FieldKind], ids: np.ndarray | None) -> None:
+        """Update what the env keeps of the model beside the batch, for the envs ``ids`` whose ``kinds`` were written.
+
+        Ant and Humanoid: each env's model, for its contact forces (:meth:`_read_outputs`). Humanoid: the body masses
+        that weigh the mass centre, and the position the next step's velocity is differenced from (with the new
+        masses, as Gymnasium's step reads ``body_mass`` before and after the step).
+        """
+        if not kinds:
+            return
+        if self._contact_forces is not None:
+            # A model per env written (~0.5 MB each for Ant and Humanoid, mostly texture data; the persistent batch
+            # already keeps an MjData of ~14 MB of arena per env), refreshed here: ~20 us per env (get_model), not
+            # per step. One scratch model refreshed per env and step would cost that at every step.
+            models = self._env_models
+            if models is None:
+                models = self._env_models = [self.model] * self.num_envs
+            for i in range(self.num_envs) if ids is None else ids.tolist():
+                models[i] = self.batch.get_model(i, None if models[i] is self.model else models[i])
+        if self._mass_weights is not None and any(kind.model_field == "body_mass" for kind in kinds):
+            self._mass_weights = np.array(self.batch.expanded("body_mass"))
+            rows = slice(None) if ids is None else ids
+            self._previous_position[rows] = self._forward_position()[rows]
+
     # ------------------------------------------------------------------ checkpoints
     def get_extra_state(self) -> dict[str, Any]:
         """The reset generators and the running episodes (see the class's "Checkpoints").
@@ -622,13 +756,16 @@ class BatchedMujocoEnv(EnvBase):
             "time": torch.from_numpy(self._time.copy()),
             "previous_position": torch.from_numpy(np.array(self._previous_position)),
             "gathered": [torch.from_numpy(array.copy()) for array in gathered],
+            _DOMAIN_KEY: self._domain.saved(),
         }
 
     def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
         """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
-        if not isinstance(running, Mapping) or set(running) != set(_RUNNING_KEYS):
+        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY} != set(_RUNNING_KEYS):
             got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
-            raise ValueError(f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)}, got {got}")
+            raise ValueError(
+                f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)} (and {_DOMAIN_KEY!r}), got {got}"
+            )
         mine = self._running_episodes()
         saved_model, own_model = dict(running["model"]), mine["model"]
         if saved_model != own_model:
@@ -656,10 +793,17 @@ class BatchedMujocoEnv(EnvBase):
                     f"{owner}: the saved '{name}' must be a {own.dtype} tensor of shape {list(own.shape)} for this "
                     f"env, got {got}"
                 )
+        # the per-env physics: known fields of this env's shapes and ranges (a scale and one object's value may both
+        # have been set, by two set_domain calls)
+        self._domain.checked(running.get(_DOMAIN_KEY, {}), None, f"the saved {_DOMAIN_KEY!r} ({owner})", overlap=True)
         return dict(running)
 
     def _load_running_episodes(self, running: Mapping[str, Any]) -> None:
         """Put the (checked) running episodes of :meth:`_running_episodes` into the ``MjData`` and the buffers."""
+        # the physics first (a field set here but not saved goes back to nominal; checkpoints written before the
+        # domain was saved hold none); set_const leaves the state rows alone
+        domain = {name: value.cpu().numpy() for name, value in running.get(_DOMAIN_KEY, {}).items()}
+        self._follow_domain(self._domain.load(domain), None)
         # the state rows carry time, qpos and qvel: gathered[0] ([time, qpos, qvel]) holds the same values
         self.batch.state[:] = running["integration_state"].cpu().numpy()
         self._warnings[:] = running["warnings"].cpu().numpy()

@@ -1,0 +1,382 @@
+"""The domain fields of a MuJoCo model in a ``mujoco.batch.Batch``: one table of field kinds, checks and writes.
+
+:data:`FIELD_KINDS` is the one table (one row per kind of field: its model field, the objects it is offered for,
+its allowed range, the fields that follow it, whether ``mj_setConst`` must run after it).
+:class:`BatchDomain` reads it for one batch: the :class:`~torchtasks.domain.DomainField` of each named object,
+the checks of the values users write, and the writes into the batch's per-simulation model fields
+(``Batch.expand``; a field never written stays shared, so an env never randomized does no extra work).
+:class:`~torchtasks.envs.BatchedMujocoEnv` offers it through the :class:`~torchtasks.domain.DomainEnv` methods.
+
+Names (:mod:`torchtasks.domain.fields`): ``"<kind>:<object>"`` for one named object's value, ``"<kind>_scale"`` for a
+factor on every object's value, ``"gravity"`` for the global one. Objects are the model's named bodies (not the
+world body, nor a body of mass 0, whose inertia could not follow), geoms, joints and actuators; an unnamed object or
+a name holding ``"."`` or ``"/"`` is not offered. The model's value of an object is its own value (nominal until
+set) times the kind's scale (1.0 until set): a scale and one object's value set by two ``set_domain`` calls compose.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple
+
+import numpy as np
+import torch
+
+from torchtasks._checks import did_you_mean
+from torchtasks._optional import missing_extra
+from torchtasks.domain.fields import DomainField
+
+try:
+    import mujoco
+    from mujoco.batch import Batch
+except ImportError as _error:
+    raise missing_extra("mujoco", "torchtasks.envs.mujoco_domain", _error) from _error
+
+__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind"]
+
+#: the suffix of a kind's scale field
+SCALE = "_scale"
+
+
+class FieldKind(NamedTuple):
+    """One kind of domain field: a model field, the objects it has one value for, its range and its follow-ups."""
+
+    #: the names' stem (``"body_mass"`` gives ``"body_mass:<body>"`` and ``"body_mass_scale"``)
+    stem: str
+    #: the model field the values are written into (``Batch.expand``'s name)
+    model_field: str
+    #: the kind of named object with one value each (``"body"``, ``"geom"``, ``"joint"``, ``"actuator"``); ``None``:
+    #: one global value, the whole field
+    objects: str | None
+    #: the column of the model field's row that is the value (``geom_friction[:, 0]``, the sliding friction); ``None``:
+    #: the whole row
+    column: int | None
+    #: the smallest allowed value of one object (excluded when ``low_open``); the largest is always ``inf``
+    low: float
+    low_open: bool
+    #: ``None``: no scale field; else whether a scale of 0 is refused (a scale's range is ``(0, inf)`` or ``[0, inf)``)
+    scale_low_open: bool | None
+    #: model fields multiplied per object by the object's value over its nominal one (a body's inertia follows its
+    #: mass: the same shape of uniform density, as IsaacLab's ``recompute_inertia``)
+    scaled_with: tuple[str, ...]
+    #: whether ``mj_setConst`` reads the model field (``mujoco.MjModel._setconst_inputs``): the batch's ``set_const``
+    #: must then recompute the derived constants of the simulations written
+    set_const: bool
+    #: what one object's value is (``{}``: the object's name)
+    what: str
+    #: what the scale does
+    scale_what: str
+
+
+#: The field kinds, in the order :meth:`BatchDomain.fields` lists them. ``set_const`` follows
+#: ``MjModel._setconst_inputs`` (``body_mass``, ``body_inertia``, ``dof_armature``, ``actuator_gear``; not
+#: ``geom_friction``, ``dof_damping``). Gravity needs none: ``mj_setConst`` reads no ``opt`` field (``mjxmacro.h``'s
+#: ``MJSETCONST_ARRAYS`` lists arrays only, and a model with another gravity is bit-identical before and after
+#: ``mj_setConst`` for every supported env), and ``mujoco.batch``'s own test steps per-simulation gravity without it.
+FIELD_KINDS: tuple[FieldKind, ...] = (
+    FieldKind(
+        stem="body_mass", model_field="body_mass", objects="body", column=None, low=0.0, low_open=True,
+        scale_low_open=True, scaled_with=("body_inertia",), set_const=True,
+        what="mass of body {} (kg; its inertia follows)", scale_what="every body's mass and inertia times this factor",
+    ),
+    FieldKind(
+        stem="geom_friction", model_field="geom_friction", objects="geom", column=0, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=False,
+        what="sliding friction of geom {}", scale_what="every geom's sliding friction times this factor",
+    ),
+    FieldKind(
+        stem="dof_damping", model_field="dof_damping", objects="joint", column=None, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=False,
+        what="damping of joint {} (per dof)", scale_what="every dof's damping times this factor",
+    ),
+    FieldKind(
+        stem="dof_armature", model_field="dof_armature", objects="joint", column=None, low=0.0, low_open=False,
+        scale_low_open=False, scaled_with=(), set_const=True,
+        what="armature of joint {} (per dof)", scale_what="every dof's armature times this factor",
+    ),
+    FieldKind(
+        stem="actuator_gear", model_field="actuator_gear", objects="actuator", column=0, low=-math.inf, low_open=False,
+        scale_low_open=True, scaled_with=(), set_const=True,
+        what="gear of actuator {} (any finite value: a negative gear reverses the actuator)",
+        scale_what="every actuator's gear times this factor (> 0: a scale never reverses an actuator)",
+    ),
+    FieldKind(
+        stem="gravity", model_field="opt.gravity", objects=None, column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=False,
+        what="gravity (m/s^2, world frame)", scale_what="",
+    ),
+)  # fmt: skip
+
+#: the model's count of each kind of object
+_COUNTS = {"body": "nbody", "geom": "ngeom", "joint": "njnt", "actuator": "nu"}
+#: the dofs of a joint, by type
+_JOINT_DOFS = {
+    int(mujoco.mjtJoint.mjJNT_FREE): 6,
+    int(mujoco.mjtJoint.mjJNT_BALL): 3,
+    int(mujoco.mjtJoint.mjJNT_SLIDE): 1,
+    int(mujoco.mjtJoint.mjJNT_HINGE): 1,
+}
+
+
+def _nominal_rows(field: DomainField, nsim: int) -> np.ndarray:
+    """``field``'s nominal value in every row: float64 ``[nsim, *value_shape]`` (a new array)."""
+    return np.broadcast_to(field.nominal.numpy(), (nsim, *field.value_shape)).copy()
+
+
+class _Entry(NamedTuple):
+    """A field of the table: what users see, its kind, and the columns of the kind's values it covers."""
+
+    field: DomainField
+    kind: FieldKind
+    #: the columns of the kind's values (one per body, geom, dof or actuator; gravity's 3) it writes; ``None``: a scale
+    slots: np.ndarray | None
+
+
+def _model_value(model: mujoco.MjModel, name: str) -> np.ndarray:
+    """The model's array of field ``name`` (``"opt.<name>"`` for an ``MjOption`` field)."""
+    return np.asarray(getattr(model.opt, name[4:]) if name.startswith("opt.") else getattr(model, name))
+
+
+def _kind_values(array: np.ndarray, kind: FieldKind) -> np.ndarray:
+    """The columns of a model field (``[..., rows, columns]``) that are ``kind``'s values: a view."""
+    return array if kind.column is None else array[..., kind.column]
+
+
+def _objects(model: mujoco.MjModel, kind: FieldKind, nominal: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    """The objects offered for ``kind``: (name, the columns of the kind's values it covers)."""
+    if kind.objects is None:
+        return []
+    offered = []
+    for i in range(getattr(model, _COUNTS[kind.objects])):
+        name = getattr(model, kind.objects)(i).name
+        if not name or "." in name or "/" in name or (kind.objects == "body" and i == 0):
+            continue
+        if kind.objects == "joint":
+            start = int(model.jnt_dofadr[i])
+            slots = np.arange(start, start + _JOINT_DOFS[int(model.jnt_type[i])])
+        else:
+            slots = np.array([i])
+        if kind.scaled_with and not (nominal[slots] > 0).all():  # nothing can follow a value of 0 by its ratio
+            continue
+        offered.append((name, slots))
+    return offered
+
+
+def _table(model: mujoco.MjModel) -> dict[str, _Entry]:
+    """Every field of ``model``, by name, in :data:`FIELD_KINDS`' order (objects in id order, then the scale)."""
+    table: dict[str, _Entry] = {}
+    for kind in FIELD_KINDS:
+        nominal = _kind_values(_model_value(model, kind.model_field), kind)
+        common = {"high": math.inf, "model_fields": (kind.model_field, *kind.scaled_with), "set_const": kind.set_const}
+        if kind.objects is None:
+            entries = [(kind.stem, np.arange(nominal.size), kind.what)]
+        else:
+            entries = [
+                (f"{kind.stem}:{name}", slots, kind.what.format(repr(name)))
+                for name, slots in _objects(model, kind, nominal)
+            ]
+        for name, slots, what in entries:
+            value = torch.tensor(nominal[slots], dtype=torch.float64)
+            if kind.objects is not None and slots.size == 1:  # one dof, body, geom or actuator: a scalar
+                value = value.reshape(())
+            field = DomainField(
+                name, value.shape, value, low=kind.low, low_open=kind.low_open, description=what, **common
+            )
+            table[name] = _Entry(field, kind, slots)
+        if kind.scale_low_open is not None:
+            one = torch.tensor(1.0, dtype=torch.float64)
+            name = kind.stem + SCALE
+            field = DomainField(
+                name, one.shape, one, low=0.0, low_open=kind.scale_low_open, description=kind.scale_what, **common
+            )
+            table[name] = _Entry(field, kind, None)
+    return table
+
+
+class BatchDomain:
+    """The domain fields of a batch's model and the per-simulation values set so far.
+
+    ``values`` holds each field ever set: ``name -> float64 [nsim, *value_shape]`` (nominal in the rows never set).
+    The model fields of a kind are written from them (:meth:`write`) for the simulations written only; the kinds never
+    written are never expanded.
+
+    Args:
+        model: the batch's model (its values are the nominal ones).
+        batch: the batch to write into.
+        owner: who offers the fields, for messages (``"BatchedMujocoEnv(Hopper-v5)"``).
+
+    Example:
+        >>> import mujoco, numpy as np
+        >>> from mujoco.batch import Batch
+        >>> model = mujoco.MjModel.from_xml_string(
+        ...     '<mujoco><worldbody><body name="box"><freejoint name="free"/><geom name="cube" type="box" '
+        ...     'size=".1 .1 .1" mass="2"/></body></worldbody></mujoco>')
+        >>> batch = Batch(model, 2)
+        >>> domain = BatchDomain(model, batch, "a box")
+        >>> [field.name for field in domain.fields()][:4]
+        ['body_mass:box', 'body_mass_scale', 'geom_friction:cube', 'geom_friction_scale']
+        >>> import torch
+        >>> first = np.array([0])  # write simulation 0 only
+        >>> rows = domain.checked({"body_mass:box": torch.tensor([3.0, 9.0], dtype=torch.float64)}, first, "values")
+        >>> kinds = domain.write(rows, first)  # the mass, the inertia that follows, set_const on simulation 0
+        >>> batch.expanded("body_mass")[:, 1], batch.expanded("geom_friction") is None
+        (array([3., 2.]), True)
+    """
+
+    def __init__(self, model: mujoco.MjModel, batch: Batch, owner: str) -> None:
+        self.model, self.batch, self.owner = model, batch, owner
+        self.table = _table(model)
+        #: the model values each field writes: (model field, column of the kind's values); two fields named together
+        #: must write none in common
+        self.writes = {
+            name: frozenset(
+                (entry.kind.model_field, int(slot))
+                for slot in (
+                    range(_kind_values(_model_value(model, entry.kind.model_field), entry.kind).shape[0])
+                    if entry.slots is None
+                    else entry.slots
+                )
+            )
+            for name, entry in self.table.items()
+        }
+        self.values: dict[str, np.ndarray] = {}
+
+    # ------------------------------------------------------------------ names
+    def fields(self, names: Sequence[str] | None = None, *, overlap: bool = False) -> list[DomainField]:
+        """The fields ``names`` names, in order (``None``: all); refuses unknown names and, unless ``overlap``,
+        the same name twice and a scale with one object's value of the same kind."""
+        return [self.table[name].field for name in self._names(names, overlap=overlap)]
+
+    def _names(self, names: Sequence[str] | None, *, overlap: bool, what: str = "names") -> list[str]:
+        if names is None:
+            return list(self.table)
+        if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
+            raise TypeError(f"{self.owner}: names must be a sequence of domain field names, got {names!r}")
+        names = list(names)
+        for name in names:
+            if name not in self.table:
+                kinds = ", ".join(
+                    kind.stem + ("" if kind.objects is None else f":<{kind.objects}>")
+                    + ("" if kind.scale_low_open is None else f", {kind.stem}{SCALE}")
+                    for kind in FIELD_KINDS
+                )  # fmt: skip
+                raise ValueError(
+                    f"{self.owner}: unknown domain field {name!r} in {what}"
+                    f"{did_you_mean(str(name), list(self.table), n=3)} "
+                    f"(kinds: {kinds}); env.domain_fields() lists all {len(self.table)} fields of this env"
+                )
+        if overlap:
+            return names
+        for i, name in enumerate(names):
+            if name in names[:i]:
+                raise ValueError(f"{self.owner}: the domain field {name!r} is named twice in {names}")
+            for other in names[:i]:
+                if self.writes[name] & self.writes[other]:
+                    raise ValueError(
+                        f"{self.owner}: {other!r} and {name!r} both write {self.table[name].kind.model_field} of the "
+                        "same objects; name one of them (a scale and one object's value are not drawn together)"
+                    )
+        return names
+
+    # ------------------------------------------------------------------ checks
+    def checked(
+        self, values: object, ids: np.ndarray | None, what: str, *, overlap: bool = False
+    ) -> dict[str, np.ndarray]:
+        """``values`` (name -> float64 tensor ``[nsim, *value_shape]``) as numpy rows of simulations ``ids`` (None:
+        all), checked: known names, dtype, shape, and finite, allowed values in those rows."""
+        if not isinstance(values, Mapping):
+            raise TypeError(f"{self.owner}: {what} must be a mapping of field names to tensors, got {values!r}")
+        names = self._names(list(values), overlap=overlap, what=what)
+        nsim = self.batch.nsim
+        checked = {}
+        for name in names:
+            field, value = self.table[name].field, values[name]
+            expected = f"a float64 tensor of shape {[nsim, *field.value_shape]} ([num_envs, *value_shape])"
+            if not isinstance(value, torch.Tensor) or value.dtype != torch.float64:
+                got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
+                raise TypeError(f"{self.owner}: {what}[{name!r}] must be {expected}, got {got}")
+            if value.shape != (nsim, *field.value_shape):
+                raise ValueError(f"{self.owner}: {what}[{name!r}] must be {expected}, got shape {list(value.shape)}")
+            rows = value.detach().cpu()
+            rows = rows if ids is None else rows[torch.from_numpy(ids)]
+            allowed = field.allows(rows).reshape(rows.shape[0], field.value_shape.numel()).all(dim=1)
+            if not bool(allowed.all()):
+                row = int((~allowed).nonzero()[0, 0])
+                env = row if ids is None else int(ids[row])
+                raise ValueError(
+                    f"{self.owner}: {what}[{name!r}] of env {env} is {rows[row].tolist()}, but {name!r} "
+                    f"({field.description}) must be {field.rule}"
+                )
+            checked[name] = rows.numpy()
+        return checked
+
+    # ------------------------------------------------------------------ writes
+    def write(self, rows: Mapping[str, np.ndarray], ids: np.ndarray | None) -> set[FieldKind]:
+        """Set the (checked) values ``rows`` of simulations ``ids`` (None: all) and write their kinds' model fields.
+
+        Runs the batch's ``set_const`` once over ``ids`` if a kind written needs it. Returns the kinds written.
+        """
+        nsim = self.batch.nsim
+        for name, value in rows.items():
+            field = self.table[name].field
+            if name not in self.values:
+                self.values[name] = _nominal_rows(field, nsim)
+            self.values[name][slice(None) if ids is None else ids] = value
+        kinds = {self.table[name].kind for name in rows}
+        for kind in kinds:
+            self._write_kind(kind, ids)
+        if any(kind.set_const for kind in kinds):
+            self.batch.set_const(ids)
+        return kinds
+
+    def _write_kind(self, kind: FieldKind, ids: np.ndarray | None) -> None:
+        """Write ``kind``'s model fields of simulations ``ids`` from the values: each object's value times the scale."""
+        where = slice(None) if ids is None else ids
+        nominal = _kind_values(_model_value(self.model, kind.model_field), kind)
+        count = self.batch.nsim if ids is None else len(ids)
+        current = np.broadcast_to(nominal, (count, *nominal.shape)).copy()
+        scale = None
+        for name, values in self.values.items():
+            entry = self.table[name]
+            if entry.kind is not kind:
+                continue
+            if entry.slots is None:
+                scale = values[where][:, None]
+            else:
+                current[:, entry.slots] = values[where].reshape(count, -1)
+        ratio = None
+        if kind.scaled_with:  # value over nominal per object (1 where the nominal value is 0: nothing offered there)
+            ratio = np.divide(current, nominal, out=np.ones_like(current), where=nominal != 0)
+        if scale is not None:
+            current = current * scale
+            ratio = None if ratio is None else ratio * scale
+        _kind_values(self.batch.expand(kind.model_field), kind)[where] = current
+        for name in kind.scaled_with:
+            follower = _model_value(self.model, name)
+            self.batch.expand(name)[where] = follower * ratio.reshape(*ratio.shape, *([1] * (follower.ndim - 1)))
+
+    def read(self, names: Sequence[str] | None) -> dict[str, np.ndarray]:
+        """Every simulation's current value of each field named (copies; nominal where never set)."""
+        nsim = self.batch.nsim
+        out = {}
+        for name in self._names(names, overlap=True):
+            field = self.table[name].field
+            value = self.values.get(name)
+            out[name] = _nominal_rows(field, nsim) if value is None else value.copy()
+        return out
+
+    # ------------------------------------------------------------------ checkpoints
+    def saved(self) -> dict[str, torch.Tensor]:
+        """The values of every field ever set, as float64 tensors (copies): what a checkpoint keeps."""
+        return {name: torch.from_numpy(value.copy()) for name, value in self.values.items()}
+
+    def load(self, saved: Mapping[str, np.ndarray]) -> set[FieldKind]:
+        """Make the values those of ``saved`` (checked with ``overlap=True``): fields set now but not saved go back
+        to nominal. Writes every simulation's fields of the kinds involved; returns them."""
+        dropped = [name for name in self.values if name not in saved]
+        nominal = {name: _nominal_rows(self.table[name].field, self.batch.nsim) for name in dropped}
+        kinds = self.write({**nominal, **saved}, None) if (saved or dropped) else set()
+        for name in dropped:
+            del self.values[name]
+        return kinds
