@@ -45,7 +45,8 @@ _SECTIONS = (
     ("torchtasks.tasks", "tasks"),
     ("torchtasks.predefined", "task factories"),
     ("torchtasks.spaces", "boxes and env specs"),
-    ("torchtasks.transforms", "TorchRL transforms: the task, goal commands, curricula, levels, run state"),
+    ("torchtasks.domain", "domain randomization: the fields an env varies per env, Pyrado's distributions"),
+    ("torchtasks.transforms", "TorchRL transforms: the task, goals, curricula, levels, domains, run state"),
     ("torchtasks.stats", "statistics of collected episodes"),
     ("torchtasks.envs", "environments"),
 )

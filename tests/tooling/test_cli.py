@@ -223,6 +223,7 @@ LIST_MODULES = (
     "torchtasks.tasks",
     "torchtasks.predefined",
     "torchtasks.spaces",
+    "torchtasks.domain",
     "torchtasks.transforms",
     "torchtasks.stats",
     "torchtasks.envs",

@@ -26,6 +26,7 @@ from torchrl.collectors import Collector, MultiAsyncCollector, MultiSyncCollecto
 from torchrl.envs import Compose, ParallelEnv, RewardSum, StepCounter, TransformedEnv
 
 from resume_env import equal_batches, make_parallel_resume_env, make_resume_env, reach_policy
+from torchtasks.domain import NormalDomainParam, UniformDomainParam
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import Box, EnvSpec
@@ -34,6 +35,7 @@ from torchtasks.transforms import (
     BaseEnvState,
     Curriculum,
     DifficultyLevels,
+    DomainRandomization,
     GoalCommand,
     TaskTransform,
     collector_state,
@@ -114,12 +116,17 @@ def multi_sync() -> MultiSyncCollector:
     )
 
 
-def mujoco(env_id: str) -> Collector:
+def mujoco(env_id: str, randomized: bool = False) -> Collector:
     pytest.importorskip("mujoco")
     pytest.importorskip("gymnasium")
     from torchtasks.envs import gymnasium_env
 
     env = gymnasium_env(env_id, num_envs=3, backend="batched", num_threads=1)
+    if randomized:  # per-env masses drawn at every reset, frictions redrawn every 7 steps (two transforms, two modes)
+        masses = UniformDomainParam("body_mass_scale", mean=1.0, halfspan=0.3)
+        env.append_transform(DomainRandomization([masses], seed=1))
+        friction = NormalDomainParam("geom_friction_scale", mean=1.0, std=0.2, clip_lo=0.5, clip_up=1.5)
+        env.append_transform(DomainRandomization([friction], when="interval", every=7, seed=2))
     env.append_transform(BaseEnvState())  # the preset is a finished TransformedEnv: append the base env's state
     sizes = env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1]
     torch.manual_seed(0)  # the same weights in both collectors (the checkpoint holds them too)
@@ -212,6 +219,16 @@ def test_a_resumed_batched_mujoco_collector_continues_the_physics(env_id: str):
     """The physics rows (with the solver's warm start) are in the checkpoint: contacts go on as uninterrupted."""
     before, expected, received = run_and_resume(functools.partial(mujoco, env_id))
     assert_continues(before, expected, received)
+
+
+@pytest.mark.mujoco
+def test_a_resumed_randomized_batched_mujoco_collector_continues_the_physics():
+    """Per-env masses and frictions drawn by DomainRandomization: the resumed run has every env's physics and draws."""
+    before, expected, received = run_and_resume(functools.partial(mujoco, "Hopper-v5", randomized=True))
+    assert_continues(before, expected, received)
+    data = torch.cat([b.reshape(-1) for b in expected])
+    assert data["next", "done"].any()  # resets drew new masses after the checkpoint
+    assert data["next", "domain", "body_mass_scale"].unique().numel() > 3
 
 
 @pytest.mark.multiprocess

@@ -114,12 +114,24 @@ def select_fields(
     table: Mapping[str, DomainField],
     names: Sequence[str] | None,
     owner: str,
+    *,
     writes: Mapping[str, frozenset] | None = None,
+    kinds: str = "",
+    what: str = "names",
 ) -> list[DomainField]:
     """The fields of ``table`` that ``names`` names, in order (``None``: all): what ``domain_fields`` answers.
 
-    Refuses a name that is not a string, an unknown name (the closest one and how many there are), a name twice,
-    and, with ``writes`` (``name -> the model values it writes``), two names writing a value in common.
+    Refuses a ``names`` that is not a sequence (``TypeError``), an unknown name (the closest ones, the ``kinds`` of
+    names the env offers and how many fields it has), a name twice, and, with ``writes`` (``name -> the model values
+    it writes``, e.g. ``(model field, object)`` pairs), two names writing a value in common.
+
+    Args:
+        table: the env's fields by name.
+        names: the names asked for; ``None``: every field.
+        owner: who asks, for the messages (``"BatchedMujocoEnv(Hopper-v5)"``).
+        writes: what each field writes, to refuse two that overlap; ``None``: overlaps are allowed.
+        kinds: a short list of the kinds of names, for the message of an unknown one.
+        what: what ``names`` are, for the messages (``"names"``, ``"values"``).
 
     Example:
         >>> import math, torch
@@ -130,68 +142,97 @@ def select_fields(
         >>> try:
         ...     select_fields(table, ["mas"], "MyEnv")
         ... except ValueError as error:
-        ...     print(str(error).split(" The")[0])
-        MyEnv: unknown domain field 'mas'; did you mean 'mass'?
+        ...     print(str(error).split(" (")[0])
+        MyEnv: unknown domain field 'mas' in names; did you mean 'mass'?
     """
     if names is None:
         return list(table.values())
     if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
-        raise TypeError(f"{owner}: names must be a sequence of domain field names, got {names!r}")
-    listed = list(table)
+        raise TypeError(f"{owner}: {what} must be a sequence of domain field names, got {names!r}")
+    names = list(names)
     for name in names:
-        if not isinstance(name, str):
-            raise TypeError(f"{owner}: a domain field name must be a string, got {name!r}")
         if name not in table:
-            shown = listed if len(listed) <= 12 else [*listed[:12], f"... ({len(listed)} in all)"]
+            listed = f"kinds: {kinds}; " if kinds else ""
             raise ValueError(
-                f"{owner}: unknown domain field {name!r}{did_you_mean(name, listed) or '.'} The env's fields: {shown} "
-                "(env.domain_fields() lists them)"
+                f"{owner}: unknown domain field {name!r} in {what}{did_you_mean(str(name), list(table), n=3)} "
+                f"({listed}env.domain_fields() lists all {len(table)} fields of this env)"
             )
-    if len(set(names)) < len(names):
-        raise ValueError(f"{owner}: a domain field is named twice in {list(names)}")
-    for i, first in enumerate(names):
-        for second in names[i + 1 :]:
-            if writes is not None and writes[first] & writes[second]:
+    for i, name in enumerate(names):
+        if name in names[:i]:
+            raise ValueError(f"{owner}: the domain field {name!r} is named twice in {names}")
+        for other in names[:i] if writes is not None else ():
+            common = writes[name] & writes[other]
+            if common:
+                fields = sorted({str(item[0]) if isinstance(item, tuple) else str(item) for item in common})
                 raise ValueError(
-                    f"{owner}: the domain fields {first!r} and {second!r} write the same model values: give one of them"
+                    f"{owner}: {other!r} and {name!r} both write {', '.join(fields)} of the same objects; name one of "
+                    "them (a scale and one object's value are not drawn together)"
                 )
     return [table[name] for name in names]
 
 
 def check_domain_values(
-    fields: Mapping[str, DomainField],
-    values: Mapping[str, torch.Tensor],
-    mask: torch.Tensor | None,
+    table: Mapping[str, DomainField],
+    values: object,
+    mask: object,
     batch: torch.Size,
     owner: str,
+    *,
+    what: str = "values",
+    writes: Mapping[str, frozenset] | None = None,
+    kinds: str = "",
 ) -> torch.Tensor:
-    """Check what ``set_domain`` received; return the mask (bool ``batch``, all True for ``None``).
+    """Check what ``set_domain`` received (or a checkpoint holds); return the mask (bool ``batch``, all True for None).
 
-    Each value must be a float64 tensor ``[*batch, *value_shape]`` of a known field, finite and in the field's range
-    in the envs of ``mask``. A host check: ``set_domain`` runs at resets and draws, not in every step's tensor code.
+    ``values`` must map names of ``table`` (checked by :func:`select_fields` with ``writes`` and ``kinds``) to float64
+    tensors ``[*batch, *value_shape]``, finite and in the field's range in the envs of ``mask`` (the other rows are
+    ignored). A wrong type or dtype is a ``TypeError``; a wrong shape or value a ``ValueError`` naming the field, the
+    env and the value. A host check: ``set_domain`` runs at resets and draws, not in every step's tensor code.
+
+    Example:
+        >>> import math, torch
+        >>> nominal = torch.tensor(1.0, dtype=torch.float64)
+        >>> table = {"mass": DomainField("mass", torch.Size([]), nominal, 0.0, math.inf, True, (), False, "mass (kg)")}
+        >>> masses = torch.tensor([2.0, 0.0], dtype=torch.float64)
+        >>> check_domain_values(table, {"mass": masses}, torch.tensor([True, False]), torch.Size([2]), "MyEnv").tolist()
+        [True, False]
+        >>> try:
+        ...     check_domain_values(table, {"mass": masses}, None, torch.Size([2]), "MyEnv")
+        ... except ValueError as error:
+        ...     print(error)
+        MyEnv: values['mass'] of env 1 is 0.0, but 'mass' (mass (kg)) must be in (0.0, inf)
     """
     if not isinstance(values, Mapping):
-        raise TypeError(f"{owner}.set_domain: values must be a mapping of field name -> tensor, got {values!r}")
+        raise TypeError(f"{owner}: {what} must be a mapping of field names to tensors, got {values!r}")
+    expected_mask = f"a bool tensor of shape {list(batch)} or None"
     if mask is None:
         mask = torch.ones(batch, dtype=torch.bool)
-    elif not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool or mask.shape != batch:
-        got = f"{mask.dtype} {list(mask.shape)}" if isinstance(mask, torch.Tensor) else repr(mask)
-        raise ValueError(f"{owner}.set_domain: mask must be a bool tensor of shape {list(batch)}, got {got}")
-    select_fields(fields, list(values), f"{owner}.set_domain")
+    elif not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
+        got = f"dtype {mask.dtype}" if isinstance(mask, torch.Tensor) else f"a {type(mask).__name__}"
+        raise TypeError(f"{owner}.set_domain: mask must be {expected_mask}, got {got}")
+    elif mask.shape != batch:
+        raise ValueError(
+            f"{owner}.set_domain: mask must be {expected_mask} (the env's batch), got shape {list(mask.shape)}"
+        )
+    select_fields(table, list(values), owner, writes=writes, kinds=kinds, what=what)
+    rows = mask.detach().cpu().reshape(-1)
     for name, value in values.items():
-        field = fields[name]
+        field = table[name]
         shape = [*batch, *field.value_shape]
-        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64 or list(value.shape) != shape:
-            got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
-            raise ValueError(
-                f"{owner}.set_domain: values[{name!r}] must be a float64 tensor of shape {shape}, got {got}"
-            )
-        rows = mask.to(value.device).reshape(*batch, *([1] * len(field.value_shape))).expand_as(value)
-        bad = rows & ~field.allows(value)
+        expected = f"a float64 tensor of shape {shape} ([*batch, *value_shape])"
+        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64:
+            got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
+            raise TypeError(f"{owner}: {what}[{name!r}] must be {expected}, got {got}")
+        if list(value.shape) != shape:
+            raise ValueError(f"{owner}: {what}[{name!r}] must be {expected}, got shape {list(value.shape)}")
+        flat = value.detach().cpu().reshape(rows.numel(), -1)
+        bad = rows & ~field.allows(flat).all(dim=1)
         if bool(bad.any()):
+            env = int(bad.nonzero()[0, 0])
+            shown = flat[env].tolist() if field.value_shape.numel() > 1 else flat[env, 0].item()
             raise ValueError(
-                f"{owner}.set_domain: values[{name!r}] holds {value[bad].flatten()[0].item()}, but {name!r} "
-                f"({field.description}) must be {field.rule}"
+                f"{owner}: {what}[{name!r}] of env {env} is {shown}, but {name!r} ({field.description}) must be "
+                f"{field.rule}"
             )
     return mask
 

@@ -637,8 +637,7 @@ class BatchedMujocoEnv(EnvBase):
             (True, [5.0, 6.0])
             >>> env.close()
         """
-        ids = self._domain_ids(mask)
-        rows = self._domain.checked(values, ids, "values")
+        rows, ids = self._domain.checked(values, mask, "values")
         if rows and (ids is None or ids.size):
             self._follow_domain(self._domain.write(rows, ids), ids)
 
@@ -656,21 +655,6 @@ class BatchedMujocoEnv(EnvBase):
         """
         device = self.device
         return {name: torch.from_numpy(value).to(device) for name, value in self._domain.read(names).items()}
-
-    def _domain_ids(self, mask: object) -> np.ndarray | None:
-        """The envs of a ``set_domain`` mask (None: all)."""
-        if mask is None:
-            return None
-        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
-            got = f"dtype {mask.dtype}" if isinstance(mask, torch.Tensor) else f"a {type(mask).__name__}"
-            raise TypeError(f"set_domain: mask must be a bool tensor of shape [{self.num_envs}] or None, got {got}")
-        if mask.shape != (self.num_envs,):
-            raise ValueError(
-                f"set_domain: mask must be a bool tensor of shape [{self.num_envs}] ([num_envs]), "
-                f"got shape {list(mask.shape)}"
-            )
-        ids = np.flatnonzero(mask.detach().cpu().numpy())
-        return None if ids.size == self.num_envs else ids
 
     def _follow_domain(self, kinds: set[FieldKind], ids: np.ndarray | None) -> None:
         """Update what the env keeps of the model beside the batch, for the envs ``ids`` whose ``kinds`` were written.

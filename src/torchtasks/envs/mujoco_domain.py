@@ -23,9 +23,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from torchtasks._checks import did_you_mean
 from torchtasks._optional import missing_extra
-from torchtasks.domain.fields import DomainField
+from torchtasks.domain.fields import DomainField, check_domain_values, select_fields
 
 try:
     import mujoco
@@ -217,9 +216,10 @@ class BatchDomain:
         >>> [field.name for field in domain.fields()][:4]
         ['body_mass:box', 'body_mass_scale', 'geom_friction:cube', 'geom_friction_scale']
         >>> import torch
-        >>> first = np.array([0])  # write simulation 0 only
-        >>> rows = domain.checked({"body_mass:box": torch.tensor([3.0, 9.0], dtype=torch.float64)}, first, "values")
-        >>> kinds = domain.write(rows, first)  # the mass, the inertia that follows, set_const on simulation 0
+        >>> first = torch.tensor([True, False])  # write simulation 0 only
+        >>> masses = {"body_mass:box": torch.tensor([3.0, 9.0], dtype=torch.float64)}
+        >>> rows, ids = domain.checked(masses, first, "values")
+        >>> kinds = domain.write(rows, ids)  # the mass, the inertia that follows, set_const on simulation 0
         >>> batch.expanded("body_mass")[:, 1], batch.expanded("geom_friction") is None
         (array([3., 2.]), True)
     """
@@ -241,75 +241,38 @@ class BatchDomain:
             for name, entry in self.table.items()
         }
         self.values: dict[str, np.ndarray] = {}
+        self._fields = {name: entry.field for name, entry in self.table.items()}
+        self._kinds = ", ".join(
+            kind.stem + ("" if kind.objects is None else f":<{kind.objects}>")
+            + ("" if kind.scale_low_open is None else f", {kind.stem}{SCALE}")
+            for kind in FIELD_KINDS
+        )  # fmt: skip
 
-    # ------------------------------------------------------------------ names
+    # ------------------------------------------------------------------ names and checks
     def fields(self, names: Sequence[str] | None = None, *, overlap: bool = False) -> list[DomainField]:
         """The fields ``names`` names, in order (``None``: all); refuses unknown names and, unless ``overlap``,
-        the same name twice and a scale with one object's value of the same kind."""
-        return [self.table[name].field for name in self._names(names, overlap=overlap)]
+        the same name twice and a scale with one object's value of the same kind (:func:`select_fields`)."""
+        writes = None if overlap else self.writes
+        return select_fields(self._fields, names, self.owner, writes=writes, kinds=self._kinds)
 
-    def _names(self, names: Sequence[str] | None, *, overlap: bool, what: str = "names") -> list[str]:
-        if names is None:
-            return list(self.table)
-        if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
-            raise TypeError(f"{self.owner}: names must be a sequence of domain field names, got {names!r}")
-        names = list(names)
-        for name in names:
-            if name not in self.table:
-                kinds = ", ".join(
-                    kind.stem + ("" if kind.objects is None else f":<{kind.objects}>")
-                    + ("" if kind.scale_low_open is None else f", {kind.stem}{SCALE}")
-                    for kind in FIELD_KINDS
-                )  # fmt: skip
-                raise ValueError(
-                    f"{self.owner}: unknown domain field {name!r} in {what}"
-                    f"{did_you_mean(str(name), list(self.table), n=3)} "
-                    f"(kinds: {kinds}); env.domain_fields() lists all {len(self.table)} fields of this env"
-                )
-        if overlap:
-            return names
-        for i, name in enumerate(names):
-            if name in names[:i]:
-                raise ValueError(f"{self.owner}: the domain field {name!r} is named twice in {names}")
-            for other in names[:i]:
-                if self.writes[name] & self.writes[other]:
-                    raise ValueError(
-                        f"{self.owner}: {other!r} and {name!r} both write {self.table[name].kind.model_field} of the "
-                        "same objects; name one of them (a scale and one object's value are not drawn together)"
-                    )
-        return names
-
-    # ------------------------------------------------------------------ checks
     def checked(
-        self, values: object, ids: np.ndarray | None, what: str, *, overlap: bool = False
-    ) -> dict[str, np.ndarray]:
-        """``values`` (name -> float64 tensor ``[nsim, *value_shape]``) as numpy rows of simulations ``ids`` (None:
-        all), checked: known names, dtype, shape, and finite, allowed values in those rows."""
-        if not isinstance(values, Mapping):
-            raise TypeError(f"{self.owner}: {what} must be a mapping of field names to tensors, got {values!r}")
-        names = self._names(list(values), overlap=overlap, what=what)
+        self, values: object, mask: object, what: str, *, overlap: bool = False
+    ) -> tuple[dict[str, np.ndarray], np.ndarray | None]:
+        """``values`` (name -> float64 tensor ``[nsim, *value_shape]``) checked by
+        :func:`~torchtasks.domain.check_domain_values` for the simulations of ``mask`` (bool ``[nsim]``; None: all),
+        as numpy rows of those simulations, with their ids (None: all)."""
+        writes = None if overlap else self.writes
         nsim = self.batch.nsim
-        checked = {}
-        for name in names:
-            field, value = self.table[name].field, values[name]
-            expected = f"a float64 tensor of shape {[nsim, *field.value_shape]} ([num_envs, *value_shape])"
-            if not isinstance(value, torch.Tensor) or value.dtype != torch.float64:
-                got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
-                raise TypeError(f"{self.owner}: {what}[{name!r}] must be {expected}, got {got}")
-            if value.shape != (nsim, *field.value_shape):
-                raise ValueError(f"{self.owner}: {what}[{name!r}] must be {expected}, got shape {list(value.shape)}")
-            rows = value.detach().cpu()
-            rows = rows if ids is None else rows[torch.from_numpy(ids)]
-            allowed = field.allows(rows).reshape(rows.shape[0], field.value_shape.numel()).all(dim=1)
-            if not bool(allowed.all()):
-                row = int((~allowed).nonzero()[0, 0])
-                env = row if ids is None else int(ids[row])
-                raise ValueError(
-                    f"{self.owner}: {what}[{name!r}] of env {env} is {rows[row].tolist()}, but {name!r} "
-                    f"({field.description}) must be {field.rule}"
-                )
-            checked[name] = rows.numpy()
-        return checked
+        mask = check_domain_values(
+            self._fields, values, mask, torch.Size([nsim]), self.owner, what=what, writes=writes, kinds=self._kinds
+        )
+        ids = np.flatnonzero(mask.numpy())
+        ids = None if ids.size == nsim else ids
+        rows = {}
+        for name, value in values.items():
+            array = value.detach().cpu().numpy()
+            rows[name] = array if ids is None else array[ids]
+        return rows, ids
 
     # ------------------------------------------------------------------ writes
     def write(self, rows: Mapping[str, np.ndarray], ids: np.ndarray | None) -> set[FieldKind]:
@@ -360,8 +323,8 @@ class BatchDomain:
         """Every simulation's current value of each field named (copies; nominal where never set)."""
         nsim = self.batch.nsim
         out = {}
-        for name in self._names(names, overlap=True):
-            field = self.table[name].field
+        for field in self.fields(names, overlap=True):
+            name = field.name
             value = self.values.get(name)
             out[name] = _nominal_rows(field, nsim) if value is None else value.copy()
         return out
