@@ -16,7 +16,13 @@ timed:
 - ``preset``: ``gymnasium_env(env_id, num_envs=N, backend="batched")``, the stack above plus ``RewardSum()``
   over the reward and the terms: what users build;
 - ``preset, no physics``: the preset's four transforms over an env with ``BatchedMujocoEnv``'s specs that
-  simulates nothing (it returns zeros): what TorchRL and the transforms cost per step without MuJoCo.
+  simulates nothing (it returns zeros): what TorchRL and the transforms cost per step without MuJoCo;
+- ``preset + domain``: the preset with a ``DomainRandomization`` appended that draws every env's total mass and
+  friction (``body_mass_scale``, ``geom_friction_scale``, uniform ±30%) at each of its resets: masses need
+  ``mj_setConst`` for the reset envs. The ``domain cost`` column is ``1 - frames/s(preset + domain) /
+  frames/s(preset)`` of each repeat, the median over repeats (a random policy ends Hopper's episodes within ~20
+  steps, so some env resets in almost every step; HalfCheetah never ends before 1000 steps: there the cost is the
+  entries written at every step).
 
 It prints milliseconds per step (one step = all N envs) and frames/s, and writes ``results.json`` and
 ``results.md`` into ``--output``. A layer's cost is the difference to the row before it; ``preset`` minus
@@ -42,10 +48,11 @@ from torchrl.envs import Compose, EnvBase, RewardSum, StepCounter, TransformedEn
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from batched_mujoco import _collector_frames_per_second, floor_batch
 
+from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import BatchedMujocoEnv, gymnasium_env
 from torchtasks.envs.batched_mujoco import ZeroBrokenStepReward
 from torchtasks.envs.locomotion import locomotion_state_layout, locomotion_task
-from torchtasks.transforms import TaskTransform
+from torchtasks.transforms import DomainRandomization, TaskTransform
 
 VARIANTS = (
     "physics",
@@ -55,6 +62,7 @@ VARIANTS = (
     "+ZeroBrokenStepReward",
     "preset",
     "preset, no physics",
+    "preset + domain",
 )
 
 
@@ -94,6 +102,10 @@ class NoPhysicsEnv(EnvBase):
         pass
 
 
+#: the fields the ``preset + domain`` variant draws at every reset
+DOMAIN_FIELDS = ("body_mass_scale", "geom_friction_scale")
+
+
 def _stack(base: EnvBase, env_id: str, layers: int) -> EnvBase:
     """``base`` with the first ``layers`` transforms of the batched preset (0: the env alone)."""
     if layers == 0:
@@ -109,8 +121,12 @@ def _stack(base: EnvBase, env_id: str, layers: int) -> EnvBase:
 
 def make_env(env_id: str, num_envs: int, variant: str, num_threads: int) -> EnvBase:
     """The pipeline of ``variant`` (see the module docstring)."""
-    if variant == "preset":
-        return gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
+    if variant in ("preset", "preset + domain"):
+        env = gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
+        if variant == "preset + domain":
+            params = [UniformDomainParam(name, mean=1.0, halfspan=0.3) for name in DOMAIN_FIELDS]
+            env.append_transform(DomainRandomization(params, seed=0))
+        return env
     base = BatchedMujocoEnv(env_id, num_envs, seed=0, num_threads=num_threads)
     if variant == "preset, no physics":
         return _stack(NoPhysicsEnv(base), env_id, 4)
@@ -150,8 +166,12 @@ def main(argv: list[str] | None = None) -> int:
             variant: statistics.median(v / p for v, p in zip(values, samples["physics"], strict=True))
             for variant, values in samples.items()
         }
+        domain_cost = statistics.median(
+            1.0 - d / p for d, p in zip(samples["preset + domain"], samples["preset"], strict=True)
+        )
         rows.append(
             {
+                "domain_cost": domain_cost,
                 "env_id": env_id,
                 "num_envs": num_envs,
                 "frames_per_second": fps,
@@ -162,7 +182,8 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(
             f"{env_id} x{num_envs}: "
-            + ", ".join(f"{variant} {ms[variant]:.2f} ms ({ratio[variant]:.2f})" for variant in VARIANTS),
+            + ", ".join(f"{variant} {ms[variant]:.2f} ms ({ratio[variant]:.2f})" for variant in VARIANTS)
+            + f"; domain cost {100 * domain_cost:.1f}%",
             flush=True,
         )
     lines = [
@@ -170,12 +191,13 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.threads} MuJoCo threads, one torch thread, load average {load_before[0]:.2f} -> "
         f"{os.getloadavg()[0]:.2f})",
         "",
-        "| case | " + " | ".join(VARIANTS) + " |",
-        "|---|" + "---|" * len(VARIANTS),
+        "| case | " + " | ".join(VARIANTS) + " | domain cost |",
+        "|---|" + "---|" * (len(VARIANTS) + 1),
     ]
     for row in rows:
         ms, ratio = row["ms_per_step"], row["ratio_to_physics"]
         cells = [f"{ms[variant]:.2f} ({ratio[variant]:.2f})" for variant in VARIANTS]
+        cells.append(f"{100 * row['domain_cost']:.1f}%")
         lines.append(f"| {row['env_id']} × {row['num_envs']} | " + " | ".join(cells) + " |")
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "results.md").write_text("\n".join(lines) + "\n")

@@ -189,8 +189,12 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     # ------------------------------------------------------------------ set-up
     def _forget_setup(self) -> None:
         self.__dict__.pop("_fields", None)
+        self.__dict__.pop("_base", None)
 
     def _base_env(self) -> DomainEnv:
+        known = self.__dict__.get("_base")
+        if known is not None:
+            return known
         env = container_env(self)
         base = getattr(env, "base_env", None)
         if not isinstance(base, DomainEnv):
@@ -198,7 +202,14 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
                 "DomainRandomization: the base env must offer per-env physics (domain_fields, set_domain, "
                 f"domain_values: a torchtasks BatchedMujocoEnv or PendulumEnv), got {type(base).__name__}"
             )
+        self.__dict__["_base"] = base  # until the env changes (_forget_setup): an isinstance of a Protocol is slow
         return base
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = super().__getstate__()
+        state.pop("_base", None)  # derived from the env again where the copy lands
+        state.pop("_fields", None)
+        return state
 
     def _others(self) -> list[DomainRandomization]:
         home = self.home_transforms()
