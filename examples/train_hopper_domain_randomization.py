@@ -37,8 +37,9 @@ seed; frames, seeds, wall time) and ``robustness.png`` (a heatmap per variant of
 colour scale; needs matplotlib, the ``plot`` extra: without it the plot is skipped with a message).
 
 Run: ``python examples/train_hopper_domain_randomization.py [--variants nominal randomized] [--seeds 0 1 2]
-[--total-frames N] [--eval-episodes E] [--quick]`` (runs one after the other; ``--quick``: a few seconds,
-every code path, for the tests). Measured results: ``docs/domain_randomization.md``.
+[--total-frames N] [--eval-episodes E] [--max-minutes X] [--quick]`` (runs one after the other; a 1M-frame
+run takes over 20 minutes on 2 cores, so ``--max-minutes 60`` raises the 30-minute safety stop; ``--quick``: a
+few seconds, every code path, for the tests). Measured results: ``docs/domain_randomization.md``.
 """
 
 from __future__ import annotations
