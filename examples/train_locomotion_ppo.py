@@ -27,6 +27,10 @@ the batch layout and the minibatch size):
   3e-4 (eps 1e-5) annealed linearly to 0 over the run, gradient norm clipped at 0.5.
 - One torch thread (the networks are small); MuJoCo steps the envs on 2 threads.
 
+Another env, more transforms: ``LocomotionPPOConfig.env_id`` (any of ``SUPPORTED_ENV_IDS``) and
+the ``extra_transforms`` hook of :func:`make_env` and :func:`train` (appended to the preset before the
+normalisation); ``train_hopper_domain_randomization.py`` trains Hopper with domain randomization that way.
+
 Returns: HalfCheetah never terminates, so every episode ends at the 1000-step limit. The learning
 curve is the **mean return of the training episodes that ended** in each batch (the stochastic
 policy; RewardSum's episode sums of the reward and of its ``forward``/``ctrl`` terms at the
@@ -57,6 +61,7 @@ import math
 import sys
 import time
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -74,6 +79,7 @@ from torchrl.envs import (
     ClipTransform,
     DoubleToFloat,
     ExplorationType,
+    Transform,
     TransformedEnv,
     VecNormV2,
     set_exploration_type,
@@ -82,23 +88,28 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from torchtasks.envs.gymnasium_v5 import locomotion_record
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, gymnasium_env
 from torchtasks.stats import episode_statistics
 
-ENV_ID = "HalfCheetah-v5"
+ENV_ID = "HalfCheetah-v5"  # the default env (LocomotionPPOConfig.env_id)
 EVAL_SEED = 12345  # the deterministic evaluation always starts from the same initial states
 OBSERVATION_CLIP = 10.0
 REWARD_CLIP = 10.0
-TERMS = ("forward", "ctrl")  # HalfCheetah's named reward terms (TaskTransform writes them under "task_reward")
+TERMS = locomotion_record(ENV_ID).term_names  # its named reward terms (TaskTransform writes them under "task_reward")
 DEFAULT_OUTPUT = Path("runs/train_locomotion_ppo")
 PLOT_NAME = "locomotion_ppo_curve.png"
 GAE_NEXT_KEYS = (("next", "observation"), ("next", "done"), ("next", "terminated"))
+
+#: ``seed -> transforms`` appended to the preset before the observation normalisation (e.g. a DomainRandomization)
+ExtraTransforms = Callable[[int], Sequence[Transform]]
 
 
 @dataclass(frozen=True)
 class LocomotionPPOConfig:
     """Hyper-parameters of a run (``frames_per_batch = num_envs * rollout_steps``)."""
 
+    env_id: str = ENV_ID
     num_envs: int = 64
     rollout_steps: int = 32
     total_frames: int = 1_000_000
@@ -147,9 +158,16 @@ def file_name(seed: int | str) -> str:
     return f"locomotion_ppo_seed{seed}.json"
 
 
-def make_env(config: LocomotionPPOConfig, seed: int) -> tuple[TransformedEnv, VecNormV2]:
-    """Return the training env (the preset, then observation normalisation, clipping and float32) and its VecNormV2."""
-    env = gymnasium_env(ENV_ID, num_envs=config.num_envs, seed=seed, num_threads=config.mujoco_threads)
+def make_env(
+    config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None
+) -> tuple[TransformedEnv, VecNormV2]:
+    """Return the training env (the preset, then observation normalisation, clipping and float32) and its VecNormV2.
+
+    ``extra_transforms(seed)``, if given, are appended to the preset before the normalisation.
+    """
+    env = gymnasium_env(config.env_id, num_envs=config.num_envs, seed=seed, num_threads=config.mujoco_threads)
+    for transform in extra_transforms(seed) if extra_transforms is not None else ():
+        env.append_transform(transform)
     vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
     with warnings.catch_warnings():  # "experimental" for batched envs; reduce_batch_dims is what a batch needs
         warnings.filterwarnings("ignore", message="Support of VecNormV2 for containers", category=UserWarning)
@@ -159,9 +177,16 @@ def make_env(config: LocomotionPPOConfig, seed: int) -> tuple[TransformedEnv, Ve
     return env, vecnorm
 
 
-def make_eval_env(config: LocomotionPPOConfig, vecnorm: VecNormV2) -> TransformedEnv:
-    """Return ``eval_envs`` envs from fixed initial states, normalised with ``vecnorm``'s current statistics, frozen."""
-    env = gymnasium_env(ENV_ID, num_envs=config.eval_envs, seed=EVAL_SEED, num_threads=config.mujoco_threads)
+def make_eval_env(
+    config: LocomotionPPOConfig, vecnorm: VecNormV2, extra_transforms: ExtraTransforms | None = None
+) -> TransformedEnv:
+    """Return ``eval_envs`` envs from fixed initial states, normalised with ``vecnorm``'s current statistics, frozen.
+
+    ``extra_transforms(EVAL_SEED)``, if given, are appended to the preset before the normalisation.
+    """
+    env = gymnasium_env(config.env_id, num_envs=config.eval_envs, seed=EVAL_SEED, num_threads=config.mujoco_threads)
+    for transform in extra_transforms(EVAL_SEED) if extra_transforms is not None else ():
+        env.append_transform(transform)
     env.append_transform(vecnorm.to_observation_norm())
     env.append_transform(ClipTransform(in_keys=["observation"], low=-OBSERVATION_CLIP, high=OBSERVATION_CLIP))
     env.append_transform(DoubleToFloat(in_keys=["observation"]))
@@ -243,19 +268,20 @@ class ReturnScaler:
         return (reward / math.sqrt(self.var + self.epsilon)).clamp(-self.clip, self.clip).float()
 
 
-def training_returns(batch: TensorDictBase) -> dict[str, float | None]:
+def training_returns(batch: TensorDictBase, terms: Sequence[str] = TERMS) -> dict[str, float | None]:
     """Mean return (and per-term returns) of the training episodes that ended in ``batch``, from RewardSum's sums.
 
     The episodes are 1000 steps long and a batch holds ``rollout_steps`` of them, so the returns come
     from RewardSum's running sums at the last frame of every ended episode, not from
-    ``episode_statistics`` (which sums only episodes whose frames are all in the batch).
+    ``episode_statistics`` (which sums only episodes whose frames are all in the batch). ``terms``: the
+    env's named reward terms.
     """
     nxt = batch["next"]
     done = nxt["done"]
     if not bool(done.any()):
-        return {"train_return": None, **{f"train_return/{term}": None for term in TERMS}}
+        return {"train_return": None, **{f"train_return/{term}": None for term in terms}}
     stats = {"train_return": nxt["episode_reward"][done].mean().item()}
-    for term in TERMS:
+    for term in terms:
         stats[f"train_return/{term}"] = nxt["task_reward", f"episode_{term}"][done].mean().item()
     return stats
 
@@ -270,16 +296,27 @@ def evaluate(actor: ProbabilisticActor, config: LocomotionPPOConfig, vecnorm: Ve
     stats = episode_statistics(rollout)
     if not stats["complete_episodes"]:  # --eval-steps below the episode length: the returns of the partial episodes
         stats["return_mean"] = rollout["next", "episode_reward"][:, -1].mean().item()
-        for term in TERMS:
+        for term in locomotion_record(config.env_id).term_names:
             stats[f"return_mean/{term}"] = rollout["next", "task_reward", f"episode_{term}"][:, -1].mean().item()
     return {key: value for key, value in stats.items() if not key.endswith(("/step", "/final"))}
 
 
-def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
-    """Train one seed for ``config.total_frames`` frames (or ``config.max_minutes``); return the run record."""
+def train(config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None) -> dict[str, Any]:
+    """Train one seed for ``config.total_frames`` frames (or ``config.max_minutes``); return the run record.
+
+    ``extra_transforms``: see :func:`make_env` (the training env only; the evaluations run the preset).
+    """
+    return train_policy(config, seed, extra_transforms)[0]
+
+
+def train_policy(
+    config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None
+) -> tuple[dict[str, Any], ProbabilisticActor, VecNormV2]:
+    """:func:`train`, also returning the trained actor and the training env's VecNormV2 (for further evaluations)."""
     torch.manual_seed(seed)
     start = time.perf_counter()
-    env, vecnorm = make_env(config, seed)
+    terms = locomotion_record(config.env_id).term_names
+    env, vecnorm = make_env(config, seed, extra_transforms)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
     advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
@@ -303,7 +340,7 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
     scaler = ReturnScaler(config.num_envs, config.gamma)
     iterations = math.ceil(config.total_frames / config.frames_per_batch)
     record: dict[str, Any] = {
-        "env_id": ENV_ID,
+        "env_id": config.env_id,
         "method": "PPO",
         "config": asdict(config),
         "seed": seed,
@@ -316,12 +353,12 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
     # collection: from the end of one batch's update (or the start) until the collector hands over the next batch
     collect_seconds, collect_start = 0.0, time.perf_counter()
     last_train, last_eval = None, None
-    bar = frame_bar(f"PPO {ENV_ID} seed {seed}", iterations * config.frames_per_batch)  # whole batches
+    bar = frame_bar(f"PPO {config.env_id} seed {seed}", iterations * config.frames_per_batch)  # whole batches
     for iteration, batch in enumerate(collector, start=1):
         collect_seconds += time.perf_counter() - collect_start
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
-        returns = training_returns(batch)
+        returns = training_returns(batch, terms)
         if config.anneal_lr:
             for group in optimizer.param_groups:
                 group["lr"] = config.learning_rate * (1.0 - (iteration - 1) / iterations)
@@ -349,6 +386,8 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
             "episodes": batch_stats["episodes"],
             "episode_length_mean": batch_stats.get("episode_length_mean"),
             "timeout_rate": batch_stats.get("timeout_rate"),
+            # with a DomainRandomization: the mean physics of the episodes that ended ("domain/<field>")
+            **{key: value for key, value in batch_stats.items() if key.startswith("domain/")},
             "loss_critic": losses["loss_critic"].item(),
             "clip_fraction": losses["clip_fraction"].item(),
             "action_scale": log_std.state_independent_scale.exp().mean().item(),  # of the Normal before tanh
@@ -368,8 +407,7 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
         postfix = {"ended": int(batch_stats["episodes"])}
         if last_train is not None:
             postfix["train_return"] = f"{last_train['train_return']:.0f}"
-            postfix["forward"] = f"{last_train['train_return/forward']:.0f}"
-            postfix["ctrl"] = f"{last_train['train_return/ctrl']:.0f}"
+            postfix.update({term: f"{last_train[f'train_return/{term}']:.0f}" for term in terms})
         if last_eval is not None:
             postfix["eval_return"] = f"{last_eval['return_mean']:.0f}"
         bar.set_postfix(postfix)
@@ -393,7 +431,7 @@ def train(config: LocomotionPPOConfig, seed: int) -> dict[str, Any]:
         final_eval_return=last_eval["return_mean"],
         machine_end=machine_info(),
     )
-    return record
+    return record, actor, vecnorm
 
 
 def _frames_of_last_train_return(curve: list[dict[str, Any]]) -> int:
@@ -443,9 +481,8 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     for axis in axes:
         axis.grid(alpha=0.3)
     config = records[0]["config"]
-    figure.suptitle(
-        f"PPO on {ENV_ID} (BatchedMujocoEnv, {config['num_envs']} envs x {config['rollout_steps']} steps per batch)"
-    )
+    layout = f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch"
+    figure.suptitle(f"PPO on {records[0]['env_id']} (BatchedMujocoEnv, {layout})")
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=100)

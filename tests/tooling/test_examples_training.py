@@ -1,18 +1,22 @@
 """The training examples run end to end in ``--quick`` mode and write their learning curves.
 
 ``examples/train_swingup_ppo.py`` (PPO), ``examples/differentiable_shaping.py`` (analytic
-policy gradients) and ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
-``mujoco`` extra) are run as scripts, as a user would, from a fresh empty directory with their
-default outputs (``runs/<example name>/``; :func:`run_quick` also checks that nothing else appears
-there). The quick runs take a few seconds each; they check the code paths (training, evaluation,
-JSON, PNG, the PPO comparison), not the learning.
+policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
+``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py`` and
+``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
+and frictions, evaluated on a grid of models) are run as scripts, as a user would, from a fresh empty
+directory with their default outputs (``runs/<example name>/``; :func:`run_quick` also checks that
+nothing else appears there). The quick runs take a few seconds each; they check the code paths
+(training, evaluation, JSON, PNG, the PPO comparison), not the learning.
 """
 
 from __future__ import annotations
 
 import importlib.util
 import json
+import math
 import shutil
+import statistics
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -171,3 +175,57 @@ def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "safety_ppo_lagrangian_curve.png").stat().st_size > 0
         assert "safety_ppo_lagrangian_curve.png (2 runs)" in result.stdout
+
+
+def test_hopper_domain_randomization_quick_writes_runs_table_and_png(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    result = run_example("train_hopper_domain_randomization.py", tmp_path, "--seeds", "3")
+    output = tmp_path / "runs" / "train_hopper_domain_randomization" / "quick"  # the default --output of --quick
+    factors = (0.5, 0.75, 1.0, 1.25, 1.5)
+    episodes = 2  # --quick's episodes per grid model
+    # env i runs grid point i // 2: mass factors in the outer loop, friction factors in the inner one
+    expected_domains = [(mass, friction) for mass in factors for friction in factors for _ in range(episodes)]
+    tables = (output / "robustness.md").read_text().split("\n## ")[1:]
+    assert [section.splitlines()[0] for section in tables] == ["nominal", "randomized"]
+    for variant, section in zip(("nominal", "randomized"), tables, strict=True):
+        record = json.loads((output / f"dr_{variant}_seed3.json").read_text())
+        assert record["seed"] == 3 and record["variant"] == variant and record["env_id"] == "Hopper-v5"
+        assert [point["frames"] for point in record["curve"]] == [400, 800] == [400, record["total_frames"]]
+        assert record["seconds"] >= record["total_seconds"] > 0 and record["machine_end"]["load_1min"] >= 0
+        # Hopper falls within 100 steps under an untrained policy: training episodes end in every batch
+        assert all(point["episodes"] > 0 and point["train_return"] is not None for point in record["curve"])
+        drawn_mass = [point.get("domain/body_mass_scale") for point in record["curve"]]
+        if variant == "nominal":
+            assert record["randomization"] is None and drawn_mass == [None, None]
+        else:  # the mean mass factor of the training episodes that ended: drawn from U[0.5, 1.5], not the nominal 1
+            assert set(record["randomization"]) == {"body_mass_scale", "geom_friction_scale"}
+            assert all(0.5 <= mass <= 1.5 and mass != 1.0 for mass in drawn_mass)
+        grid = record["grid_evaluation"]
+        envs = grid["envs"]
+        assert list(zip(envs["body_mass_scale"], envs["geom_friction_scale"], strict=True)) == expected_domains
+        assert grid["episodes_per_point"] == episodes and grid["max_steps"] == 100 and 1 <= grid["steps"] <= 100
+        assert len(envs["return"]) == len(envs["length"]) == len(envs["ended"]) == 50
+        for length, ended in zip(envs["length"], envs["ended"], strict=True):
+            assert 1 <= length <= grid["steps"]
+            assert ended or length == grid["steps"] == 100  # an env that never ended ran every step
+        assert all(math.isfinite(value) for value in envs["return"])
+        means = [statistics.fmean(envs["return"][i : i + episodes]) for i in range(0, 50, episodes)]
+        stds = [statistics.pstdev(envs["return"][i : i + episodes]) for i in range(0, 50, episodes)]
+        assert [len(row) for row in grid["mean"]] == [len(row) for row in grid["std"]] == [5] * 5
+        assert [value for row in grid["mean"] for value in row] == pytest.approx(means)
+        assert [value for row in grid["std"] for value in row] == pytest.approx(stds)
+        assert grid["grid_mean"] == pytest.approx(statistics.fmean(means))
+        # the table: a row per mass factor, a "mean ± std" cell per friction factor, as in the JSON
+        rows = [line for line in section.splitlines() if line.startswith("| ") and " ± " in line]
+        assert [row.split(" | ")[0] for row in rows] == [f"| {mass:g}" for mass in factors]
+        cells = [cell for row in rows for cell in row.strip(" |").split(" | ")[1:]]
+        assert len(cells) == 25
+        for cell, mean, std in zip(cells, means, stds, strict=True):
+            shown_mean, shown_std = (float(part.replace(",", "")) for part in cell.split(" ± "))
+            assert shown_mean == pytest.approx(mean, abs=0.051) and shown_std == pytest.approx(std, abs=0.051)
+        assert f"{variant} seed 3: 800 frames in" in result.stdout
+    assert "robustness.md (2 runs)" in result.stdout
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "robustness.png").stat().st_size > 0
+        assert "robustness.png" in result.stdout
