@@ -18,6 +18,7 @@ from torchtasks.envs import PendulumEnv, PointMassEnv, pendulum_dynamics, swing_
 from torchtasks.transforms import (
     BaseEnvState,
     Curriculum,
+    DifficultyLevels,
     DomainRandomization,
     TaskTransform,
     collector_state,
@@ -257,6 +258,34 @@ def test_a_schedule_that_would_widen_past_the_field_is_refused():
     env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, curriculum, _mass()))
     with pytest.raises(ValueError, match=r"Curriculum: the schedule of .domain\.mass\.halfspan."):
         env.reset()
+
+
+@pytest.mark.parametrize(
+    ("rows", "match"),
+    [
+        ([0.0, 0.25, 1.0], r"level 2 of 'domain\.mass\.halfspan'.*'mass'"),  # a mass range reaching 0
+        ([0.0, -0.25, 0.5], r"level 1 of 'domain\.mass\.halfspan'.*halfspan"),  # a negative halfspan
+    ],
+)
+def test_a_level_table_that_leaves_the_field_or_the_distribution_is_refused(rows: list[float], match: str):
+    task = TaskTransform(swing_up_task())
+    levels = DifficultyLevels(3, {"domain.mass.halfspan": rows})
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, levels, _mass()))
+    with pytest.raises(ValueError, match=match):
+        env.reset()
+
+
+def test_per_env_levels_draw_from_each_envs_distribution():
+    task = TaskTransform(swing_up_task())
+    levels = DifficultyLevels(3, {"domain.mass.halfspan": [0.0, 0.25, 0.5]}, initial_level=0)
+    randomization = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.0)], seed=0)
+    env = TransformedEnv(PendulumEnv(batch_size=[BATCH]), Compose(StepCounter(5), task, levels, randomization))
+    env.reset()
+    levels.level = torch.tensor([0, 2, 0, 2])  # envs 1 and 3 at the widest level
+    masses = env.rollout(40, break_when_any_done=False)["next", "domain", "mass"]
+    assert (masses[[0, 2]] == 1.0).all()  # halfspan 0: the nominal mass
+    assert (masses[[1, 3]] != 1.0).any() and ((masses - 1.0).abs() <= 0.5).all()
+    assert randomization.params["mass"].halfspan.shape == (BATCH,)
 
 
 def test_a_curriculum_after_the_randomization_is_refused():
