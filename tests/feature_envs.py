@@ -123,7 +123,7 @@ def domain(batch: int, seed: int) -> TransformedEnv:
     task = TaskTransform(swing_up_task(success_threshold=0.6))
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
     randomization = DomainRandomization(_pendulum_params(), seed=seed)
-    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum, randomization)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, curriculum)
 
 
 def domain_levels(batch: int, seed: int) -> TransformedEnv:
@@ -131,7 +131,7 @@ def domain_levels(batch: int, seed: int) -> TransformedEnv:
     task = TaskTransform(swing_up_task(success_threshold=0.6))
     levels = DifficultyLevels(3, {"domain.mass.halfspan": [0.0, 0.2, 0.4]})
     randomization = DomainRandomization(_pendulum_params(), when="interval", every=4, seed=seed)
-    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, levels, randomization)
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, levels)
 
 
 def _fast(state: torch.Tensor) -> torch.Tensor:

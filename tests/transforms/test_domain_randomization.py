@@ -50,22 +50,25 @@ def _partial_reset(env: TransformedEnv, last: TensorDict, mask: list[bool]) -> T
 
 
 # ------------------------------------------------------------------------------------------------ the physics
-def test_the_physics_use_the_drawn_values():
+@pytest.mark.parametrize("when", ["reset", "interval"])
+def test_the_physics_use_the_drawn_values(when: str):
+    """Every step's physics are the values under "next" (interval: drawn before the step they apply to)."""
     params = [
         UniformDomainParam("mass", mean=1.0, halfspan=0.5),
         NormalDomainParam("length", mean=1.0, std=0.2, clip_lo=0.5),
         BernoulliDomainParam("gravity", val_0=5.0, val_1=15.0, prob_1=0.5),
     ]
-    env = _env(DomainRandomization(params, seed=1))
+    kwargs = {"when": "interval", "every": 3} if when == "interval" else {}
+    env = _env(DomainRandomization(params, seed=1, **kwargs))
     data = env.rollout(12, break_when_any_done=False)
     for t in range(12):
-        values = {name: data["domain", name][:, t].to(torch.float32) for name in ("mass", "length", "gravity")}
+        values = {name: data["next", "domain", name][:, t].to(torch.float32) for name in ("mass", "length", "gravity")}
         expected = pendulum_dynamics(
             data["observation"][:, t], data["action"][:, t].clamp(-2.0, 2.0), dt=0.05, max_speed=8.0, **values
         )
         assert torch.equal(data["next", "observation"][:, t], expected), f"step {t}"
-    masses = data["domain", "mass"]
-    assert not torch.equal(masses[:, 0], masses[:, 5])  # redrawn at the reset after 5 steps
+    masses = data["next", "domain", "mass"]
+    assert not torch.equal(masses[:, 0], masses[:, 5])  # redrawn at the reset after 5 steps (interval: after 3)
 
 
 # ------------------------------------------------------------------------------------------------ when
@@ -92,8 +95,9 @@ def test_interval_draws_every_n_steps_of_each_env_across_episodes():
     data = env.rollout(12, break_when_any_done=False)
     masses = torch.cat([data["domain", "mass"][:, :1], data["next", "domain", "mass"]], dim=1)  # 13 values per env
     changed = (masses[:, 1:] != masses[:, :-1]).all(0)
-    # drawn in steps 4, 8, 12 (1-based), never at the resets after steps 3, 6, 9
-    assert changed.tolist() == [(t + 1) % 4 == 0 for t in range(12)]
+    # drawn before steps 5 and 9 (1-based; after 4 steps each), never at the resets after steps 3, 6, 9: a step's
+    # entries under "next" are the values it ran with
+    assert changed.tolist() == [t in (4, 8) for t in range(12)]
 
 
 def test_a_cycle_gives_the_stored_domains_in_turn():
@@ -195,12 +199,21 @@ def test_a_loaded_state_is_given_to_the_env_at_once():
             "NormalDomainParam",
         ),
         (lambda: DomainRandomization([UniformDomainParam("length", mean=1.0, halfspan=0.5)], seed=0), "'length'"),
+        (
+            lambda: DomainRandomization(
+                [UniformDomainParam("mass", mean=1.0, halfspan=0.5, clip_lo=0.6, roundint=True)], seed=0
+            ),
+            r"saved \{'mass': \['UniformDomainParam', False\]\}",
+        ),
+        (lambda: _mass(), "the saved distribution of 'mass'"),  # the same configuration, a negative halfspan saved
     ],
 )
 def test_a_load_of_another_randomization_is_refused_and_changes_nothing(other, match: str):
     source = _env(_mass())
     source.rollout(7, break_when_any_done=False)
     state = _saved(source.transform.state_dict())
+    if match == "the saved distribution of 'mass'":
+        state["transforms.1.params.mass.halfspan"] = torch.tensor(-1.0, dtype=torch.float64)
     target = _env(other())
     target.reset()
     before = _saved(target.transform.state_dict())
@@ -211,6 +224,48 @@ def test_a_load_of_another_randomization_is_refused_and_changes_nothing(other, m
     for key, value in before.items():
         if isinstance(value, torch.Tensor):
             assert torch.equal(value, after[key]), key
+
+
+def test_a_state_loaded_before_the_env_is_built_reaches_the_env():
+    source = _env(_mass(when="startup"))
+    source.reset()
+    state = _saved(source.transform.state_dict())
+    loaded = _mass(when="startup")
+    loaded.load_state_dict(_saved({key.removeprefix("transforms.1."): v for key, v in state.items() if "1." in key}))
+    env = _env(loaded)
+    masses = env.reset()["domain", "mass"]
+    assert torch.equal(masses, source.base_env.domain_values(["mass"])["mass"])
+    assert torch.equal(env.base_env.domain_values(["mass"])["mass"], masses)  # the env runs what the data says
+    other = _mass(when="startup")
+    other.load_state_dict(_saved({key.removeprefix("transforms.1."): v for key, v in state.items() if "1." in key}))
+    with pytest.raises(ValueError, match=r"holds the drawn values of a batch \[4\].*the env's batch is \[6\]"):
+        _env(other, batch=6).reset()
+
+
+def test_an_unbatched_env_is_randomized():
+    env = TransformedEnv(PendulumEnv(seed=0), Compose(StepCounter(3), _mass()))
+    data = env.rollout(7, break_when_any_done=False)
+    masses = data["next", "domain", "mass"]
+    assert masses.shape == (7,) and masses[0] != masses[3]  # redrawn at the reset after 3 steps
+
+
+def test_set_seed_starts_the_draws_again():
+    """A Collector resets its env when built, before collector.set_seed: the seed still decides every draw."""
+
+    def first_batch() -> torch.Tensor:
+        env = _resumable(DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.5)], when="startup"))
+        collector = Collector(
+            env, pendulum_policy(), frames_per_batch=BATCH * 3, total_frames=-1, auto_register_policy_transforms=False
+        )
+        collector.set_seed(5)
+        batch = next(iter(collector))["next", "domain", "mass"]
+        collector.shutdown()
+        return batch
+
+    torch.manual_seed(1)
+    first = first_batch()
+    torch.manual_seed(2)  # another global stream before the seed: the same draws
+    assert torch.equal(first_batch(), first)
 
 
 def test_a_load_of_values_outside_the_field_is_refused():
@@ -255,7 +310,7 @@ def test_a_distribution_that_can_leave_the_field_is_refused():
 def test_a_schedule_that_would_widen_past_the_field_is_refused():
     task = TaskTransform(swing_up_task())
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 1.5, 0, 100)})
-    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, curriculum, _mass()))
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, _mass(), curriculum))
     with pytest.raises(ValueError, match=r"Curriculum: the schedule of .domain\.mass\.halfspan."):
         env.reset()
 
@@ -270,7 +325,7 @@ def test_a_schedule_that_would_widen_past_the_field_is_refused():
 def test_a_level_table_that_leaves_the_field_or_the_distribution_is_refused(rows: list[float], match: str):
     task = TaskTransform(swing_up_task())
     levels = DifficultyLevels(3, {"domain.mass.halfspan": rows})
-    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, levels, _mass()))
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, _mass(), levels))
     with pytest.raises(ValueError, match=match):
         env.reset()
 
@@ -279,7 +334,7 @@ def test_per_env_levels_draw_from_each_envs_distribution():
     task = TaskTransform(swing_up_task())
     levels = DifficultyLevels(3, {"domain.mass.halfspan": [0.0, 0.25, 0.5]}, initial_level=0)
     randomization = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.0)], seed=0)
-    env = TransformedEnv(PendulumEnv(batch_size=[BATCH]), Compose(StepCounter(5), task, levels, randomization))
+    env = TransformedEnv(PendulumEnv(batch_size=[BATCH]), Compose(StepCounter(5), task, randomization, levels))
     env.reset()
     levels.level = torch.tensor([0, 2, 0, 2])  # envs 1 and 3 at the widest level
     masses = env.rollout(40, break_when_any_done=False)["next", "domain", "mass"]
@@ -288,12 +343,41 @@ def test_per_env_levels_draw_from_each_envs_distribution():
     assert randomization.params["mass"].halfspan.shape == (BATCH,)
 
 
-def test_a_curriculum_after_the_randomization_is_refused():
+def test_a_curriculum_before_the_randomization_is_refused():
     task = TaskTransform(swing_up_task())
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 100)})
-    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, _mass(), curriculum))
-    with pytest.raises(ValueError, match="DomainRandomization that comes before it"):
+    env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, curriculum, _mass()))
+    with pytest.raises(ValueError, match="DomainRandomization that comes after it: put Curriculum after it"):
         env.reset()
+
+
+@pytest.mark.parametrize("writer", ["curriculum", "levels"])
+def test_the_first_reset_draws_from_the_written_distribution(writer: str):
+    """TorchRL runs the pre-reset hooks last to first: the writer after the randomization writes first."""
+    task = TaskTransform(swing_up_task())
+    if writer == "curriculum":
+        written = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 1000, 2000)})  # 0 until frame 1000
+    else:
+        written = DifficultyLevels(2, {"domain.mass.halfspan": [0.0, 0.5]})  # level 0: the nominal mass
+    env = TransformedEnv(PendulumEnv(batch_size=[BATCH]), Compose(task, _mass(), written))
+    assert (env.reset()["domain", "mass"] == 1.0).all()
+
+
+def test_two_written_parameters_are_checked_together():
+    """Each schedule (level table) alone keeps the mass above 0; the mean and the halfspan together do not."""
+
+    def env(writer) -> TransformedEnv:
+        narrow = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.0)])
+        return TransformedEnv(PendulumEnv(batch_size=[2]), Compose(TaskTransform(swing_up_task()), narrow, writer))
+
+    schedules = {"domain.mass.mean": linear(1.0, 0.5, 0, 100), "domain.mass.halfspan": linear(0.0, 0.9, 0, 100)}
+    with pytest.raises(ValueError, match=r"Curriculum: the schedules of .* together .* can write -0\.\d+ into 'mass'"):
+        env(Curriculum(schedules)).reset()
+    tables = {"domain.mass.mean": [1.0, 0.5], "domain.mass.halfspan": [0.0, 0.9]}
+    with pytest.raises(ValueError, match=r"DifficultyLevels: the level tables can write .* together .* into 'mass'"):
+        env(DifficultyLevels(2, tables)).reset()
+    env(Curriculum({"domain.mass.mean": linear(1.0, 0.5, 0, 100)})).reset()  # alone: accepted
+    env(Curriculum({"domain.mass.halfspan": linear(0.0, 0.9, 0, 100)})).reset()
 
 
 @pytest.mark.parametrize(

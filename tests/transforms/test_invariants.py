@@ -394,7 +394,7 @@ def _other_domain(batch: int, seed: int):
     task = TaskTransform(swing_up_task(success_threshold=0.6))
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
     randomization = DomainRandomization(feature_envs._pendulum_params(), when="startup", seed=seed)
-    return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum, randomization)
+    return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, curriculum)
 
 
 OTHER_CONFIGURATIONS = {

@@ -312,33 +312,69 @@ class DomainParam(CheckedLoad, nn.Module):
             a schedule can write -0.5 into UniformDomainParam('body_mass:torso', mean=3.5, halfspan=0.0)'s halfspan, \
 which it refuses: halfspan must be >= 0, got -0.5
         """
-        if buffer not in self.distribution_fields:
-            raise ValueError(
-                f"{label}: {self!r} has no distribution buffer {buffer!r}; it has {list(self.distribution_fields)}"
-            )
-        if not isinstance(value, torch.Tensor):
-            raise TypeError(f"{label}: the value written into {self!r}'s {buffer} must be a tensor, got {value!r}")
-        check_real_numbers(value, f"{label}: the value written into {self!r}'s {buffer}")
-        own = self._buffers[buffer]
-        row = self._param_shape(buffer)
-        written = value.detach().to(dtype=FLOAT64, device=own.device)
-        if value.shape not in (own.shape, row):
-            if value.shape[1:] != row:
-                raise ValueError(
-                    f"{label}: the value written into {self!r}'s {buffer} must have the buffer's shape "
-                    f"{list(own.shape)}, one env's shape {list(row)} or rows [n{''.join(f', {n}' for n in row)}], "
-                    f"got {list(value.shape)}"
-                )
-            lead = _lead(own.shape, row)
-            written = written.reshape(value.shape[0], *(1,) * len(lead), *row)  # each row against every env
+        self.check_written_values({buffer: value}, label)
+
+    def check_written_values(self, values: Mapping[str, torch.Tensor], label: str) -> None:
+        """Refuse values that writers put into several buffers TOGETHER (a schedule of the mean and one of the halfspan,
+        two level tables) that the parameter refuses: each value as in :meth:`check_written_value`, and values given
+        as rows ``[n, *row]`` are taken together row by row (row ``k`` of every buffer is one combination), with the
+        unwritten buffers' current values.
+
+        Example:
+            >>> import torch
+            >>> import math
+            >>> from torchtasks.domain import DomainField
+            >>> nominal = torch.tensor(3.5, dtype=torch.float64)
+            >>> mass = DomainField("body_mass:torso", torch.Size([]), nominal, 0.0, math.inf, True, (), True, "mass")
+            >>> param = UniformDomainParam("body_mass:torso", mean=3.5, halfspan=0.0)
+            >>> param.bind_field(mass)
+            >>> rows = {"mean": torch.tensor([3.5, 1.0]), "halfspan": torch.tensor([0.5, 2.0])}  # level 1: 1.0 +- 2.0
+            >>> param.check_written_value("mean", rows["mean"], "a table")  # each alone is fine
+            >>> param.check_written_value("halfspan", rows["halfspan"], "a table")
+            >>> try:
+            ...     param.check_written_values(rows, "two level tables")  # together they reach a mass of -1
+            ... except ValueError as error:
+            ...     print(str(error).split(" together")[0])
+            two level tables can write mean=[3.5, 1.0] and halfspan=[0.5, 2.0]
+        """
+        if not isinstance(values, Mapping) or not values:
+            raise TypeError(f"{label}: values must be a non-empty mapping of buffer name -> tensor, got {values!r}")
         params = {name: self._buffers[name] for name in self.distribution_fields}
-        params[buffer] = written
+        rows = set()
+        for buffer, value in values.items():
+            if buffer not in self.distribution_fields:
+                raise ValueError(
+                    f"{label}: {self!r} has no distribution buffer {buffer!r}; it has {list(self.distribution_fields)}"
+                )
+            if not isinstance(value, torch.Tensor):
+                raise TypeError(f"{label}: the value written into {self!r}'s {buffer} must be a tensor, got {value!r}")
+            check_real_numbers(value, f"{label}: the value written into {self!r}'s {buffer}")
+            own = self._buffers[buffer]
+            row = self._param_shape(buffer)
+            written = value.detach().to(dtype=FLOAT64, device=own.device)
+            if value.shape not in (own.shape, row):
+                if value.shape[1:] != row:
+                    raise ValueError(
+                        f"{label}: the value written into {self!r}'s {buffer} must have the buffer's shape "
+                        f"{list(own.shape)}, one env's shape {list(row)} or rows [n{''.join(f', {n}' for n in row)}], "
+                        f"got {list(value.shape)}"
+                    )
+                rows.add(value.shape[0])
+                lead = _lead(own.shape, row)
+                written = written.reshape(value.shape[0], *(1,) * len(lead), *row)  # each row against every env
+            params[buffer] = written
+        if len(rows) > 1:
+            raise ValueError(f"{label}: values written together must have the same number of rows, got {sorted(rows)}")
         try:
             self._check_params(params, self._field)
         except ValueError as error:
-            raise ValueError(
-                f"{label} can write {_show(value)} into {self!r}'s {buffer}, which it refuses: {error}"
-            ) from None
+            if len(values) == 1:
+                ((buffer, value),) = values.items()
+                shown = f"{_show(value)} into {self!r}'s {buffer}"
+            else:
+                shown = " and ".join(f"{buffer}={_show(value)}" for buffer, value in values.items())
+                shown += f" together into {self!r}"
+            raise ValueError(f"{label} can write {shown}, which it refuses: {error}") from None
 
     # ------------------------------------------------------------------------ checkpoints
     def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:

@@ -12,6 +12,7 @@ restores them on resume, with each schedule's definition (values, frames, thresh
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Hashable, Mapping
 from typing import Any, NamedTuple
 
@@ -25,7 +26,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import key_parts, nested_key
-from torchtasks.transforms.names import CURRICULUM_KEY, FRAMES, entry_name, names_task_buffer
+from torchtasks.transforms.names import CURRICULUM_KEY, DOMAIN, FRAMES, entry_name, names_task_buffer
 from torchtasks.transforms.schedules import (
     GatedSchedule,
     Schedule,
@@ -37,6 +38,7 @@ from torchtasks.transforms.schedules import (
 from torchtasks.transforms.targets import (
     Target,
     TargetWriter,
+    check_domain_combinations,
     check_in_goal_space,
     check_low_not_above_high,
     command_ranges,
@@ -297,6 +299,7 @@ class Curriculum(CheckedLoad, TargetWriter):
         for target, schedule in zip(targets, schedules, strict=True):  # as the reward's constructor would check them
             target.check_values(possible_values(schedule, target.value), f"Curriculum: the schedule of {target.name!r}")
         self._check_ranges(targets, schedules)
+        self._check_domain_combinations(targets, schedules)
         self.__dict__["_resolved"] = targets
         self._forget_written()
         return targets
@@ -333,6 +336,38 @@ class Curriculum(CheckedLoad, TargetWriter):
                     f"{highs.tolist()}; the highest low against the lowest high)"
                 )
                 check_low_not_above_high([(lows.amax(0), highs.amin(0))], [gated])
+
+    def _check_domain_combinations(self, targets: list[Target], schedules: list[Schedule]) -> None:
+        """Refuse scheduled parameters of one domain distribution that the distribution refuses together: frame-driven
+        schedules at every breakpoint of any of them (where the extremes of a linear combination lie), gated ones at
+        every combination of their stages and the others' breakpoint values."""
+        domain = [i for i, target in enumerate(targets) if target.source == DOMAIN]
+        if len(domain) < 2:
+            return
+        rows: list[torch.Tensor | None] = [None] * len(targets)
+        frame_driven = [i for i in domain if not isinstance(schedules[i], GatedSchedule)]
+        counts = sorted(set().union(*(breakpoint_frames(schedules[i]) for i in frame_driven)))
+        per_target = {
+            i: possible_values(schedules[i], targets[i].value)
+            if isinstance(schedules[i], GatedSchedule)
+            else torch.stack([value_at(schedules[i], count) for count in counts])
+            for i in domain
+        }
+        # frame-driven schedules move together (one row per count); a gated one may be at any stage at any count
+        combos = [list(range(len(per_target[i]))) for i in domain if i not in frame_driven]
+        shared = list(range(len(counts))) if frame_driven else [0]
+        picks = list(itertools.product(shared, *combos))
+        for i in domain:
+            values = per_target[i]
+            if i in frame_driven:
+                chosen = values[[pick[0] for pick in picks]]
+            else:
+                slot = 1 + [j for j in domain if j not in frame_driven].index(i)
+                chosen = values[[pick[slot] for pick in picks]]
+            row = targets[i].value_shape
+            rows[i] = chosen.reshape(len(picks), -1).expand(len(picks), row.numel()).reshape(len(picks), *row)
+        names = ", ".join(repr(targets[i].name) for i in domain)
+        check_domain_combinations(targets, rows, f"Curriculum: the schedules of {names}")
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by

@@ -10,6 +10,7 @@ every env and gives it to the base env (a :class:`~torchtasks.domain.DomainEnv`:
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -43,8 +44,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     - ``when="reset"`` (default): at every reset of an env, before the base env resets (so the reset
       state is computed with the new physics), for the envs of TorchRL's ``"_reset"`` mask only;
     - ``when="startup"``: once per env, at its first reset;
-    - ``when="interval"``: at each env's first reset and then every ``every`` steps of that env (counted
-      across episodes); a value drawn in a step applies from the next step on.
+    - ``when="interval"``: at each env's first reset and then, after every ``every`` steps of that env (counted
+      across episodes), before its next step (in TorchRL's ``inv`` pass), so that step runs with the new values.
 
     With ``cycle=K`` the transform draws ``K`` domains (a value of every param each) at the first draw and
     then gives each env that needs values the next domain of that stored set, in turn (envs in index
@@ -53,11 +54,13 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     Entries: every env's current values, float64 ``[*B, *value_shape]`` under ``(entry_key, name)``, at
     reset and at every step (observation spec; collectors keep them, a privileged critic can read them,
-    :func:`~torchtasks.stats.episode_statistics` averages them over finished episodes).
+    :func:`~torchtasks.stats.episode_statistics` averages them over finished episodes). Under ``"next"`` they
+    are the values the step ran with.
 
     Run state: the drawn values (``drawn.<name>``), the interval counters, the stored domains and the
     generator are in ``state_dict``; ``env.set_seed(s)`` seeds the generator per worker (see
-    :mod:`torchtasks.transforms.seeding`); ``seed=None`` draws from torch's global generator until then. A
+    :mod:`torchtasks.transforms.seeding`) and draws anew (:meth:`set_seed`); ``seed=None`` draws from torch's
+    global generator until then. A
     load is refused unless the checkpoint has the same params (names and kinds), ``when``, ``every`` and
     ``cycle``; loaded into a built env, the drawn values are written into the env at once, so a resumed
     run continues with the physics it had.
@@ -134,6 +137,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         self.register_buffer("started", torch.empty(0, dtype=torch.bool))
         self.register_buffer("steps", torch.empty(0, dtype=torch.int64))
         self.cycle_size = self._register_cycle(cycle, params)
+        #: whether the stored domains were given (``cycle={...}``) rather than drawn (``cycle=K``)
+        self._given_domains = isinstance(cycle, Mapping)
         self.generator = None if seed is None else torch.Generator().manual_seed(check_int(seed, "seed"))
 
     def _register_cycle(self, cycle: object, params: Sequence[DomainParam]) -> int | None:
@@ -179,8 +184,19 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     # ------------------------------------------------------------------ seeding
     def set_seed(self, seed: int) -> None:
-        """Seed the transform's own generator with ``seed`` (``env.set_seed`` calls it with a derived seed)."""
+        """Seed the transform's own generator with ``seed`` (``env.set_seed`` calls it with a derived seed).
+
+        The draws start again from the seed: a stored set drawn with ``cycle=K`` is drawn again, a given set starts
+        again from its first domain, and in an env that has been reset (a ``Collector`` resets its env when it is
+        built, before ``collector.set_seed``) every env draws its values anew now, as at a reset.
+        """
         self.generator = torch.Generator().manual_seed(check_int(seed, "DomainRandomization.set_seed: seed"))
+        self.next_domain.zero_()
+        if self.cycle_size is not None and not self._given_domains:
+            self.domains_drawn.fill_(False)
+        if self.started.numel() and bool(self.started.any()):
+            with torch.no_grad():
+                self._apply_draw(torch.ones_like(self.started))
 
     def seed_identity(self) -> str:
         """``"DomainRandomization(<field names>)"``: mixed into the seed ``env.set_seed`` derives for it."""
@@ -218,6 +234,11 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         flat, position = home
         return [t for i, t in enumerate(flat) if i != position and isinstance(t, DomainRandomization)]
 
+    def fields(self) -> list[DomainField]:
+        """The base env's fields of the params, in order, each param bound to its field (its draws checked against the
+        field's range); cached until the env changes. A writer of the params' buffers calls it before its checks."""
+        return self._resolve()
+
     def _resolve(self) -> list[DomainField]:
         """The base env's fields of the params (checked: names, overlaps, shapes, ranges), cached until it changes."""
         fields = self.__dict__.get("_fields")
@@ -248,17 +269,29 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return fields
 
     def _make_state(self, batch: torch.Size, device: torch.device | None) -> None:
-        """Give the per-env buffers the env's batch (the env's current values, no env started) unless they have it."""
+        """Give the per-env buffers the env's batch (the env's current values, no env started) unless they have it.
+
+        Values the transform already holds for this batch (loaded before it was put into the env, or drawn in another
+        env of the same batch) are given to the env now, so the data never reports physics the env does not run; held
+        values of another batch are refused.
+        """
         base = self._base_env()
         fields = self._resolve()
         if self.started.shape != batch:
+            if bool(self.started.any()):
+                raise ValueError(
+                    f"DomainRandomization: it holds the drawn values of a batch {list(self.started.shape)} (loaded, or "
+                    f"drawn in another env), but the env's batch is {list(batch)}: load a checkpoint of this batch"
+                )
             self.started = torch.zeros(batch, dtype=torch.bool, device=device)
             self.steps = torch.zeros(batch, dtype=torch.int64, device=device)
         current = None
         for name, field in zip(self.names, fields, strict=True):
-            if self.drawn._buffers[name].shape != (*batch, *field.value_shape):
+            if self.drawn._buffers[name].shape != batch + field.value_shape:
                 current = base.domain_values(list(self.names)) if current is None else current
                 self.drawn._buffers[name] = current[name].to(device=device, dtype=torch.float64).clone()
+        if bool(self.started.any()):
+            base.set_domain({name: self.drawn._buffers[name] for name in self.names}, self.started)
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         batch, device = observation_spec.shape, observation_spec.device
@@ -287,25 +320,29 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             index = (self.next_domain + rank).remainder(self.cycle_size)
             self.next_domain.copy_((self.next_domain + flat.sum()).remainder(self.cycle_size))
             new = {
-                name: self.domains._buffers[name].to(need.device)[index].reshape(*batch, *param.value_shape)
+                name: self.domains._buffers[name].to(need.device)[index].reshape(batch + param.value_shape)
                 for name, param in self.params.items()
             }
         drawn = {}
         for name, param in self.params.items():
             old = self.drawn._buffers[name]
-            mask = need.reshape(*batch, *([1] * len(param.value_shape)))
+            mask = need.reshape(batch + (1,) * len(param.value_shape))
             drawn[name] = torch.where(mask, new[name].to(old.device), old)
             self.drawn._buffers[name] = drawn[name]
         return drawn
 
     def _sample(self, param: DomainParam, batch: torch.Size) -> torch.Tensor:
-        return param.sample(batch.numel(), self.generator).reshape(*batch, *param.value_shape)
+        return param.sample(batch.numel(), self.generator).reshape(batch + param.value_shape)
 
     def _apply_draw(self, need: torch.Tensor) -> None:
-        """Draw for the envs of ``need`` and give the values to the base env."""
+        """Draw for the envs of ``need`` and give the values to the base env (nothing when no env needs values: one
+        host read, which the base env's write on the host needs anyway)."""
+        if not bool(need.any()):
+            return
         drawn = self._draw(need)
         self._base_env().set_domain(drawn, need)
         self.started = self.started | need
+        self.steps = torch.where(need, torch.zeros_like(self.steps), self.steps)
 
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         tensordict = super()._reset_env_preprocess(tensordict)
@@ -341,13 +378,17 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         return self._entries(tensordict_reset)
 
+    def _inv_call(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Before the base env steps (TorchRL's ``inv``): with ``when="interval"``, draw for the envs whose ``every``
+        steps since their last draw are done, so the step runs with the new values and its entries say so."""
+        if self.when == "interval" and self.steps.numel():
+            with torch.no_grad():
+                self._apply_draw(self.steps >= self.every)
+        return tensordict
+
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
         if self.when == "interval":
-            with torch.no_grad():
-                steps = self.steps + 1
-                due = steps >= self.every
-                self.steps = torch.where(due, torch.zeros_like(steps), steps)
-                self._apply_draw(due)
+            self.steps = self.steps + 1
         return self._entries(next_tensordict)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -359,7 +400,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         """The configuration a checkpoint must match and the generator (``None`` without an own generator)."""
         generator = self.generator
         return {
-            "params": {name: type(param).__name__ for name, param in self.params.items()},
+            "params": {name: [type(param).__name__, param.roundint] for name, param in self.params.items()},
             "when": self.when,
             "every": self.every,
             "cycle": self.cycle_size,
@@ -393,6 +434,17 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
                 + ", ".join(f"{key}: saved {saved[key]!r}, here {own[key]!r}" for key in differ)
                 + "); build the DomainRandomization as saved"
             )
+        for name, param in self.params.items():  # each param's checks, before anything of this transform is written
+            head = f"{prefix}params.{name}."
+            trial = copy.deepcopy(param)
+            try:
+                trial.load_state_dict(
+                    {key[len(head) :]: value for key, value in state_dict.items() if key.startswith(head)}
+                )
+            except (RuntimeError, ValueError) as error:
+                raise ValueError(
+                    f"DomainRandomization.load_state_dict: the saved distribution of {name!r}: {error}"
+                ) from None
         generator = saved.get("generator_state")
         if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
             raise ValueError(

@@ -33,6 +33,7 @@ from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, 
 from torchtasks.transforms.targets import (
     Target,
     TargetWriter,
+    check_domain_combinations,
     check_in_goal_space,
     check_low_not_above_high,
     check_one_owner,
@@ -282,6 +283,8 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
             levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
             target.check_values(self._table(i), levels)
         self._check_ranges(targets)
+        tables = [self._table(i) for i in range(len(targets))]  # row k of every table: level k's values, together
+        check_domain_combinations(targets, tables, "DifficultyLevels: the level tables")
         self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
         try:
             check_one_owner(self, targets, placement, " (schedule the level tables' rows instead)")

@@ -45,6 +45,7 @@ __all__ = [
     "ResolvedTargets",
     "Target",
     "TargetWriter",
+    "check_domain_combinations",
     "check_in_goal_space",
     "check_low_not_above_high",
     "check_one_owner",
@@ -294,7 +295,9 @@ def resolve_targets(
 ) -> ResolvedTargets:
     """Resolve the target names of ``writer`` in its env: one :class:`Target` per name, shapes checked.
 
-    A GoalCommand's range must come after ``writer`` (the goal drawn in a step uses that step's range).
+    A GoalCommand's range must come after ``writer`` (the goal drawn in a step uses that step's range); a
+    DomainRandomization's distribution before it (the randomization draws in TorchRL's pre-reset hook, which runs the
+    transforms last to first: the writer's values of the reset are written before the draw).
 
     Args:
         writer: the transform that writes the values; it must come after exactly one TaskTransform.
@@ -337,7 +340,7 @@ def resolve_targets(
                 f"it: put {who} before it (before that GoalCommand in the Compose, after the TaskTransform), so that "
                 "the goal drawn in a step uses that step's range"
             )
-    for randomization in placement.transforms[: placement.position]:
+    for randomization in placement.transforms[placement.position + 1 :]:
         if not isinstance(randomization, DomainRandomization):
             continue
         params = [
@@ -345,10 +348,14 @@ def resolve_targets(
         ]
         if params:
             raise ValueError(
-                f"{who} sets {', '.join(params)} of a DomainRandomization that comes before it: put {who} before it "
-                "(after the TaskTransform, before the DomainRandomization in the Compose), so that a draw uses the "
-                "distribution of its step"
+                f"{who} sets {', '.join(params)} of a DomainRandomization that comes after it: put {who} after it (in "
+                "the Compose, after the TaskTransform and the DomainRandomization). TorchRL runs the transforms' "
+                "pre-reset hooks last to first, and the randomization draws there, before the base env resets: the "
+                "writer after it writes the reset's values first"
             )
+    for randomization in placement.transforms[: placement.position]:
+        if isinstance(randomization, DomainRandomization) and any(c.root is randomization.params for c in found):
+            randomization.fields()  # its params bound to the env's fields: their checks below include the ranges
     targets = []
     for name, candidate, received in zip(names, found, value_shapes, strict=True):
         module, leaf = buffer_owner(candidate.root, candidate.path)
@@ -401,6 +408,34 @@ def command_ranges(targets: Sequence[Target]) -> dict[GoalCommand, dict[str, int
         if target.source == COMMAND:
             ranges.setdefault(target.module, {})[target.buffer] = i
     return ranges
+
+
+def check_domain_combinations(targets: Sequence[Target], rows: Sequence[torch.Tensor | None], label: str) -> None:
+    """Refuse values that several targets of one domain distribution take together (a mean and a halfspan).
+
+    Args:
+        targets: the resolved targets of a writer.
+        rows: for each target, the values it takes as rows ``[n, *row]`` aligned across the targets of one
+            distribution (row ``k`` of each is one combination the writer writes together: one level of every table,
+            or every schedule at one frame count); ``None`` for targets that are no domain distribution's.
+        label: who writes them, for the message.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.domain import UniformDomainParam
+        >>> param = UniformDomainParam("mass", mean=1.0, halfspan=0.0)
+        >>> mean = Target("domain.mass.mean", param, "mean", "domain", torch.Size([]), per_env=False)
+        >>> halfspan = Target("domain.mass.halfspan", param, "halfspan", "domain", torch.Size([]), per_env=False)
+        >>> check_domain_combinations([mean, halfspan], [torch.tensor([1.0, 2.0]), torch.tensor([0.0, 0.5])], "levels")
+    """
+    groups: dict[int, list[int]] = {}
+    for i, target in enumerate(targets):
+        if target.source == DOMAIN:
+            groups.setdefault(id(target.module), []).append(i)
+    for indices in groups.values():
+        if len(indices) > 1:
+            module = targets[indices[0]].module
+            module.check_written_values({targets[i].buffer: rows[i] for i in indices}, label)
 
 
 def check_in_goal_space(target: Target, values: torch.Tensor, label: str, offenders: Sequence[str]) -> None:
