@@ -67,9 +67,9 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     Scheduling: the params' distribution parameters are targets of a
     :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` placed
-    before this transform, named ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``);
-    every value a schedule or a level table can write is checked against the field's range when the specs
-    are built.
+    after this transform (TorchRL runs the pre-reset hooks, where the draws are, last to first), named
+    ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``); every value (and combination of
+    values) a schedule or level table can write is checked against the field's range when the specs are built.
 
     Args:
         params: the domain parameters, one per field (a name twice, or two params writing the same model values,
