@@ -302,10 +302,13 @@ def test_the_fields_of_an_env() -> None:
     env = BatchedMujocoEnv("Ant-v5", 2, seed=0)
     fields = {field.name: field for field in env.domain_fields()}
     model = env.model
-    # named bodies but the world body (Ant's lower legs are unnamed), every named geom, joint; no actuator is named
+    # named bodies but the world body (Ant's lower legs are unnamed), every named geom, joint; no actuator is named:
+    # each is offered by the name of the joint it drives
     bodies = [model.body(i).name for i in range(1, model.nbody) if model.body(i).name]
     assert [name.split(":")[1] for name in fields if name.startswith("body_mass:")] == bodies
-    assert not any(name.startswith("actuator_gear:") for name in fields)
+    driven = [model.joint(int(model.actuator_trnid[i, 0])).name for i in range(model.nu)]
+    assert [name.split(":")[1] for name in fields if name.startswith("actuator_gear:")] == driven
+    assert all(not model.actuator(i).name for i in range(model.nu))
     assert fields["dof_damping:root"].value_shape == (6,) and fields["dof_damping:hip_1"].value_shape == ()
     assert fields["gravity"].value_shape == (3,) and fields["gravity"].rule == "finite"
     assert fields["body_mass:torso"].nominal.item() == model.body("torso").mass[0]
@@ -366,13 +369,13 @@ def test_out_of_range_and_non_finite_values_of_the_written_envs_are_refused(
             lambda env: env.domain_fields(["body_mass:torsoo"]),
             ValueError,
             r"unknown domain field 'body_mass:torsoo' in names; did you mean 'body_mass:torso'.*"
-            r"env\.domain_fields\(\) lists all 27 fields",  # 4 + 5 + 6 + 6 named objects, 5 scales, gravity
+            r"env\.domain_fields\(\) lists all 30 fields",  # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity
         ),
         (
             lambda env: env.set_domain({"mass:torso": torch.ones(NUM_ENVS, dtype=torch.float64)}),
             ValueError,
             r"'mass:torso' in values; did you mean 'body_mass:torso'\? "
-            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 27",
+            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 30",
         ),
         (lambda env: env.domain_fields("gravity"), TypeError, r"names must be a sequence"),
         (

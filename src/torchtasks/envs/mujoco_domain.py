@@ -9,8 +9,9 @@ the checks of the values users write, and the writes into the batch's per-simula
 
 Names (:mod:`torchtasks.domain.fields`): ``"<kind>:<object>"`` for one named object's value, ``"<kind>_scale"`` for a
 factor on every object's value, ``"gravity"`` for the global one. Objects are the model's named bodies (not the
-world body, nor a body of mass 0, whose inertia could not follow), geoms, joints and actuators; an unnamed object or
-a name holding ``"."`` or ``"/"`` is not offered. The model's value of an object is its own value (nominal until
+world body, nor a body of mass 0, whose inertia could not follow), geoms, joints and actuators (an unnamed actuator of
+a joint by its joint's name: Hopper's ``actuator_gear:thigh_joint``); an unnamed object or a name holding ``"."`` or
+``"/"`` is not offered. The model's value of an object is its own value (nominal until
 set) times the kind's scale (1.0 until set): a scale and one object's value set by two ``set_domain`` calls compose.
 """
 
@@ -149,6 +150,8 @@ def _objects(model: mujoco.MjModel, kind: FieldKind, nominal: np.ndarray) -> lis
     offered = []
     for i in range(getattr(model, _COUNTS[kind.objects])):
         name = getattr(model, kind.objects)(i).name
+        if not name and kind.objects == "actuator" and model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
+            name = model.joint(int(model.actuator_trnid[i, 0])).name  # an unnamed actuator: named by its joint
         if not name or "." in name or "/" in name or (kind.objects == "body" and i == 0):
             continue
         if kind.objects == "joint":
@@ -157,6 +160,8 @@ def _objects(model: mujoco.MjModel, kind: FieldKind, nominal: np.ndarray) -> lis
         else:
             slots = np.array([i])
         if kind.scaled_with and not (nominal[slots] > 0).all():  # nothing can follow a value of 0 by its ratio
+            continue
+        if any(name == other for other, _ in offered):  # a joint's name an actuator already has: not offered twice
             continue
         offered.append((name, slots))
     return offered
