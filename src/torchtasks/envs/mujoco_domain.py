@@ -247,6 +247,15 @@ class BatchDomain:
         }
         self.values: dict[str, np.ndarray] = {}
         self._fields = {name: entry.field for name, entry in self.table.items()}
+        #: per kind: the model's (nominal) values, the one-object fields, and the model values that follow the kind
+        self._nominals = {
+            kind.stem: _kind_values(_model_value(model, kind.model_field), kind).copy() for kind in FIELD_KINDS
+        }
+        self._kind_fields = {
+            kind.stem: [name for name, entry in self.table.items() if entry.kind is kind and entry.slots is not None]
+            for kind in FIELD_KINDS
+        }
+        self._followers = {name: _model_value(model, name).copy() for kind in FIELD_KINDS for name in kind.scaled_with}
         self._kinds = ", ".join(
             kind.stem + ("" if kind.objects is None else f":<{kind.objects}>")
             + ("" if kind.scale_low_open is None else f", {kind.stem}{SCALE}")
@@ -301,27 +310,31 @@ class BatchDomain:
     def _write_kind(self, kind: FieldKind, ids: np.ndarray | None) -> None:
         """Write ``kind``'s model fields of simulations ``ids`` from the values: each object's value times the scale."""
         where = slice(None) if ids is None else ids
-        nominal = _kind_values(_model_value(self.model, kind.model_field), kind)
+        nominal = self._nominals[kind.stem]
         count = self.batch.nsim if ids is None else len(ids)
-        current = np.broadcast_to(nominal, (count, *nominal.shape)).copy()
-        scale = None
-        for name, values in self.values.items():
-            entry = self.table[name]
-            if entry.kind is not kind:
-                continue
-            if entry.slots is None:
-                scale = values[where][:, None]
-            else:
-                current[:, entry.slots] = values[where].reshape(count, -1)
+        objects = [
+            (self.table[name].slots, self.values[name]) for name in self._kind_fields[kind.stem] if name in self.values
+        ]
+        scale = self.values.get(kind.stem + SCALE)
+        scale = None if scale is None else scale[where][:, None]
         ratio = None
-        if kind.scaled_with:  # value over nominal per object (1 where the nominal value is 0: nothing offered there)
-            ratio = np.divide(current, nominal, out=np.ones_like(current), where=nominal != 0)
-        if scale is not None:
-            current = current * scale
-            ratio = None if ratio is None else ratio * scale
+        if objects:
+            current = np.broadcast_to(nominal, (count, *nominal.shape)).copy()
+            for slots, values in objects:
+                current[:, slots] = values[where].reshape(count, -1)
+            if (
+                kind.scaled_with
+            ):  # value over nominal per object (1 where the nominal value is 0: nothing offered there)
+                ratio = np.divide(current, nominal, out=np.ones_like(current), where=nominal != 0)
+            if scale is not None:
+                current = current * scale
+                ratio = None if ratio is None else ratio * scale
+        else:  # the scale alone (the usual draw): every object's nominal value times it
+            current = nominal * scale
+            ratio = np.broadcast_to(scale, current.shape) if kind.scaled_with else None
         _kind_values(self.batch.expand(kind.model_field), kind)[where] = current
         for name in kind.scaled_with:
-            follower = _model_value(self.model, name)
+            follower = self._followers[name]
             self.batch.expand(name)[where] = follower * ratio.reshape(*ratio.shape, *([1] * (follower.ndim - 1)))
 
     def read(self, names: Sequence[str] | None) -> dict[str, np.ndarray]:

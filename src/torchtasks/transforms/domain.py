@@ -341,8 +341,10 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             return
         drawn = self._draw(need)
         self._base_env().set_domain(drawn, need)
-        self.started = self.started | need
-        self.steps = torch.where(need, torch.zeros_like(self.steps), self.steps)
+        buffers = self._buffers  # written directly: nn.Module.__setattr__ costs more than the ops at every reset
+        buffers["started"] = buffers["started"] | need
+        if self.when == "interval":
+            buffers["steps"] = torch.where(need, torch.zeros_like(buffers["steps"]), buffers["steps"])
 
     def _reset_env_preprocess(self, tensordict: TensorDictBase | None) -> TensorDictBase | None:
         tensordict = super()._reset_env_preprocess(tensordict)
