@@ -314,7 +314,14 @@ def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     add_output_argument(parser, DEFAULT_OUTPUT, "directory for the JSONs, robustness.md and robustness.png")
-    parser.add_argument("--variants", nargs="+", choices=VARIANTS, default=list(VARIANTS), help="variants to train")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=VARIANTS,
+        default=list(VARIANTS),
+        metavar="NAME",
+        help="nominal and/or randomized",
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
     parser.add_argument(
         "--eval-episodes",
