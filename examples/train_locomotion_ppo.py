@@ -158,39 +158,53 @@ def file_name(seed: int | str) -> str:
     return f"locomotion_ppo_seed{seed}.json"
 
 
-def make_env(
-    config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None
-) -> tuple[TransformedEnv, VecNormV2]:
-    """Return the training env (the preset, then observation normalisation, clipping and float32) and its VecNormV2.
+#: ``(env_id, *, num_envs, seed, num_threads) -> env``: a preset the PPO examples train on (``gymnasium_env``'s stack)
+Preset = Callable[..., TransformedEnv]
 
-    ``extra_transforms(seed)``, if given, are appended to the preset before the normalisation.
-    """
-    env = gymnasium_env(config.env_id, num_envs=config.num_envs, seed=seed, num_threads=config.mujoco_threads)
-    for transform in extra_transforms(seed) if extra_transforms is not None else ():
-        env.append_transform(transform)
-    vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
+
+def normalised(env: TransformedEnv, observation_norm: Transform) -> TransformedEnv:
+    """Append ``observation_norm`` (a VecNormV2 or its frozen copy), clipping to ±10 and float32 to ``env``."""
     with warnings.catch_warnings():  # "experimental" for batched envs; reduce_batch_dims is what a batch needs
         warnings.filterwarnings("ignore", message="Support of VecNormV2 for containers", category=UserWarning)
-        env.append_transform(vecnorm)
-    env.append_transform(ClipTransform(in_keys=["observation"], low=-OBSERVATION_CLIP, high=OBSERVATION_CLIP))
-    env.append_transform(DoubleToFloat(in_keys=["observation"]))
-    return env, vecnorm
-
-
-def make_eval_env(
-    config: LocomotionPPOConfig, vecnorm: VecNormV2, extra_transforms: ExtraTransforms | None = None
-) -> TransformedEnv:
-    """Return ``eval_envs`` envs from fixed initial states, normalised with ``vecnorm``'s current statistics, frozen.
-
-    ``extra_transforms(EVAL_SEED)``, if given, are appended to the preset before the normalisation.
-    """
-    env = gymnasium_env(config.env_id, num_envs=config.eval_envs, seed=EVAL_SEED, num_threads=config.mujoco_threads)
-    for transform in extra_transforms(EVAL_SEED) if extra_transforms is not None else ():
-        env.append_transform(transform)
-    env.append_transform(vecnorm.to_observation_norm())
+        env.append_transform(observation_norm)
     env.append_transform(ClipTransform(in_keys=["observation"], low=-OBSERVATION_CLIP, high=OBSERVATION_CLIP))
     env.append_transform(DoubleToFloat(in_keys=["observation"]))
     return env
+
+
+def make_env(
+    config: LocomotionPPOConfig,
+    seed: int,
+    extra_transforms: ExtraTransforms | None = None,
+    preset: Preset = gymnasium_env,
+) -> tuple[TransformedEnv, VecNormV2]:
+    """Return the training env (the preset, then observation normalisation, clipping and float32) and its VecNormV2.
+
+    ``extra_transforms(seed)``, if given, are appended to the preset before the normalisation. ``preset``: the
+    env factory called with ``config.env_id`` (default :func:`~torchtasks.envs.locomotion.gymnasium_env`).
+    """
+    env = preset(config.env_id, num_envs=config.num_envs, seed=seed, num_threads=config.mujoco_threads)
+    for transform in extra_transforms(seed) if extra_transforms is not None else ():
+        env.append_transform(transform)
+    vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
+    return normalised(env, vecnorm), vecnorm
+
+
+def make_eval_env(
+    config: LocomotionPPOConfig,
+    vecnorm: VecNormV2,
+    extra_transforms: ExtraTransforms | None = None,
+    preset: Preset = gymnasium_env,
+) -> TransformedEnv:
+    """Return ``eval_envs`` envs from fixed initial states, normalised with ``vecnorm``'s current statistics, frozen.
+
+    ``extra_transforms(EVAL_SEED)``, if given, are appended to the preset before the normalisation; ``preset``: as
+    for :func:`make_env`.
+    """
+    env = preset(config.env_id, num_envs=config.eval_envs, seed=EVAL_SEED, num_threads=config.mujoco_threads)
+    for transform in extra_transforms(EVAL_SEED) if extra_transforms is not None else ():
+        env.append_transform(transform)
+    return normalised(env, vecnorm.to_observation_norm())
 
 
 def mlp(in_features: int, out_features: int, hidden: int, output_gain: float) -> nn.Sequential:
@@ -205,8 +219,11 @@ def mlp(in_features: int, out_features: int, hidden: int, output_gain: float) ->
     return nn.Sequential(*layers)
 
 
-def make_policy(env: TransformedEnv, hidden: int) -> tuple[ProbabilisticActor, ValueOperator]:
-    """Return the actor (``TanhNormal`` on the action bounds, state-independent scale) and the critic."""
+def make_policy(env: TransformedEnv, hidden: int, values: int = 1) -> tuple[ProbabilisticActor, ValueOperator]:
+    """Return the actor (``TanhNormal`` on the action bounds, state-independent scale) and the critic.
+
+    The critic writes ``values`` values per observation to ``"state_value"`` (one critic per reward group: ``k``).
+    """
     n_obs = env.observation_spec["observation"].shape[-1]
     action_spec = env.action_spec
     n_act = action_spec.shape[-1]
@@ -224,7 +241,7 @@ def make_policy(env: TransformedEnv, hidden: int) -> tuple[ProbabilisticActor, V
         return_log_prob=True,
         default_interaction_type=ExplorationType.RANDOM,
     )
-    critic = ValueOperator(mlp(n_obs, 1, hidden, 1.0), in_keys=["observation"])
+    critic = ValueOperator(mlp(n_obs, values, hidden, 1.0), in_keys=["observation"])
     return actor, critic
 
 
@@ -249,7 +266,19 @@ class ReturnScaler:
         self.mean, self.var, self.count = 0.0, 1.0, 1e-4  # Gymnasium's RunningMeanStd prior
 
     def __call__(self, reward: torch.Tensor, done: torch.Tensor) -> torch.Tensor:
-        """Scale ``reward`` ``[envs, time]`` (float64) given the ``done`` flags ``[envs, time]``; return float32."""
+        """Scale ``reward`` ``[envs, time]`` (float64) given the ``done`` flags ``[envs, time]``; return float32.
+
+        :meth:`update` with ``reward``, then :meth:`scale` of it.
+        """
+        self.update(reward, done)
+        return self.scale(reward)
+
+    def scale(self, reward: torch.Tensor) -> torch.Tensor:
+        """``reward`` (any shape) divided by the running standard deviation of the return, clipped, as float32."""
+        return (reward / math.sqrt(self.var + self.epsilon)).clamp(-self.clip, self.clip).float()
+
+    def update(self, reward: torch.Tensor, done: torch.Tensor) -> None:
+        """Add the discounted returns of ``reward`` ``[envs, time]`` (float64, cut where ``done``) to the moments."""
         discounted = torch.empty_like(reward, dtype=torch.float64)
         for t in range(reward.shape[1]):
             self.returns = self.returns * self.gamma + reward[:, t]
@@ -265,7 +294,6 @@ class ReturnScaler:
             self.var * self.count + batch_var * batch_count + delta**2 * self.count * batch_count / total
         ) / total
         self.count = total
-        return (reward / math.sqrt(self.var + self.epsilon)).clamp(-self.clip, self.clip).float()
 
 
 def training_returns(batch: TensorDictBase, terms: Sequence[str] = TERMS) -> dict[str, float | None]:

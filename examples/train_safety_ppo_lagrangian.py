@@ -49,7 +49,6 @@ import json
 import math
 import sys
 import time
-import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -63,11 +62,11 @@ from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
 from torchrl.collectors import Collector
-from torchrl.envs import ClipTransform, DoubleToFloat, ExplorationType, TransformedEnv, VecNormV2, set_exploration_type
+from torchrl.envs import ExplorationType, TransformedEnv, VecNormV2, set_exploration_type
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from train_locomotion_ppo import GAE_NEXT_KEYS, OBSERVATION_CLIP, ReturnScaler, make_policy, mlp, training_returns
+from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, mlp, normalised, training_returns
 
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
 from torchtasks.stats import episode_statistics
@@ -186,16 +185,6 @@ class LagrangianPPOLoss(nn.Module):
         losses["loss_critic"] = losses["loss_critic"] + cost_loss
         losses["loss_cost_critic"] = cost_loss.detach()
         return losses
-
-
-def normalised(env: TransformedEnv, observation_norm: Any) -> TransformedEnv:
-    """Append ``observation_norm`` (a VecNormV2 or its frozen copy), clipping to ±10 and float32 to ``env``."""
-    with warnings.catch_warnings():  # "experimental" for batched envs; reduce_batch_dims is what a batch needs
-        warnings.filterwarnings("ignore", message="Support of VecNormV2 for containers", category=UserWarning)
-        env.append_transform(observation_norm)
-    env.append_transform(ClipTransform(in_keys=["observation"], low=-OBSERVATION_CLIP, high=OBSERVATION_CLIP))
-    env.append_transform(DoubleToFloat(in_keys=["observation"]))
-    return env
 
 
 def make_env(config: SafetyPPOConfig, num_envs: int, seed: int) -> TransformedEnv:
