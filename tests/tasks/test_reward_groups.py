@@ -120,15 +120,37 @@ def test_a_composite_refuses_grouped_sub_tasks_and_takes_groups_around_it() -> N
     assert torch.equal(out.groups["all"], out.step_reward)
 
 
-def test_the_coefficients_are_a_buffer_and_the_groups_report_them() -> None:
+def test_each_group_s_coefficients_are_a_buffer_and_the_groups_report_them() -> None:
     task = RewardGroupsTask(_leaf(), GROUPS)
-    assert "coefficients" in dict(task.named_buffers())
+    assert {"weights_speed", "weights_energy"} <= set(dict(task.named_buffers()))
     assert task.groups == GROUPS
-    task.coefficients.fill_(2.0)
+    task.weights_energy.fill_(2.0)
     state, action = _draws(8)
     task = task.double()
     out = task.transition(state, action, state, task.reset(state))
     assert torch.equal(out.groups["energy"], 2.0 * out.terms["ctrl"] + 2.0 * out.terms["alive"])
+    assert torch.equal(out.groups["speed"], 0.8 * out.terms["forward"] + out.terms["alive"])
+
+
+def test_a_checkpoint_of_other_groups_or_non_finite_weights_is_refused_and_changes_nothing() -> None:
+    task = RewardGroupsTask(_leaf(), GROUPS)
+    saved = task.state_dict()
+    reordered = RewardGroupsTask(_leaf(), {"speed": {"alive": 1.0, "forward": 0.8}, "energy": GROUPS["energy"]})
+    with pytest.raises(ValueError, match=r"checkpoint holds other reward groups"):
+        reordered.load_state_dict(saved)
+    assert reordered.groups == {"speed": {"alive": 1.0, "forward": 0.8}, "energy": GROUPS["energy"]}
+    bad = {key: value.clone() if hasattr(value, "clone") else value for key, value in saved.items()}
+    bad["weights_energy"][0] = float("nan")
+    with pytest.raises(ValueError, match=r"reward group 'energy'.*must be finite"):
+        task.load_state_dict(bad)
+    assert task.groups == GROUPS
+    float32 = RewardGroupsTask(_leaf(), GROUPS, dtype=torch.float32)
+    with pytest.raises(ValueError, match=r"other reward groups"):
+        float32.load_state_dict(saved)
+    twin = RewardGroupsTask(_leaf(), GROUPS)
+    twin.weights_speed.fill_(3.0)
+    twin.load_state_dict(saved)
+    assert twin.groups == GROUPS
 
 
 def test_the_transition_compiles_with_fullgraph() -> None:
@@ -154,6 +176,7 @@ def test_the_transition_compiles_with_fullgraph() -> None:
         ({"groups": {"x": {"step": 1.0}}, "dtype": torch.int64}, TypeError, r"dtype must be torch.float32"),
         ({"groups": {"x": {"step": 1.0}}, "terms": {"ctrl": ConstantReward(1.0)}}, ValueError, r"'ctrl' is taken"),
         ({"groups": {"x": {"step": 1.0}}, "terms": {"z": lambda s: s}}, TypeError, r"must be a torchtasks Reward"),
+        ({"groups": {"x": {"step": 1.0}}, "terms": {"z": ConstantReward(1.0)}}, ValueError, r"\['z'\] are read by no"),
     ],
 )
 def test_bad_groups_are_refused_with_the_argument_named(kwargs: dict, error: type, match: str) -> None:
