@@ -180,7 +180,9 @@ class RewardGroupsTask(ForwardingTask):
         values = dict(sources)
         for name, function in self.terms.items():
             values[name] = function._value(state, action)
-        dtype, coefficients = self.dtype, self.coefficients
+        # one coefficient per source: a scalar online, one value per frame where offline recomputation put the
+        # recorded values [*B, k] in the buffer's place (unbind: one op for all sources)
+        dtype, coefficients = self.dtype, self.coefficients.unbind(-1)
         groups: dict[str, torch.Tensor] = {}
         for group, rows in self._plan:
             total = None
