@@ -12,10 +12,12 @@ multi-objective RL) and one entry per group.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import torch
 from torch import nn
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import SUPPORTED_FLOATS, check_finite_scalar, did_you_mean
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.tasks.protocol import Task
@@ -31,7 +33,7 @@ def _identifier(name: object, what: str) -> str:
     return name
 
 
-class RewardGroupsTask(ForwardingTask):
+class RewardGroupsTask(CheckedLoad, ForwardingTask):
     """A task that reports named groups of its reward terms beside its reward: a vector reward ``[*B, k]``.
 
     The wrapped task's reward, flags, final rewards, memory, terms, costs and goals are unchanged (its memory is
@@ -46,6 +48,9 @@ class RewardGroupsTask(ForwardingTask):
     dtype). With ``dtype=torch.float32`` and float64 terms it is what numpy's in-place ``vec += term`` does on a
     float32 vector, term after term: MO-Gymnasium's arithmetic, which the multi-objective presets reproduce bit
     for bit (:func:`~torchtasks.envs.multi_objective.multi_objective_env`).
+
+    A checkpoint (``state_dict``) holds the groups' sources beside the coefficients: a load into other groups or
+    sources is refused (``ValueError``), never cross-loaded by position, and loaded coefficients must be finite.
 
     A tree holds one ``RewardGroupsTask``; wrappers (final rewards, masks, shaping, constraints) may wrap it and
     keep its groups, where ``"step"`` and ``"final"`` are the whole tree's step and final reward. A composite
@@ -169,6 +174,38 @@ class RewardGroupsTask(ForwardingTask):
         """The groups as given: ``{group: {source: coefficient}}`` (coefficients as they are now)."""
         values = self.coefficients.tolist()
         return {group: {source: values[i] for source, i in rows} for group, rows in self._plan}
+
+    # ------------------------------------------------------------------ checkpoints
+    def _sources(self) -> dict[str, list[str]]:
+        """``{group: [source, ...]}``: what the coefficients mean, in their order."""
+        return {group: [source for source, _ in rows] for group, rows in self._plan}
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """The groups' sources, in order: a checkpoint's coefficients are read with them."""
+        return {"groups": self._sources()}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Nothing to restore: the sources are checked against this task's in :meth:`_check_saved`."""
+
+    def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        """Refuse the checkpoint of other groups or sources (and so coefficients of another shape) before any write."""
+        saved = state_dict.get(prefix + "_extra_state")
+        if saved is None and prefix + "coefficients" not in state_dict:
+            return  # nothing of this task in the checkpoint (a partial load)
+        own = self._sources()
+        saved_groups = saved.get("groups") if isinstance(saved, Mapping) else None
+        if not isinstance(saved_groups, Mapping) or list(saved_groups.items()) != list(own.items()):  # in order
+            raise ValueError(
+                f"RewardGroupsTask.load_state_dict: the checkpoint holds other reward groups: saved {saved_groups!r}, "
+                f"here {own!r} ({{group: [source, ...]}}; the coefficients are stored in that order, so a checkpoint "
+                "of other groups or sources is never loaded by position). Build the RewardGroupsTask as saved"
+            )
+
+    def _check_loaded(self) -> None:
+        """The loaded coefficients pass the constructor's check (finite)."""
+        for group, weights in self.groups.items():
+            for source, coefficient in weights.items():
+                check_finite_scalar(coefficient, f"RewardGroupsTask.load_state_dict: groups[{group!r}][{source!r}]")
 
     def extra_repr(self) -> str:
         return f"groups={list(self.group_names)}, dtype={self.dtype}"
