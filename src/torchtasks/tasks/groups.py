@@ -238,10 +238,19 @@ class RewardGroupsTask(CheckedLoad, ForwardingTask):
     def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         """Refuse the checkpoint of other groups (other names, sources, order or dtype) before anything is written."""
         saved, own = state_dict.get(prefix + "_extra_state"), self.get_extra_state()
-        if saved != own:
+        same = (  # the groups' order is the vector reward's layout: compared too
+            isinstance(saved, Mapping)
+            and isinstance(saved.get("groups"), Mapping)
+            and list(saved["groups"].items()) == list(own["groups"].items())
+            and saved.get("dtype") == own["dtype"]
+        )
+        if not same:
+            saved_groups = saved.get("groups") if isinstance(saved, Mapping) else saved
+            saved_dtype = saved.get("dtype") if isinstance(saved, Mapping) else None
             raise ValueError(
-                f"RewardGroupsTask.load_state_dict: the checkpoint holds other reward groups (saved {saved!r}, here "
-                f"{own!r}); build the RewardGroupsTask as saved"
+                f"RewardGroupsTask.load_state_dict: the checkpoint holds other reward groups: saved {saved_groups!r}, "
+                f"here {own['groups']!r} (dtype saved {saved_dtype}, here {own['dtype']}); build the "
+                "RewardGroupsTask as saved"
             )
 
     def _check_loaded(self) -> None:
