@@ -60,3 +60,12 @@ def test_a_schedule_of_non_finite_weights_is_refused() -> None:
 def test_a_vector_key_where_reward_sum_writes_an_episode_sum_is_refused() -> None:
     with pytest.raises(ValueError, match=r"'episode_reward' \(vector_reward_key\) is written beside 'reward'"):
         TaskTransform(_task(), vector_reward_key="episode_reward")
+
+
+def test_group_keys_list_the_vector_then_each_group() -> None:
+    assert TaskTransform(_task()).group_keys == [
+        "vector_reward",
+        ("reward_groups", "track"),
+        ("reward_groups", "effort"),
+    ]
+    assert TaskTransform(_task().wrapped_task).group_keys == []

@@ -555,6 +555,12 @@ class TaskTransform(EnvDerivedTransform):
         """Keys of the per-constraint costs ``(cost_terms_key, name)``, one per cost of the tree (none without)."""
         return self._entries.keys(argument="cost_terms_key")
 
+    @property
+    def group_keys(self) -> list[NestedKey]:
+        """Keys of the reward groups: the vector ``vector_reward_key`` then ``(groups_key, name)`` per group (none
+        for a tree without groups), e.g. for ``RewardSum(in_keys=[...])``."""
+        return self._entries.keys(kinds=("groups", "group"))
+
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
 
