@@ -26,6 +26,7 @@ from torchtasks.transforms.names import (
     EPISODE_SUM_PREFIX,
     FAILURE_KEY,
     FRAMES,
+    GROUPS_KEY,
     LEVEL,
     REWARD_KEY,
     SUCCESS_KEY,
@@ -162,6 +163,7 @@ def episode_statistics(
     domain_key: NestedKey | None = DOMAIN_KEY,
     cost_terms_key: NestedKey | None = COST_TERMS_KEY,
     ended_by_key: NestedKey | None = ENDED_BY_KEY,
+    groups_key: NestedKey | None = GROUPS_KEY,
     cost_limits: Mapping[str, float] | None = None,
     time_dim: int | None = None,
     mask_key: NestedKey | None = MASK_KEY,
@@ -251,6 +253,9 @@ def episode_statistics(
       them): the mean over the complete episodes of the episode's summed cost, per constraint; with
       ``cost_limits={name: limit}`` also ``cost_violation_rate/<name>``, the fraction of those episodes
       whose summed cost exceeds the limit.
+    - ``group_return_mean/<name>`` (when the data holds a task's reward groups ``("next", groups_key, name)``, as a
+      :class:`~torchtasks.transforms.TaskTransform` of a :class:`~torchtasks.tasks.RewardGroupsTask` writes them):
+      the mean over the complete episodes of the episode's summed group, per group (the per-objective returns).
     - ``domain/<field>`` (when the data holds a :class:`~torchtasks.transforms.DomainRandomization`'s entries
       ``("next", domain_key, field)``): the mean over the ended episodes of the field's value at the episode's
       last frame (the physics that episode ended with), beside the outcome rates; a vector field gives one key
@@ -277,6 +282,8 @@ def episode_statistics(
             without it report no costs; ``None`` skips them.
         ended_by_key: the TaskTransform's ``ended_by_key`` (named end conditions under ``"next"``); data
             without it report none; ``None`` skips them.
+        groups_key: the TaskTransform's ``groups_key`` (one entry per reward group under ``"next"``); data
+            without it report no group returns; ``None`` skips them.
         cost_limits: ``{cost name: limit}`` for the violation rates (e.g. ``task.cost_limits`` without the
             ``None`` ones); a name that is not a cost of the data is a ``KeyError``.
         curriculum_key: the Curriculum's ``curriculum_key`` (its entries are read under ``"next"``);
@@ -324,6 +331,7 @@ def episode_statistics(
             ("domain_key", domain_key),
             ("cost_terms_key", cost_terms_key),
             ("ended_by_key", ended_by_key),
+            ("groups_key", groups_key),
             ("mask_key", mask_key),
         )
     }
@@ -377,6 +385,8 @@ def _statistics(
         )
     for name, value in costs.items():
         returns["cost_mean/" + name] = value
+    for name, value in _named_entries(frames, keys["groups_key"], "groups_key").items():
+        returns["group_return_mean/" + name] = value
     # per domain field: its values at every frame, [F, elements]
     domain_entries = None if keys["domain_key"] is None else batch.get(("next", *keys["domain_key"]), None)
     domain = {

@@ -27,7 +27,15 @@ import torchtasks.tasks.base
 from task_trees import all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
 from torchtasks.rewards import ConstantReward, StateFunctionReward, VelocityReward
 from torchtasks.spaces import EnvSpec
-from torchtasks.tasks import ConstrainedTask, Constraint, FinalRewardTask, GoallessTask, Task, TaskWrapper
+from torchtasks.tasks import (
+    ConstrainedTask,
+    Constraint,
+    FinalRewardTask,
+    GoallessTask,
+    RewardGroupsTask,
+    Task,
+    TaskWrapper,
+)
 from torchtasks.tasks.output import TaskOutput
 from torchtasks.tasks.transition import TaskFacts, Transition
 
@@ -44,7 +52,19 @@ def _constrained_cases() -> dict[str, Callable[[], Task]]:
     }
 
 
-CASES = {**all_task_cases(), **_constrained_cases()}
+def _grouped_cases() -> dict[str, Callable[[], Task]]:
+    cases = class_cases()
+    return {
+        "grouped_ant": lambda: RewardGroupsTask(
+            cases["goalless_ant"](), {"run": {"forward": 1.0, "healthy": 1.0}, "save": {"ctrl": 2.0, "contact": 1.0}}
+        ),
+        "final_grouped": lambda: FinalRewardTask(
+            RewardGroupsTask(cases["goalless_forward_velocity"](), {"all": {"step": 1.0, "final": 1.0}})
+        ),
+    }
+
+
+CASES = {**all_task_cases(), **_constrained_cases(), **_grouped_cases()}
 
 # the cases for which a fact holds, read off the builders in task_trees.py and above
 HOLDS = {
@@ -57,6 +77,8 @@ HOLDS = {
         "shaping_final",
         "shaping_walk",
         "constrained_ant",
+        "grouped_ant",
+        "final_grouped",
     },
     # final rewards with FinalRewardMode(time_dependent=True)
     "reads_remaining_steps": {
@@ -78,10 +100,12 @@ HOLDS = {
         "nested_sequential_masked",
         "shaping_final",
         "constrained_final_time",
+        "final_grouped",
     },
     "has_costs": {"constrained_final_time", "constrained_ant"},
+    "has_groups": {"grouped_ant", "final_grouped"},
     # Ant with terminate_when_unhealthy: two failures (out of bounds, unhealthy)
-    "names_end_conditions": {"goalless_ant", "constrained_ant"},
+    "names_end_conditions": {"goalless_ant", "constrained_ant", "grouped_ant"},
 }
 
 
@@ -111,6 +135,7 @@ def test_the_transition_fields_are_the_task_output_fields() -> None:
         "reads_remaining_steps",
         "pays_final_reward",
         "has_costs",
+        "has_groups",
         "names_end_conditions",
     )
 
@@ -126,6 +151,7 @@ def test_transition_is_named_and_is_what_transition_returns(case: str) -> None:
         _assert_same_field(name, getattr(values, name), getattr(out, name), case)
     assert bool(values.costs) == (case in HOLDS["has_costs"])
     assert bool(values.ended_by) == (case in HOLDS["names_end_conditions"])
+    assert bool(values.groups) == (case in HOLDS["has_groups"])
 
 
 @pytest.mark.parametrize("case", sorted(CASES))
@@ -137,7 +163,7 @@ def test_the_facts_name_what_the_tree_is(case: str) -> None:
     assert task.facts is facts  # computed once
 
 
-@pytest.mark.parametrize("case", ["goalless_ant", "shaping_final", "constrained_final_time"])
+@pytest.mark.parametrize("case", ["goalless_ant", "shaping_final", "constrained_final_time", "grouped_ant"])
 def test_the_compiled_transition_returns_the_named_tuple(case: str) -> None:
     torch._dynamo.reset()
     task = CASES[case]().double()

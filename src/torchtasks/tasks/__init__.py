@@ -6,6 +6,7 @@ from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDe
 from torchtasks.tasks.final_reward import BestStateFinalRewardTask, FinalRewardMode, FinalRewardTask
 from torchtasks.tasks.flipping import FlippingTask
 from torchtasks.tasks.goalless import ConditionTask, DesiredSpaceTask, GoallessTask, OptimizationTask
+from torchtasks.tasks.groups import RewardGroupsTask
 from torchtasks.tasks.leaf import RewardTask
 from torchtasks.tasks.masked import MaskedTask
 from torchtasks.tasks.output import TaskOutput
@@ -34,6 +35,7 @@ __all__ = [
     "ParallelTasks",
     "PotentialShapingTask",
     "RadiallySymmetricDesiredStateTask",
+    "RewardGroupsTask",
     "RewardTask",
     "SequentialTasks",
     "Task",

@@ -37,6 +37,14 @@ class CompositeTask(Task):
                     f"({tasks[0].state_size}, {tasks[0].action_size}), tasks[{i}] reads "
                     f"({task.state_size}, {task.action_size})"
                 )
+        for i, task in enumerate(tasks):
+            if task.group_names:
+                raise ValueError(
+                    f"{type(self).__name__}: tasks[{i}] has reward groups {list(task.group_names)}, but a composite "
+                    "reports no terms of its sub-tasks, so their groups cannot be summed for the tree; wrap the "
+                    "composite in the RewardGroupsTask instead (its sources are then the composite's 'step' and "
+                    "'final' rewards and terms of the group's own)"
+                )
         owners: dict[str, int] = {}
         for i, task in enumerate(tasks):
             for name in task.cost_names:

@@ -34,6 +34,8 @@ class TaskOutput:
             (:attr:`Task.termination_names <torchtasks.tasks.Task.termination_names>`; the conditions
             of each kind OR to ``success`` and ``failure``); empty when no kind has two or more
             conditions (then ``success`` and ``failure`` say which one held).
+        groups: ``{name: value[*B]}``, the tree's reward groups (empty when it has none, see
+            :class:`~torchtasks.tasks.RewardGroupsTask`).
 
     Example:
         >>> import torch
@@ -58,3 +60,4 @@ class TaskOutput:
     terms: dict[str, torch.Tensor]
     costs: dict[str, torch.Tensor] = field(default_factory=dict)
     ended_by: dict[str, torch.Tensor] = field(default_factory=dict)
+    groups: dict[str, torch.Tensor] = field(default_factory=dict)

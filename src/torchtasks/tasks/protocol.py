@@ -46,7 +46,7 @@ from torchtasks.tasks._validation import (
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import MemoryLayout, make_memory, memory_layout
 from torchtasks.tasks.output import TaskOutput
-from torchtasks.tasks.transition import TaskFacts, Transition
+from torchtasks.tasks.transition import FINAL_SOURCE, STEP_SOURCE, TaskFacts, Transition
 
 __all__ = ["Task"]
 
@@ -309,6 +309,30 @@ class Task(nn.Module):
         return costs
 
     @property
+    def group_names(self) -> tuple[str, ...]:
+        """The names of the tree's reward groups (:class:`~torchtasks.tasks.RewardGroupsTask`), in order."""
+        return tuple(name for child in self.children_tasks() for name in child.group_names)
+
+    @property
+    def group_dtype(self) -> torch.dtype | None:
+        """The dtype the tree's reward groups are accumulated and written in (``None``: the reward's)."""
+        return next((child.group_dtype for child in self.children_tasks() if child.group_names), None)
+
+    def _reward_groups(
+        self, sources: Mapping[str, torch.Tensor], state: torch.Tensor, action: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        """``{name: value [*B]}`` of the tree's reward groups, from the tree's ``sources`` (its named step-reward
+        terms, ``"step"`` and ``"final"``) and, for a group's own extra terms, ``state`` and ``action``.
+
+        Wrappers hand down the state they give their task (a :class:`MaskedTask` its selection); a
+        :class:`~torchtasks.tasks.RewardGroupsTask` computes its own.
+        """
+        groups: dict[str, torch.Tensor] = {}
+        for child in self.children_tasks():
+            groups.update(child._reward_groups(sources, state, action))
+        return groups
+
+    @property
     def termination_names(self) -> dict[str, str]:
         """The tree's named end conditions: ``{name: "success" | "failure"}``.
 
@@ -358,6 +382,7 @@ class Task(nn.Module):
             reads_remaining_steps=self.uses_remaining_steps,
             pays_final_reward=self.pays_final_reward,
             has_costs=bool(self.cost_names),
+            has_groups=bool(self.group_names),
             names_end_conditions=kinds.count("success") > 1 or kinds.count("failure") > 1,
         )
 
@@ -588,7 +613,7 @@ class Task(nn.Module):
             source, step_terminated = next_state, terminated
         else:
             source, step_terminated = state, None
-        if with_terms and facts.has_terms:
+        if (with_terms or facts.has_groups) and facts.has_terms:  # groups are sums of the named terms
             terms, step_reward, memory = self._step_terms(source, action, memory, remaining_steps, step_terminated)
         else:
             terms = {}
@@ -613,6 +638,14 @@ class Task(nn.Module):
             reward = step_reward + final
         else:  # no task of the tree pays a final reward: it is 0
             final, reward = torch.zeros_like(step_reward), step_reward
+        # reward groups: weighted sums of the named terms, the step and the final reward (and their own terms)
+        groups = (
+            self._reward_groups({**terms, STEP_SOURCE: step_reward, FINAL_SOURCE: final}, source, action)
+            if facts.has_groups
+            else {}
+        )
+        if not with_terms:
+            terms = {}
         return Transition(
             reward=reward,
             step_reward=step_reward,
@@ -625,6 +658,7 @@ class Task(nn.Module):
             terms=terms,
             costs=costs,
             ended_by=ends,
+            groups=groups,
         )
 
     # ------------------------------------------------------------------- implementation

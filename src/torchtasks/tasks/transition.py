@@ -7,7 +7,12 @@ from typing import NamedTuple
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["TaskFacts", "Transition"]
+__all__ = ["FINAL_SOURCE", "STEP_SOURCE", "TaskFacts", "Transition"]
+
+#: the names under which a reward group (:class:`~torchtasks.tasks.RewardGroupsTask`) reads the tree's step reward
+#: and final reward beside its named terms (the names the reward breakdown writes them under, too)
+STEP_SOURCE = "step"
+FINAL_SOURCE = "final"
 
 
 class Transition(NamedTuple):
@@ -28,6 +33,8 @@ class Transition(NamedTuple):
         terms: ``{name: value[*B]}``, the named terms of the step reward (empty unless asked for and named).
         costs: ``{name: cost[*B]}``, the named costs of the tree (empty when it has none).
         ended_by: ``{name: flag[*B]}``, the named end conditions (empty unless a kind has two or more).
+        groups: ``{name: value[*B]}``, the tree's reward groups (empty when it has none), in
+            :attr:`~torchtasks.tasks.Task.group_dtype` (the terms' dtype when that is ``None``).
 
     Example:
         >>> import torch
@@ -52,6 +59,7 @@ class Transition(NamedTuple):
     terms: dict[str, torch.Tensor]
     costs: dict[str, torch.Tensor]
     ended_by: dict[str, torch.Tensor]
+    groups: dict[str, torch.Tensor]
 
 
 class TaskFacts(NamedTuple):
@@ -67,6 +75,7 @@ class TaskFacts(NamedTuple):
         pays_final_reward: some task of the tree can pay a final reward
             (:attr:`~torchtasks.tasks.Task.pays_final_reward`; else the final reward is always 0).
         has_costs: the tree has named costs (:attr:`~torchtasks.tasks.Task.cost_names` is not empty).
+        has_groups: the tree has reward groups (:attr:`~torchtasks.tasks.Task.group_names` is not empty).
         names_end_conditions: some kind of end (success or failure) has two or more named conditions
             (:attr:`~torchtasks.tasks.Task.termination_names`), so the named flags say more than
             ``success`` and ``failure`` do.
@@ -84,4 +93,5 @@ class TaskFacts(NamedTuple):
     reads_remaining_steps: bool
     pays_final_reward: bool
     has_costs: bool
+    has_groups: bool
     names_end_conditions: bool

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import torch
@@ -211,6 +211,11 @@ class ForwardingTask(Task):
 
     def _step_costs(self, state: torch.Tensor, action: torch.Tensor) -> dict[str, torch.Tensor]:
         return self.wrapped_task._step_costs(self._state(state), self._action(action))
+
+    def _reward_groups(
+        self, sources: Mapping[str, torch.Tensor], state: torch.Tensor, action: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
+        return self.wrapped_task._reward_groups(sources, self._state(state), self._action(action))
 
     def _reset(self, init_state: torch.Tensor, overrides: dict[str, Any]) -> TensorDict:
         return self.wrapped_task._reset(self._state(init_state), overrides)

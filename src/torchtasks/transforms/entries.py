@@ -24,12 +24,14 @@ from torchtasks.transforms.names import (
     ENDED_BY_KEY,
     FAILURE_KEY,
     FINAL_TERM,
+    GROUPS_KEY,
     MEMORY_KEY,
     REWARD_KEY,
     STEP_TERM,
     SUCCESS_KEY,
     TERMINATED_KEY,
     TERMS_KEY,
+    VECTOR_REWARD_KEY,
 )
 
 if TYPE_CHECKING:
@@ -44,7 +46,7 @@ __all__ = [
 
 # ------------------------------------------------------------------------------------------------ the table
 #: what an entry holds; the kind fixes its spec (see :attr:`Entry.specs`) and how a value is written
-EntryKind = Literal["reward", "term", "cost", "costs", "flag", "env_flag", "memory", "goal"]
+EntryKind = Literal["reward", "term", "cost", "costs", "group", "groups", "flag", "env_flag", "memory", "goal"]
 #: when an entry is written: the env's step, a recomputation of stored transitions (``forward``,
 #: ``reward_fn``), a relabelling (``relabel``), the env's reset
 Occasion = Literal["step", "offline", "relabel", "reset"]
@@ -56,6 +58,8 @@ KIND_SPECS: dict[str, tuple[str, ...]] = {
     "term": ("reward",),  # a breakdown entry: the reward's shape and dtype
     "cost": ("reward",),  # one cost: the reward's shape and dtype
     "costs": ("reward",),  # all costs stacked: [*B, k] in the reward's dtype
+    "group": ("reward",),  # one reward group: the reward's shape, in the groups' dtype (default: the reward's)
+    "groups": ("reward",),  # all reward groups stacked (the vector reward): [*B, k] in the groups' dtype
     "flag": ("observation",),  # bool, the done flags' shape; False at reset
     "env_flag": ("done",),  # the env's terminated/done, OR-ed with the task's verdict
     "memory": ("observation", "state"),  # the task memory: carried to the next step as an input
@@ -95,15 +99,16 @@ class Entry(NamedTuple):
 
     #: the entry's key
     key: NestedKey
-    #: what it holds (``"reward"``, ``"term"``, ``"cost"``, ``"costs"``, ``"flag"``, ``"env_flag"``, ``"memory"``,
-    #: ``"goal"``): its specs (:attr:`specs`), shape and dtype follow from it
+    #: what it holds (``"reward"``, ``"term"``, ``"cost"``, ``"costs"``, ``"group"``, ``"groups"``, ``"flag"``,
+    #: ``"env_flag"``, ``"memory"``, ``"goal"``): its specs (:attr:`specs`), shape and dtype follow from it
     kind: EntryKind
     #: the transform argument naming the key or the key it is under (``"terms_key"``); ``None``: the env's flags
     argument: str | None
     #: the field of the task's transition result holding the value (``"reward"``, ``"terms"``, ...); ``None``:
     #: the achieved goal, taken from the next state
     source: str | None
-    #: the entry of that field when it holds one value per name (a term, a cost, an end condition), else ``None``
+    #: the entry of that field when it holds one value per name (a term, a cost, a group, an end condition), else
+    #: ``None``
     item: str | None
     #: when it is written: ``"step"`` (the env's step), ``"offline"`` (stored transitions recomputed),
     #: ``"relabel"``, ``"reset"``
@@ -192,18 +197,22 @@ def task_entries(
     ended_by_key: NestedKey = ENDED_BY_KEY,
     achieved_goal_key: NestedKey | None = None,
     log_terms: bool = True,
+    vector_reward_key: NestedKey = VECTOR_REWARD_KEY,
+    groups_key: NestedKey = GROUPS_KEY,
 ) -> TaskEntries:
     """The table of the entries a ``TaskTransform`` with these (unravelled) keys writes for ``task``.
 
     From the task tree: a memory entry when its memory holds a tensor; the breakdown (with ``log_terms``) of
     the step and final reward when some task pays a final reward, then one entry per named term; the costs
-    (all stacked under ``cost_key``, and one per cost under ``cost_terms_key``) when it has costs; one flag per
+    (all stacked under ``cost_key``, and one per cost under ``cost_terms_key``) when it has costs; the reward groups
+    (all stacked under ``vector_reward_key``, and one per group under ``groups_key``) when it has some; one flag per
     end condition (with ``log_terms``) when a kind of end has two or more named conditions.
 
     Args:
         task: the task tree.
         reward_key: the transform's ``reward_key``; likewise ``memory_key``, ``success_key``, ``failure_key``,
-            ``terms_key``, ``cost_key``, ``cost_terms_key``, ``ended_by_key`` and ``achieved_goal_key``
+            ``terms_key``, ``cost_key``, ``cost_terms_key``, ``ended_by_key``, ``vector_reward_key``, ``groups_key``
+            and ``achieved_goal_key``
             (``None``: no achieved goal), as the transform unravelled them.
         log_terms: whether the breakdown and the end conditions are written.
 
@@ -218,6 +227,7 @@ def task_entries(
     """
     names_ends = task.facts.names_end_conditions
     cost_names = tuple(task.cost_names)
+    group_names = tuple(task.group_names)
     termination_names = tuple(task.termination_names) if log_terms and names_ends else ()
 
     def under(root: NestedKey, name: str) -> NestedKey:
@@ -231,6 +241,7 @@ def task_entries(
     ]
     claims += [("terms_key", terms_key)] if log_terms else []
     claims += [("cost_key", cost_key), ("cost_terms_key", cost_terms_key)] if cost_names else []
+    claims += [("vector_reward_key", vector_reward_key), ("groups_key", groups_key)] if group_names else []
     claims += [("ended_by_key", ended_by_key)] if termination_names else []
 
     rows = [
@@ -262,5 +273,10 @@ def task_entries(
         rows += [
             Entry(under(cost_terms_key, name), "cost", "cost_terms_key", "costs", name, EVERY_STEP)
             for name in cost_names
+        ]
+    if group_names:
+        rows.append(Entry(vector_reward_key, "groups", "vector_reward_key", "groups", None, EVERY_STEP))
+        rows += [
+            Entry(under(groups_key, name), "group", "groups_key", "groups", name, EVERY_STEP) for name in group_names
         ]
     return TaskEntries(tuple(claims), tuple(rows))

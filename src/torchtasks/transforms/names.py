@@ -15,6 +15,8 @@ physics values are written under :data:`DOMAIN_KEY`. The transforms, offline rec
 
 from __future__ import annotations
 
+from torchtasks.tasks.transition import FINAL_SOURCE, STEP_SOURCE
+
 __all__ = [
     "COMMAND",
     "COST_KEY",
@@ -29,6 +31,7 @@ __all__ = [
     "FAILURE_KEY",
     "FINAL_TERM",
     "FRAMES",
+    "GROUPS_KEY",
     "LEVEL",
     "MEMORY_KEY",
     "REWARD_KEY",
@@ -37,6 +40,7 @@ __all__ = [
     "TERMINATED_KEY",
     "TERMS_KEY",
     "TRUNCATED_KEY",
+    "VECTOR_REWARD_KEY",
     "entry_name",
     "names_task_buffer",
     "target_name",
@@ -52,8 +56,13 @@ SUCCESS_KEY = "success"
 FAILURE_KEY = "failure"
 #: the reward breakdown (``terms_key``): ``(TERMS_KEY, STEP_TERM)``, ``(TERMS_KEY, FINAL_TERM)``, one entry per term
 TERMS_KEY = "task_reward"
-STEP_TERM = "step"
-FINAL_TERM = "final"
+#: (the names a reward group reads the step and final reward under: :class:`~torchtasks.tasks.RewardGroupsTask`)
+STEP_TERM = STEP_SOURCE
+FINAL_TERM = FINAL_SOURCE
+#: all reward groups stacked, ``[*B, k]`` (``vector_reward_key``; MO-Gymnasium's ``info["vector_reward"]``), and one
+#: entry per group (``groups_key``)
+VECTOR_REWARD_KEY = "vector_reward"
+GROUPS_KEY = "reward_groups"
 #: all costs stacked (``cost_key``) and one entry per cost (``cost_terms_key``)
 COST_KEY = "cost"
 COST_TERMS_KEY = "task_cost"

@@ -34,6 +34,7 @@ from torchtasks.transforms.names import (
     EPISODE_SUM_PREFIX,
     FAILURE_KEY,
     FINAL_TERM,
+    GROUPS_KEY,
     MEMORY_KEY,
     REWARD_KEY,
     STEP_TERM,
@@ -41,6 +42,7 @@ from torchtasks.transforms.names import (
     TERMINATED_KEY,
     TERMS_KEY,
     TRUNCATED_KEY,
+    VECTOR_REWARD_KEY,
     target_name,
 )
 
@@ -170,6 +172,22 @@ def _as_is(value: Any, shape: torch.Size, dtype: torch.dtype) -> Any:
 def _as_stacked(names: tuple[str, ...], values: Mapping[str, torch.Tensor], shape: torch.Size, dtype: torch.dtype):
     """The named values ``[*B]`` stacked on a last dim in ``names`` order (``[*B, k]``), in the reward's dtype."""
     return torch.stack([values[name] for name in names], -1).to(dtype)
+
+
+def _as_group(dtype: torch.dtype | None, value: torch.Tensor, shape: torch.Size, reward_dtype: torch.dtype):
+    """One reward group ``[*B]`` as a ``[*B, 1]`` entry in the groups' dtype (``None``: the reward's)."""
+    return _as_entry(value, shape, reward_dtype if dtype is None else dtype)
+
+
+def _as_vector(
+    names: tuple[str, ...],
+    dtype: torch.dtype | None,
+    values: Mapping[str, torch.Tensor],
+    shape: torch.Size,
+    reward_dtype: torch.dtype,
+) -> torch.Tensor:
+    """The reward groups stacked in ``names`` order (``[*B, k]``), in the groups' dtype (``None``: the reward's)."""
+    return _as_stacked(names, values, shape, reward_dtype if dtype is None else dtype)
 
 
 def _as_achieved(slot: GoalSlot, next_state: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
@@ -311,6 +329,12 @@ class TaskTransform(EnvDerivedTransform):
             ``RewardSum`` over :attr:`cost_keys` and for :func:`~torchtasks.stats.episode_statistics`);
             both are reward-spec entries, so they are not carried to the next step's root. A tree
             without costs writes neither.
+        vector_reward_key, groups_key: where a tree with reward groups (:class:`~torchtasks.tasks.RewardGroupsTask`)
+            writes them under ``"next"``: all groups as ``vector_reward_key`` (``[*B, k]``, in
+            :attr:`group_names` order: a vector reward for one critic per group, TorchRL's ``LineariseRewards`` or
+            ``RewardSum``) and each one as ``(groups_key, name)`` (``[*B, 1]``); reward-spec entries in the
+            tree's :attr:`~torchtasks.tasks.Task.group_dtype` (the reward's dtype when it is ``None``). The
+            scalar reward stays at ``reward_key``. A tree without groups writes neither.
         curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
             values of task buffers that a :class:`~torchtasks.transforms.Curriculum` or
             :class:`~torchtasks.transforms.DifficultyLevels` set at each step, when this transform is not in their env
@@ -357,6 +381,8 @@ class TaskTransform(EnvDerivedTransform):
         cost_terms_key: NestedKey = COST_TERMS_KEY,
         ended_by_key: NestedKey = ENDED_BY_KEY,
         curriculum_key: NestedKey | None = CURRICULUM_KEY,
+        vector_reward_key: NestedKey = VECTOR_REWARD_KEY,
+        groups_key: NestedKey = GROUPS_KEY,
     ) -> None:
         if not isinstance(task, Task):
             raise TypeError(f"task must be a torchtasks Task, got {type(task).__name__}")
@@ -392,6 +418,9 @@ class TaskTransform(EnvDerivedTransform):
         self.cost_key = nested_key(cost_key, "TaskTransform: cost_key")
         self.cost_terms_key = nested_key(cost_terms_key, "TaskTransform: cost_terms_key")
         self.cost_names = tuple(task.cost_names)
+        self.vector_reward_key = nested_key(vector_reward_key, "TaskTransform: vector_reward_key")
+        self.groups_key = nested_key(groups_key, "TaskTransform: groups_key")
+        self.group_names = tuple(task.group_names)
         self.ended_by_key = nested_key(ended_by_key, "TaskTransform: ended_by_key")
         self.curriculum_key = (
             None if curriculum_key is None else nested_key(curriculum_key, "TaskTransform: curriculum_key")
@@ -421,6 +450,8 @@ class TaskTransform(EnvDerivedTransform):
             ended_by_key=self.ended_by_key,
             achieved_goal_key=self.achieved_goal_key,
             log_terms=log_terms,
+            vector_reward_key=self.vector_reward_key,
+            groups_key=self.groups_key,
         )
         self._entries = entries
         # the named end conditions, written when a kind has two or more (else success and failure say it)
@@ -442,12 +473,16 @@ class TaskTransform(EnvDerivedTransform):
         if log_terms:
             _refuse_episode_sums(entries.names("terms_key"), "reward term", "terms_key", self.terms_key)
         _refuse_episode_sums(entries.names("cost_terms_key"), "cost", "cost_terms_key", self.cost_terms_key)
+        _refuse_episode_sums(entries.names("groups_key"), "reward group", "groups_key", self.groups_key)
 
     def _write_plans(self, entries: TaskEntries) -> dict[tuple[str, bool], tuple[tuple[Any, ...], ...]]:
         """What a step writes, per occasion and per whether the data holds the env's ``terminated`` flag: rows of
         ``(key, read the field, the entry of the field or None, write as)``, derived once from the table."""
         write_as = dict(_WRITE_AS)
         write_as["costs"] = functools.partial(_as_stacked, entries.names("cost_terms_key"))
+        group_dtype = self.task.group_dtype
+        write_as["group"] = functools.partial(_as_group, group_dtype)
+        write_as["groups"] = functools.partial(_as_vector, entries.names("groups_key"), group_dtype)
         write_as["goal"] = None if self._goal_slot is None else functools.partial(_as_achieved, self._goal_slot)
 
         def plan(row: Entry) -> tuple[Any, ...]:
@@ -592,7 +627,12 @@ class TaskTransform(EnvDerivedTransform):
 
     def _overwritten_keys(self) -> list[tuple[NestedKey, str]]:
         """The reward-spec entries this transform writes, each with the argument that names it."""
-        entries, under = self._entries, {"term": "a reward term", "cost": "a cost"}  # entries under an argument's key
+        entries = self._entries
+        under = {
+            "term": "a reward term",
+            "cost": "a cost",
+            "group": "a reward group",
+        }  # entries under an argument's key
         return [
             (row.key, f"{under[row.kind]} of {row.argument}={entries.root(row.argument)!r}")
             if row.kind in under
@@ -784,9 +824,12 @@ class TaskTransform(EnvDerivedTransform):
             raise KeyError(f"TaskTransform: the reward key {self.reward_key!r} is not in the reward spec")
         base = reward_spec[self.reward_key]
         self.__dict__["_reward_dtype"] = base.dtype
-        for row in self._entries.select(spec="reward", kinds=("term", "cost", "costs")):
-            shape = (*base.shape[:-1], len(self.cost_names)) if row.kind == "costs" else base.shape
-            reward_spec[row.key] = Unbounded(shape=shape, dtype=base.dtype, device=base.device)
+        group_dtype = base.dtype if self.task.group_dtype is None else self.task.group_dtype
+        stacked = {"costs": len(self.cost_names), "groups": len(self.group_names)}  # [*B, k] entries
+        for row in self._entries.select(spec="reward", kinds=("term", "cost", "costs", "group", "groups")):
+            shape = (*base.shape[:-1], stacked[row.kind]) if row.kind in stacked else base.shape
+            dtype = group_dtype if row.kind in ("group", "groups") else base.dtype
+            reward_spec[row.key] = Unbounded(shape=shape, dtype=dtype, device=base.device)
         return reward_spec
 
     # ----------------------------------------------------------------------- helpers
