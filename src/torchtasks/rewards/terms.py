@@ -1,4 +1,4 @@
-"""Small, general reward terms: velocity, displacement, control cost, healthy reward, contact cost, a threshold indicator.
+"""Small, general reward terms: velocity, displacement, control cost, healthy and contact terms, a threshold indicator.
 
 Each term is one :class:`~torchtasks.rewards.RewardFunction` with one job, meant to be a named term
 of a :class:`~torchtasks.rewards.CompoundReward` (as Gymnasium's MuJoCo locomotion envs log
