@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import math
 import pickle
+import sys
 import warnings
 from typing import Any
 
@@ -33,6 +34,7 @@ gymnasium = pytest.importorskip("gymnasium")
 from torchrl.envs import LineariseRewards, RewardSum, Transform  # noqa: E402
 from torchrl.envs.utils import check_env_specs  # noqa: E402
 
+from torchtasks.cli import main  # noqa: E402
 from torchtasks.envs import multi_objective  # noqa: E402
 from torchtasks.envs.multi_objective import (  # noqa: E402
     MULTI_OBJECTIVE_ENV_IDS,
@@ -376,3 +378,67 @@ def test_cost_objective_and_unknown_keywords_are_refused() -> None:
         multi_objective_task("mo-ant-v5", cost_objective=False)
     with pytest.raises(TypeError, match="unexpected keyword argument"):
         multi_objective_task("mo-ant-v5", no_such_keyword=1)
+
+
+# ------------------------------------------------------------------------------------------ the command
+def _rows(text: str) -> dict[str, dict[str, str]]:
+    lines = [line for line in text.splitlines() if line.startswith("|")]
+    cells = [[cell.strip() for cell in line.strip().strip("|").split("|")] for line in lines]
+    return {row[0]: dict(zip(cells[0], row, strict=True)) for row in cells[2:]}
+
+
+@pytest.mark.parametrize("backend", ["gymnasium", "batched"])
+def test_check_compares_with_mo_gymnasium(backend: str, tmp_path, capsys, mo_gymnasium: Any) -> None:
+    env_ids = ["mo-hopper-v5", "mo-ant-v5"] if backend == "gymnasium" else ["mo-humanoid-v5"]
+    argv = ["check", *env_ids, "--seeds", "1", "--steps", "30", "--no-progress"]
+    assert main([*argv, "--backend", backend, "--output", str(tmp_path)]) == 0
+    rows = _rows(capsys.readouterr().out)
+    assert set(rows) == set(env_ids)
+    for row in rows.values():
+        assert (row["backend"], row["vector mism."], row["result"]) == (backend, "0", "PASS")
+        assert int(row["resets"]) >= 2  # the forced ones
+    assert len(list(tmp_path.glob(f"check_multi_objective_{backend}_*.json"))) == 1
+
+
+def test_check_reports_a_vector_that_differs(tmp_path, capsys, mo_gymnasium: Any, monkeypatch) -> None:
+    monkeypatch.setattr(multi_objective, "VECTOR_REWARD_DTYPE", torch.float64)  # same values, other dtype
+    argv = ["check", "mo-swimmer-v5", "--seeds", "1", "--steps", "5", "--no-progress", "--output", str(tmp_path)]
+    assert main(argv) == 1
+    captured = capsys.readouterr()
+    assert _rows(captured.out)["mo-swimmer-v5"]["vector mism."] == "5"
+    assert "MO-Gymnasium parity NOT met for: mo-swimmer-v5" in captured.err
+
+
+def test_check_without_mo_gymnasium_says_how_to_install_it(tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "mo_gymnasium", None)  # import mo_gymnasium raises ImportError
+    assert main(["check", "mo-hopper-v5", "--output", str(tmp_path)]) == 2
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    (line,) = captured.err.splitlines()
+    assert line.startswith("torchtasks check: mo-hopper-v5 is compared with MO-Gymnasium 1.3.2")
+    assert line.endswith("pip install mo-gymnasium==1.3.2 pygame scipy")
+
+
+def test_check_refuses_mixed_ids_and_suggests_close_ones(tmp_path, capsys) -> None:
+    assert main(["check", "Hopper-v5", "mo-hopper-v5", "--output", str(tmp_path)]) == 2
+    assert "in separate commands" in capsys.readouterr().err
+    assert main(["check", "mo-hoper-v5", "--output", str(tmp_path)]) == 2
+    assert "did you mean mo-hopper-v5?" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "error", "match"),
+    [
+        ({"backend": "jax"}, ValueError, "backend must be 'gymnasium' or 'batched'"),
+        ({"steps": 0}, ValueError, "steps must be a positive int"),
+        ({"num_envs": 0, "backend": "batched"}, ValueError, "num_envs must be a positive int"),
+        ({"seeds": []}, ValueError, "at least one seed"),
+        ({"forced_resets": {3: [2]}}, ValueError, r"env indices in \[0, 1\)"),
+        ({"ctrl_cost_weight": 0.0}, ValueError, "ctrl_cost_weight must be > 0"),
+    ],
+)
+def test_check_multi_objective_parity_rejects_bad_arguments(kwargs: dict, error: type, match: str) -> None:
+    from torchtasks.parity import check_multi_objective_parity
+
+    with pytest.raises(error, match=match):
+        check_multi_objective_parity("mo-swimmer-v5", **kwargs)
