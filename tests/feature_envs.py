@@ -3,9 +3,9 @@
 Every factory is a module-level function of ``(batch, seed)`` (picklable: multi-process collectors and
 ``ParallelEnv`` workers build their envs from it) returning a ``TransformedEnv`` with a ``StepCounter`` first,
 the feature's ``TaskTransform``, its run-state transforms (command, curriculum, levels) and a ``RewardSum``
-over the reward, the breakdown and the costs, then a ``BaseEnvState`` (so a checkpoint holds the base env), as the
-docs build them. Each feature comes with a
-deterministic policy (module-level, picklable) that makes episodes end in every way the feature can end them.
+over the reward, the breakdown, the costs and the reward groups, then a ``BaseEnvState`` (so a checkpoint holds
+the base env), as the docs build them. Each feature comes with a deterministic policy (module-level, picklable)
+that makes episodes end in every way the feature can end them.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 
 from torchtasks.domain import BernoulliDomainParam, NormalDomainParam, UniformDomainParam
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
-from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward
+from torchtasks.rewards import QuadraticErrorReward, StateFunctionReward, VelocityReward
 from torchtasks.rewards.terms import HealthyReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
@@ -30,6 +30,7 @@ from torchtasks.tasks import (
     GoallessTask,
     MaskedTask,
     PotentialShapingTask,
+    RewardGroupsTask,
     proximity_succeeded,
 )
 from torchtasks.transforms import (
@@ -46,8 +47,17 @@ MAX_STEPS = 12
 SCHEDULED = "wrapped_task.reward.rewards.effort.R"  # swing_up_task's effort weight, ramped by the curriculum feature
 
 
+def summed_keys(task_transform: TaskTransform) -> list:
+    """The entries the suite's RewardSum sums: the reward, the breakdown, the costs and the reward groups (the vector
+    reward and one entry per group)."""
+    groups = task_transform.entries.keys(argument="vector_reward_key") + task_transform.entries.keys(
+        argument="groups_key"
+    )
+    return ["reward", *task_transform.term_keys, *task_transform.cost_keys, *groups]
+
+
 def _finish(env, task_transform: TaskTransform, *run_state) -> TransformedEnv:
-    sums = RewardSum(in_keys=["reward", *task_transform.term_keys, *task_transform.cost_keys])
+    sums = RewardSum(in_keys=summed_keys(task_transform))
     return TransformedEnv(env, Compose(StepCounter(MAX_STEPS), task_transform, *run_state, sums, BaseEnvState()))
 
 
@@ -160,6 +170,34 @@ def end_conditions(batch: int, seed: int) -> TransformedEnv:
     return _finish(env, TaskTransform(GoallessTask(spec, alive)))
 
 
+#: swing_up_task's terms in two groups, with its final and step rewards and a term of the groups' own (the speed)
+GROUPS = {"tracking": {"track": 1.0, "final": 0.5}, "energy": {"effort": 1000.0, "speed": -0.25, "step": 0.125}}
+#: the groups_scheduled ramp: each group's weights (its buffer ``weights_<group>``) from the start to the end values
+GROUP_RAMPS = {
+    "weights_tracking": linear([1.0, 0.5], [2.0, 0.0], 0, 200),
+    "weights_energy": linear([1000.0, -0.25, 0.125], [10.0, -1.0, 1.0], 0, 200),
+}
+
+
+def _grouped_swing_up(dtype: torch.dtype | None) -> RewardGroupsTask:
+    return RewardGroupsTask(
+        swing_up_task(success_threshold=0.6), GROUPS, terms={"speed": VelocityReward(1.0, index=1)}, dtype=dtype
+    )
+
+
+def groups(batch: int, seed: int) -> TransformedEnv:
+    """Reward groups accumulated in float32 over a float64 pendulum (MO-Gymnasium's arithmetic, a float64 reward)."""
+    env = PendulumEnv(batch_size=[batch], seed=seed, dtype=torch.float64)
+    return _finish(env, TaskTransform(_grouped_swing_up(torch.float32)))
+
+
+def groups_scheduled(batch: int, seed: int) -> TransformedEnv:
+    """Reward groups (in the reward's dtype) whose coefficients a Curriculum ramps over the first frames."""
+    curriculum = Curriculum(GROUP_RAMPS)
+    task = TaskTransform(_grouped_swing_up(None))
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum)
+
+
 class _Torque(torch.nn.Module):
     """A torque against the angle, with a per-env gain: some pendulums reach the top, some do not."""
 
@@ -206,6 +244,8 @@ FEATURES: dict[str, Feature] = {
     "end_conditions": Feature(end_conditions, functools.partial(point_policy, False)),
     "domain": Feature(domain, pendulum_policy),
     "domain_levels": Feature(domain_levels, pendulum_policy),
+    "groups": Feature(groups, pendulum_policy),
+    "groups_scheduled": Feature(groups_scheduled, pendulum_policy),
 }
 
 

@@ -6,6 +6,8 @@ MO-Gymnasium computes) and plain float64 sums of the terms the task reports, nev
 
 from __future__ import annotations
 
+import io
+
 import numpy as np
 import pytest
 import torch
@@ -120,15 +122,37 @@ def test_a_composite_refuses_grouped_sub_tasks_and_takes_groups_around_it() -> N
     assert torch.equal(out.groups["all"], out.step_reward)
 
 
-def test_the_coefficients_are_a_buffer_and_the_groups_report_them() -> None:
+def test_each_group_s_coefficients_are_a_buffer_and_the_groups_report_them() -> None:
     task = RewardGroupsTask(_leaf(), GROUPS)
-    assert "coefficients" in dict(task.named_buffers())
+    assert {"weights_speed", "weights_energy"} <= set(dict(task.named_buffers()))
     assert task.groups == GROUPS
-    task.coefficients.fill_(2.0)
+    task.weights_energy.fill_(2.0)
     state, action = _draws(8)
     task = task.double()
     out = task.transition(state, action, state, task.reset(state))
     assert torch.equal(out.groups["energy"], 2.0 * out.terms["ctrl"] + 2.0 * out.terms["alive"])
+    assert torch.equal(out.groups["speed"], 0.8 * out.terms["forward"] + out.terms["alive"])
+
+
+def test_a_checkpoint_of_other_groups_or_non_finite_weights_is_refused_and_changes_nothing() -> None:
+    task = RewardGroupsTask(_leaf(), GROUPS)
+    saved = task.state_dict()
+    reordered = RewardGroupsTask(_leaf(), {"speed": {"alive": 1.0, "forward": 0.8}, "energy": GROUPS["energy"]})
+    with pytest.raises(ValueError, match=r"checkpoint holds other reward groups"):
+        reordered.load_state_dict(saved)
+    assert reordered.groups == {"speed": {"alive": 1.0, "forward": 0.8}, "energy": GROUPS["energy"]}
+    bad = {key: value.clone() if hasattr(value, "clone") else value for key, value in saved.items()}
+    bad["weights_energy"][0] = float("nan")
+    with pytest.raises(ValueError, match=r"reward group 'energy'.*must be finite"):
+        task.load_state_dict(bad)
+    assert task.groups == GROUPS
+    float32 = RewardGroupsTask(_leaf(), GROUPS, dtype=torch.float32)
+    with pytest.raises(ValueError, match=r"other reward groups"):
+        float32.load_state_dict(saved)
+    twin = RewardGroupsTask(_leaf(), GROUPS)
+    twin.weights_speed.fill_(3.0)
+    twin.load_state_dict(saved)
+    assert twin.groups == GROUPS
 
 
 def test_the_transition_compiles_with_fullgraph() -> None:
@@ -154,6 +178,7 @@ def test_the_transition_compiles_with_fullgraph() -> None:
         ({"groups": {"x": {"step": 1.0}}, "dtype": torch.int64}, TypeError, r"dtype must be torch.float32"),
         ({"groups": {"x": {"step": 1.0}}, "terms": {"ctrl": ConstantReward(1.0)}}, ValueError, r"'ctrl' is taken"),
         ({"groups": {"x": {"step": 1.0}}, "terms": {"z": lambda s: s}}, TypeError, r"must be a torchtasks Reward"),
+        ({"groups": {"x": {"step": 1.0}}, "terms": {"z": ConstantReward(1.0)}}, ValueError, r"\['z'\] are read by no"),
     ],
 )
 def test_bad_groups_are_refused_with_the_argument_named(kwargs: dict, error: type, match: str) -> None:
@@ -164,3 +189,50 @@ def test_bad_groups_are_refused_with_the_argument_named(kwargs: dict, error: typ
 def test_a_tree_holds_one_set_of_groups() -> None:
     with pytest.raises(ValueError, match=r"already has reward groups"):
         RewardGroupsTask(FinalRewardTask(RewardGroupsTask(_leaf(), GROUPS)), {"all": {"step": 1.0}})
+
+
+def _saved(task: RewardGroupsTask) -> dict:
+    """What ``torch.save`` wrote of the task's state, read back as a checkpoint is (``weights_only``)."""
+    buffer = io.BytesIO()
+    torch.save(task.state_dict(), buffer)
+    buffer.seek(0)
+    return torch.load(buffer, weights_only=True)
+
+
+def test_a_checkpoint_loads_the_coefficients_of_the_same_groups() -> None:
+    saved = RewardGroupsTask(_leaf(), GROUPS)
+    saved.weights_speed.copy_(torch.tensor([1.0, 2.0], dtype=torch.float64))
+    saved.weights_energy.copy_(torch.tensor([3.0, 4.0], dtype=torch.float64))
+    task = RewardGroupsTask(_leaf(), GROUPS)
+    task.load_state_dict(_saved(saved))
+    assert task.groups == {"speed": {"forward": 1.0, "alive": 2.0}, "energy": {"ctrl": 3.0, "alive": 4.0}}
+
+
+@pytest.mark.parametrize(
+    ("groups", "match"),
+    [
+        # the same sources, the groups in another order: the coefficients would be cross-loaded by position
+        ({"energy": GROUPS["energy"], "speed": GROUPS["speed"]}, r"saved \{'speed': \['forward', 'alive'\], 'energy'"),
+        ({"speed": {"alive": 1.0, "forward": 0.8}, "energy": GROUPS["energy"]}, r"here \{'speed': \['alive', 'forw"),
+        ({"speed": {"forward": 0.8}, "energy": GROUPS["energy"]}, r"here \{'speed': \['forward'\], 'energy'"),
+    ],
+    ids=["groups_reordered", "sources_reordered", "fewer_coefficients"],
+)
+def test_a_checkpoint_of_other_groups_is_refused_and_changes_nothing(groups: dict, match: str) -> None:
+    saved = _saved(RewardGroupsTask(_leaf(), GROUPS))
+    task = RewardGroupsTask(_leaf(), groups)
+    before = task.groups
+    with pytest.raises(ValueError, match=r"RewardGroupsTask.load_state_dict: the checkpoint holds other reward groups"):
+        task.load_state_dict(saved)
+    with pytest.raises(ValueError, match=match):
+        task.load_state_dict(saved)
+    assert task.groups == before
+
+
+def test_loaded_coefficients_pass_the_constructors_check() -> None:
+    saved = _saved(RewardGroupsTask(_leaf(), GROUPS))
+    saved["weights_energy"] = torch.tensor([float("inf"), 1.0], dtype=torch.float64)
+    task = RewardGroupsTask(_leaf(), GROUPS)
+    with pytest.raises(ValueError, match=r"load_state_dict can write \[inf, 1.0\] into the reward group 'energy'"):
+        task.load_state_dict(saved)
+    assert task.groups == GROUPS

@@ -1,18 +1,23 @@
 """Every feature holds in every layout: one invariant suite over the combinations users build.
 
 Features (``feature_envs.FEATURES``): a plain task without terms, named terms with a final reward, shaping, a
-GoalCommand, a Curriculum, DifficultyLevels, constraints, named end conditions and per-env physics drawn by a
-DomainRandomization (at resets under a Curriculum, at intervals under DifficultyLevels). Layouts: ``env.rollout``
+GoalCommand, a Curriculum, DifficultyLevels, constraints, named end conditions, per-env physics drawn by a
+DomainRandomization (at resets under a Curriculum, at intervals under DifficultyLevels) and reward groups (float32
+groups over a float64 state; groups whose coefficients a Curriculum ramps). Layouts: ``env.rollout``
 ``[B, T]``, a Collector's batch ``[B, T]``, the same flattened to ``[N]`` (grouped by trajectory ids),
 ``split_trajs`` (padded rows with a mask), a replay-buffer sample (random frames of a flat batch), and data
 collected through a ``ParallelEnv`` or by a ``MultiSyncCollector`` (worker processes). Invariants:
 
 - offline == online: the TaskTransform of a freshly built env of the same configuration (its buffers at their
   initial values, so a schedule's values must come from the data) re-judges the stored transitions and writes
-  exactly what the online step wrote: reward, flags, breakdown, costs and end conditions;
+  exactly what the online step wrote: reward, flags, breakdown, costs, end conditions and the reward groups (the
+  vector reward and one entry per group);
 - statistics == an independent count: ``episode_statistics`` on every layout equals a plain loop over the frames
   of the time-major collection, written here (episodes, outcome rates, lengths, returns per entry, costs, end
-  conditions, the drawn physics episodes ended with, the schedule and the levels at the end of the batch).
+  conditions, the group returns, the drawn physics episodes ended with, the schedule and the levels at the end of
+  the batch);
+- save -> load continues, and a checkpoint of another configuration (batch size, schedule, level table, goal
+  space, reward groups) is refused.
 
 A defect that holds for one layout only (padding read as a frame, today's buffers used offline, the first
 episode of a row taken as complete) fails here.
@@ -37,8 +42,10 @@ import feature_envs
 from feature_envs import FEATURES, task_transform
 from resume_env import equal_batches
 from torchtasks.envs import PendulumEnv, PointMassEnv, swing_up_task
+from torchtasks.rewards import VelocityReward
 from torchtasks.spaces import Box
 from torchtasks.stats import episode_statistics
+from torchtasks.tasks import RewardGroupsTask
 from torchtasks.transforms import (
     Curriculum,
     DifficultyLevels,
@@ -137,6 +144,7 @@ def _judged_keys(data: TensorDictBase, name: str) -> list:
     transform = task_transform(FEATURES[name].make_env(BATCH, SEED))
     keys = [transform.reward_key, transform.success_key, transform.failure_key, "terminated", "done"]
     keys += transform.term_keys + transform.cost_keys + list(transform._ended_by_keys)
+    keys += transform.entries.keys(argument="vector_reward_key") + transform.entries.keys(argument="groups_key")
     return [key for key in keys if ("next", *((key,) if isinstance(key, str) else key)) in data.keys(True, True)]
 
 
@@ -173,11 +181,16 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
     An episode ends at a done frame; its length is its ``step_count`` there; it is complete when all those frames
     are in its row; returns sum the reward (and each entry of the breakdown and the costs) over its frames. The
     schedule and the levels are read at the last frame of every row (the end of the batch) and averaged over rows.
+    The groups of a vector reward are summed like the terms, one entry per group (``group_return_mean/<group>``).
     """
     nxt = data["next"]
     rows, steps = data.batch_size
     entries = {"return_mean": nxt["reward"]}
-    for group, prefix in (("task_reward", "return_mean/"), ("task_cost", "cost_mean/")):
+    for group, prefix in (
+        ("task_reward", "return_mean/"),
+        ("task_cost", "cost_mean/"),
+        ("reward_groups", "group_return_mean/"),
+    ):
         if group in nxt.keys():
             for leaf in nxt[group].keys():
                 others = set(nxt[group].keys())
@@ -288,7 +301,7 @@ def test_a_replay_sample_counts_the_episodes_it_holds_whole():
 
 
 # ------------------------------------------------------------------------------------------------ worker processes
-PROCESS_FEATURES = ["curriculum", "levels", "constraints", "domain"]
+PROCESS_FEATURES = ["curriculum", "levels", "constraints", "domain", "groups_scheduled"]
 
 
 @pytest.mark.multiprocess
@@ -397,7 +410,28 @@ def _other_domain(batch: int, seed: int):
     return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, curriculum)
 
 
+def _other_groups(batch: int, seed: int):
+    """The groups feature with one source fewer: coefficients of another shape."""
+    groups = {**feature_envs.GROUPS, "energy": {"effort": 1000.0, "speed": -0.25}}
+    task = RewardGroupsTask(
+        swing_up_task(success_threshold=0.6), groups, terms={"speed": VelocityReward(1.0, index=1)}, dtype=torch.float32
+    )
+    env = PendulumEnv(batch_size=[batch], seed=seed, dtype=torch.float64)
+    return feature_envs._finish(env, TaskTransform(task))
+
+
+def _other_group_sources(batch: int, seed: int):
+    """The groups_scheduled feature with the same groups and as many coefficients, read from other sources (the
+    saved coefficients would be cross-loaded by position)."""
+    groups = {"tracking": {"track": 1.0, "step": 0.5}, "energy": {"effort": 1000.0, "speed": -0.25, "final": 0.125}}
+    task = RewardGroupsTask(swing_up_task(success_threshold=0.6), groups, terms={"speed": VelocityReward(1.0, index=1)})
+    curriculum = Curriculum(feature_envs.GROUP_RAMPS)
+    return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), TaskTransform(task), curriculum)
+
+
 OTHER_CONFIGURATIONS = {
+    "groups": (_other_groups, r"other reward groups: saved .*, here \{.*'energy': \['effort', 'speed'\]\}"),
+    "groups_scheduled": (_other_group_sources, r"other reward groups: saved \{'tracking': \['track', 'final'\]"),
     "domain": (_other_domain, "when: saved 'reset', here 'startup'"),
     "curriculum": (_other_curriculum, "'success_value' is staged here, but the checkpoint holds a linear"),
     "levels": (_other_levels, r"shape \[2, 2\] here"),
@@ -407,7 +441,8 @@ OTHER_CONFIGURATIONS = {
 
 @pytest.mark.parametrize("name", list(FEATURES))
 def test_a_load_into_another_configuration_is_refused(name: str):
-    """Another batch size for every feature; another schedule, level table or goal space where the feature has one."""
+    """Another batch size for every feature; another schedule, level table, goal space or reward groups where the
+    feature has them."""
     running = _single_collector(name)
     try:
         running.set_seed(SEED)

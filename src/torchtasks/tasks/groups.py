@@ -12,10 +12,12 @@ multi-objective RL) and one entry per group.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import torch
 from torch import nn
 
+from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import SUPPORTED_FLOATS, check_finite_scalar, did_you_mean
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.tasks.protocol import Task
@@ -31,7 +33,11 @@ def _identifier(name: object, what: str) -> str:
     return name
 
 
-class RewardGroupsTask(ForwardingTask):
+#: the prefix of a group's weights buffer (``weights_<group>``: one coefficient per source, in order)
+WEIGHTS_PREFIX = "weights_"
+
+
+class RewardGroupsTask(CheckedLoad, ForwardingTask):
     """A task that reports named groups of its reward terms beside its reward: a vector reward ``[*B, k]``.
 
     The wrapped task's reward, flags, final rewards, memory, terms, costs and goals are unchanged (its memory is
@@ -41,11 +47,16 @@ class RewardGroupsTask(ForwardingTask):
     evaluated on the state the step reward sees and the action (like costs) and paid to no scalar reward.
 
     A group's value is accumulated source by source, in the order given, and rounded to ``dtype`` after each
-    addition: ``g = dtype(c0·v0)``, then ``g = dtype(g + c·v)`` (the sum computed in the sources' dtype). With the
-    default ``dtype=None`` that is an ordinary sum in the terms' dtype (the groups are then written in the reward's
-    dtype). With ``dtype=torch.float32`` and float64 terms it is what numpy's in-place ``vec += term`` does on a
-    float32 vector, term after term: MO-Gymnasium's arithmetic, which the multi-objective presets reproduce bit
-    for bit (:func:`~torchtasks.envs.multi_objective.multi_objective_env`).
+    addition: ``g = dtype(c0·v0)``, then ``g = dtype(g + c·v)``, each sum computed in the sources' dtype (the
+    state's). With the default ``dtype=None`` that is an ordinary sum in the sources' dtype (the groups are then
+    written in the reward's dtype). With ``dtype=torch.float32`` and float64 sources it is what numpy's in-place
+    ``vec += term`` does on a float32 vector, term after term: MO-Gymnasium's arithmetic, which the
+    multi-objective presets reproduce bit for bit. ``dtype=torch.float64`` over float32 sources adds in float32
+    and stores float64.
+
+    Each group's coefficients are a buffer ``weights_<group>`` (one per source, in order): in ``state_dict``,
+    moved by ``.to()``, a target a :class:`~torchtasks.transforms.Curriculum` can ramp (finite values only). A
+    checkpoint of other groups (names, sources, their order, dtype) is refused, and so are non-finite values.
 
     A tree holds one ``RewardGroupsTask``; wrappers (final rewards, masks, shaping, constraints) may wrap it and
     keep its groups, where ``"step"`` and ``"final"`` are the whole tree's step and final reward. A composite
@@ -100,8 +111,8 @@ class RewardGroupsTask(ForwardingTask):
                 f"RewardGroupsTask: groups must be a non-empty mapping {{group: {{source: coefficient}}}}, got "
                 f"{groups!r}"
             )
-        plan: list[tuple[str, tuple[tuple[str, int], ...]]] = []
-        coefficients: list[float] = []
+        plan: list[tuple[str, str, tuple[str, ...]]] = []
+        weights_of: dict[str, torch.Tensor] = {}
         for group, weights in groups.items():
             _identifier(group, "group")
             if not isinstance(weights, Mapping) or not weights:
@@ -109,8 +120,7 @@ class RewardGroupsTask(ForwardingTask):
                     f"RewardGroupsTask: the group {group!r} must be a non-empty mapping {{source: coefficient}}, got "
                     f"{weights!r}"
                 )
-            rows = []
-            for source, coefficient in weights.items():
+            for source in weights:
                 if source not in sources:
                     raise ValueError(
                         f"RewardGroupsTask: the group {group!r} reads {source!r}, which is not a source"
@@ -118,14 +128,22 @@ class RewardGroupsTask(ForwardingTask):
                         f"{list(task.term_names)}, {STEP_SOURCE!r}, {FINAL_SOURCE!r} and the terms given "
                         f"{list(built)})"
                     )
-                coefficients.append(
-                    check_finite_scalar(coefficient, f"RewardGroupsTask: groups[{group!r}][{source!r}]")
-                )
-                rows.append((source, len(coefficients) - 1))
-            plan.append((group, tuple(rows)))
+            values = [
+                check_finite_scalar(c, f"RewardGroupsTask: groups[{group!r}][{source!r}]")
+                for source, c in weights.items()
+            ]
+            buffer = WEIGHTS_PREFIX + group
+            weights_of[buffer] = torch.tensor(values, dtype=torch.float64)
+            plan.append((group, buffer, tuple(weights)))
+        unread = sorted(set(built) - {source for _, _, names in plan for source in names})
+        if unread:
+            raise ValueError(
+                f"RewardGroupsTask: the terms {unread} are read by no group (they would be evaluated at every step "
+                "for nothing); drop them or add them to a group"
+            )
         self.terms = nn.ModuleDict(built)
-        #: the coefficients of all groups, in order (a buffer: ``state_dict``, ``.to``, schedulable)
-        self.register_buffer("coefficients", torch.tensor(coefficients, dtype=torch.float64))
+        for buffer, values in weights_of.items():  # one buffer per group: state_dict, .to, a schedulable target
+            self.register_buffer(buffer, values)
         self._plan = tuple(plan)
         self.dtype = dtype
 
@@ -158,7 +176,7 @@ class RewardGroupsTask(ForwardingTask):
 
     @property
     def group_names(self) -> tuple[str, ...]:
-        return tuple(group for group, _ in self._plan)
+        return tuple(group for group, _, _ in self._plan)
 
     @property
     def group_dtype(self) -> torch.dtype | None:
@@ -166,9 +184,78 @@ class RewardGroupsTask(ForwardingTask):
 
     @property
     def groups(self) -> dict[str, dict[str, float]]:
-        """The groups as given: ``{group: {source: coefficient}}`` (coefficients as they are now)."""
-        values = self.coefficients.tolist()
-        return {group: {source: values[i] for source, i in rows} for group, rows in self._plan}
+        """The groups: ``{group: {source: coefficient}}``, with the coefficients as they are now."""
+        return {
+            group: dict(zip(sources, self._buffers[buffer].tolist(), strict=True))
+            for group, buffer, sources in self._plan
+        }
+
+    def check_written_value(self, name: str, value: torch.Tensor, writer: str) -> None:
+        """Raise ``ValueError`` naming ``writer`` unless ``value`` fits the weights ``name`` (``weights_<group>``).
+
+        A writer (a :class:`~torchtasks.transforms.Curriculum`, levels) may write finite coefficients of the
+        group's shape (one per source; ``[*B, n]`` for one row per env).
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.rewards import ConstantReward
+            >>> from torchtasks.spaces import EnvSpec
+            >>> from torchtasks.tasks import GoallessTask, RewardGroupsTask
+            >>> task = RewardGroupsTask(GoallessTask(EnvSpec(1, 1), ConstantReward(1.0)), {"all": {"step": 1.0}})
+            >>> try:
+            ...     task.check_written_value("weights_all", torch.tensor([float("inf")]), "a schedule")
+            ... except ValueError as error:
+            ...     print(error)
+            a schedule can write [inf] into the reward group 'all' (sources ['step']), whose coefficients must be finite
+        """
+        group, sources = self._group_of(name)
+        value = torch.as_tensor(value)
+        if value.shape[-1:] != (len(sources),):
+            raise ValueError(
+                f"{writer} writes a value of shape {list(value.shape)} into the reward group {group!r}, which has "
+                f"{len(sources)} coefficients (sources {list(sources)})"
+            )
+        if not bool(torch.isfinite(value).all()):
+            raise ValueError(
+                f"{writer} can write {value.tolist()} into the reward group {group!r} (sources {list(sources)}), "
+                "whose coefficients must be finite"
+            )
+
+    def _group_of(self, name: str) -> tuple[str, tuple[str, ...]]:
+        for group, buffer, sources in self._plan:
+            if buffer == name:
+                return group, sources
+        raise KeyError(f"RewardGroupsTask: {name!r} is not a group's weights; they are {[b for _, b, _ in self._plan]}")
+
+    # ------------------------------------------------------------------ checkpoints
+    def get_extra_state(self) -> dict[str, Any]:
+        """The groups' structure a checkpoint must match: ``{group: [sources]}``, in order, and the dtype."""
+        return {"groups": {group: list(sources) for group, _, sources in self._plan}, "dtype": str(self.dtype)}
+
+    def set_extra_state(self, state: Any) -> None:
+        """Nothing to restore: the structure is checked before the load (:meth:`_check_saved`)."""
+
+    def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
+        """Refuse the checkpoint of other groups (other names, sources, order or dtype) before anything is written."""
+        saved, own = state_dict.get(prefix + "_extra_state"), self.get_extra_state()
+        same = (  # the groups' order is the vector reward's layout: compared too
+            isinstance(saved, Mapping)
+            and isinstance(saved.get("groups"), Mapping)
+            and list(saved["groups"].items()) == list(own["groups"].items())
+            and saved.get("dtype") == own["dtype"]
+        )
+        if not same:
+            saved_groups = saved.get("groups") if isinstance(saved, Mapping) else saved
+            saved_dtype = saved.get("dtype") if isinstance(saved, Mapping) else None
+            raise ValueError(
+                f"RewardGroupsTask.load_state_dict: the checkpoint holds other reward groups: saved {saved_groups!r}, "
+                f"here {own['groups']!r} (dtype saved {saved_dtype}, here {own['dtype']}); build the "
+                "RewardGroupsTask as saved"
+            )
+
+    def _check_loaded(self) -> None:
+        for _, buffer, _ in self._plan:
+            self.check_written_value(buffer, self._buffers[buffer], "RewardGroupsTask.load_state_dict")
 
     def extra_repr(self) -> str:
         return f"groups={list(self.group_names)}, dtype={self.dtype}"
@@ -180,13 +267,14 @@ class RewardGroupsTask(ForwardingTask):
         values = dict(sources)
         for name, function in self.terms.items():
             values[name] = function._value(state, action)
-        dtype, coefficients = self.dtype, self.coefficients
+        dtype = self.dtype
         groups: dict[str, torch.Tensor] = {}
-        for group, rows in self._plan:
+        for group, buffer, names in self._plan:
+            weights = self._buffers[buffer]  # [n], or [*B, n]: one row per frame (recomputed with recorded values)
             total = None
-            for source, i in rows:
+            for source, weight in zip(names, weights.unbind(-1), strict=True):  # one op for all coefficients
                 value = values[source]
-                added = coefficients[i].to(value.dtype) * value
+                added = weight.to(value.dtype) * value
                 total = added if total is None else total.to(value.dtype) + added
                 if dtype is not None:  # rounded after every addition (numpy's `vec += term` on a float32 vector)
                     total = total.to(dtype)

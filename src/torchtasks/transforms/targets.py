@@ -21,6 +21,7 @@ domain distribution, whose draws must stay in the env's field; :func:`check_in_g
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
@@ -30,7 +31,6 @@ from torchrl.envs.transforms import Transform
 
 from torchtasks._checks import did_you_mean
 from torchtasks._torchrl import container_env, key_parts
-from torchtasks.domain import DomainParam
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
 from torchtasks.transforms._base import EnvDerivedTransform, ResetWritingTransform
@@ -106,16 +106,16 @@ class Target(NamedTuple):
                 it (a scalar); e.g. a schedule's values at its breakpoints, a table's rows.
             writer: who writes the values, for the message: one string, or one per value.
         """
-        if not isinstance(self.module, (RewardFunction, DomainParam)):
-            return
+        if isinstance(self.module, RewardFunction):
+            check = functools.partial(check_written_value, self.module)
+        else:  # a module that states its own rule (a distribution, reward groups), or none
+            check = getattr(self.module, "check_written_value", None)
+            if check is None:
+                return
         shape = self.value.shape
         for i, value in enumerate(values):
             label = writer if isinstance(writer, str) else writer[i]
-            value = value if self.per_env else value.expand(shape)
-            if isinstance(self.module, DomainParam):
-                self.module.check_written_value(self.buffer, value, label)
-            else:
-                check_written_value(self.module, self.buffer, value, label)
+            check(self.buffer, value if self.per_env else value.expand(shape), label)
 
     def write(self, value: torch.Tensor | float, *, replace: bool) -> torch.Tensor:
         """Write ``value`` into the buffer and return the buffer that holds it.

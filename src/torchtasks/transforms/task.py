@@ -92,6 +92,23 @@ def _refuse_episode_sums(names: Sequence[str], what: str, argument: str, key: Ne
             )
 
 
+def _refuse_summed_over(entries: TaskEntries) -> None:
+    """Refuse a reward-spec entry named ``episode_<x>`` beside another one named ``<x>`` (e.g.
+    ``vector_reward_key="episode_reward"`` beside ``reward_key="reward"``): TorchRL's ``RewardSum`` writes the
+    episode sum of ``<x>`` there and would overwrite it (or fail on its shape)."""
+    rows = entries.select(spec="reward")
+    by_key = {key_parts(row.key): row for row in rows}
+    for parts, row in by_key.items():
+        summed = parts[-1].removeprefix(EPISODE_SUM_PREFIX)
+        other = by_key.get((*parts[:-1], summed))
+        if summed != parts[-1] and other is not None:
+            raise ValueError(
+                f"TaskTransform: {row.key!r} ({row.argument}) is written beside {other.key!r} ({other.argument}), "
+                f"and TorchRL's RewardSum writes the episode sum of {other.key!r} as {row.key!r}: the sum would "
+                "overwrite it. Pick another key."
+            )
+
+
 class RecordedValue(NamedTuple):
     """A buffer of the task tree that a transform of the env sets at every step, and the entry recording its value.
 
@@ -474,6 +491,7 @@ class TaskTransform(EnvDerivedTransform):
             _refuse_episode_sums(entries.names("terms_key"), "reward term", "terms_key", self.terms_key)
         _refuse_episode_sums(entries.names("cost_terms_key"), "cost", "cost_terms_key", self.cost_terms_key)
         _refuse_episode_sums(entries.names("groups_key"), "reward group", "groups_key", self.groups_key)
+        _refuse_summed_over(entries)
 
     def _write_plans(self, entries: TaskEntries) -> dict[tuple[str, bool], tuple[tuple[Any, ...], ...]]:
         """What a step writes, per occasion and per whether the data holds the env's ``terminated`` flag: rows of
@@ -536,6 +554,12 @@ class TaskTransform(EnvDerivedTransform):
     def cost_keys(self) -> list[NestedKey]:
         """Keys of the per-constraint costs ``(cost_terms_key, name)``, one per cost of the tree (none without)."""
         return self._entries.keys(argument="cost_terms_key")
+
+    @property
+    def group_keys(self) -> list[NestedKey]:
+        """Keys of the reward groups: the vector ``vector_reward_key`` then ``(groups_key, name)`` per group (none
+        for a tree without groups), e.g. for ``RewardSum(in_keys=[...])``."""
+        return self._entries.keys(kinds=("groups", "group"))
 
     def _container_env(self) -> Any:
         return container_env(self)  # None when not in an env (e.g. a replay buffer's transform)
@@ -1202,7 +1226,8 @@ class TaskTransform(EnvDerivedTransform):
         ``tensordict`` holds transitions as collected: the state, action and task memory at the
         root and the next state (and ``done``, and ``step_count`` for time-dependent tasks) under
         ``"next"``. The reward, success, failure, done flags and the reward breakdown under
-        ``"next"`` are rewritten; the stored next memory is left as it was. An episode end that the
+        ``"next"`` are rewritten, and so are the costs and the reward groups (:attr:`cost_keys`, ``vector_reward_key``,
+        ``groups_key``) of a tree that has them; the stored next memory is left as it was. An episode end that the
         stored success/failure flags attribute to the task is re-judged (a relabelled goal may
         change it); truncation and the env's own termination are kept.
 
@@ -1265,6 +1290,8 @@ class TaskTransform(EnvDerivedTransform):
           ``failure``, ``terminated`` (the env's own termination OR-ed with the new verdict) and
           ``done`` (that OR-ed with the truncation);
         - the reward breakdown (:attr:`term_keys`: ``step``, ``final``, the named terms);
+        - the costs and the reward groups of a tree that has them (``cost_key``, :attr:`cost_keys`,
+          ``vector_reward_key`` and the entries under ``groups_key``);
         - the task memory after the step (``memory_key``): it carries the goal the step was judged with
           and the latches the step sets (e.g. a final reward's "paid").
 
