@@ -79,8 +79,8 @@ SCALARISATION: dict[str, tuple[tuple[float, ...], dict[str, float]]] = {
     "mo-humanoid-v5": ((1.25, 0.1), {"survive": 0.35, "contact": 0.35}),
 }
 
-BATCHED_ENVS, BATCHED_STEPS = 8, 125  # 1000 transitions
-BATCHED_FORCED = {40: [0], 90: [1, 7]}  # step -> envs reset in the middle of their episodes
+BATCHED_ENVS, BATCHED_STEPS = 10, 100  # 1000 transitions
+BATCHED_FORCED = {30: [0], 70: [1, 9]}  # step -> envs reset in the middle of their episodes
 GYMNASIUM_STEPS = 1000
 GYMNASIUM_FORCED = (300, 700)
 ATOL = {"batched": 1e-9, "gymnasium": 1e-5}  # the scalar reward (float64 / float32 reward spec)
@@ -130,28 +130,43 @@ def test_gymnasium_scalar_rebuilds_gymnasiums_reward_exactly() -> None:
 
 # ------------------------------------------------------------------------------------ the lockstep runs
 class Run:
-    """What a lockstep run found: mismatching vectors, the scalar reward's largest difference, flags, resets."""
+    """A lockstep run: the preset's outputs and MO-Gymnasium's ``step`` results, compared when the run is over."""
 
     def __init__(self) -> None:
-        self.transitions = self.resets = self.flag_mismatches = self.observation_mismatches = 0
-        self.vector_mismatches: list[str] = []
-        self.reward_diff = 0.0
+        self.resets = self.observation_mismatches = 0
+        self.got: dict[str, list[torch.Tensor]] = {key: [] for key in ("vector", "reward", "flags", "observation")}
+        self.expected: list[tuple] = []
 
-    def compare(self, out: Any, steps: list[tuple]) -> None:
-        """``out``: the preset's ``"next"`` of one step (``[n]``); ``steps``: MO-Gymnasium's ``step`` results."""
-        observations, vectors, terminated, truncated, infos = (list(column) for column in zip(*steps, strict=True))
-        self.transitions += len(steps)
-        got, expected = out["vector_reward"], torch.from_numpy(np.stack(vectors))
-        same = (got == expected).all(-1) & (got.view(torch.int32) == expected.view(torch.int32)).all(-1)
-        same &= torch.tensor(got.dtype == expected.dtype)
-        self.vector_mismatches += [f"{got[i].tolist()} != {expected[i].tolist()}" for i in (~same).nonzero()[:, 0]]
-        scalars = torch.tensor([gymnasium_scalar(info) for info in infos], dtype=torch.float64)
-        self.reward_diff = max(self.reward_diff, float((out["reward"][:, 0].double() - scalars).abs().max()))
-        flags = torch.tensor([terminated, truncated, [a or b for a, b in zip(terminated, truncated, strict=True)]]).T
-        got_flags = torch.cat([out["terminated"], out["truncated"], out["done"]], -1)
-        self.flag_mismatches += int((got_flags != flags).any(-1).sum())
-        same_observations = (out["observation"] == torch.from_numpy(np.stack(observations))).all(-1)
-        self.observation_mismatches += int((~same_observations).sum())
+    def record(self, out: Any, steps: list[tuple]) -> None:
+        """``out``: the preset's ``"next"`` of one step (``[n]`` or ``[]``); ``steps``: MO-Gymnasium's results."""
+        batch = (lambda x: x) if out.batch_dims else (lambda x: x.unsqueeze(0))
+        self.got["vector"].append(batch(out["vector_reward"]))
+        self.got["reward"].append(batch(out["reward"])[:, 0])
+        self.got["flags"].append(batch(torch.cat([out["terminated"], out["truncated"], out["done"]], -1)))
+        self.got["observation"].append(batch(out["observation"]))
+        self.expected += steps
+
+    def compare(self) -> dict[str, Any]:
+        """The transitions, the vector rewards that are not bit-identical, the largest scalar reward difference,
+        the transitions whose flags or observations differ."""
+        got = {key: torch.cat(values) for key, values in self.got.items()}
+        observations, vectors, terminated, truncated, infos = zip(*self.expected, strict=True)
+        vector = torch.from_numpy(np.stack(vectors))
+        assert got["vector"].dtype == vector.dtype == torch.float32
+        same = (got["vector"] == vector).all(-1) & (got["vector"].view(torch.int32) == vector.view(torch.int32)).all(-1)
+        scalar = torch.tensor([gymnasium_scalar(info) for info in infos], dtype=torch.float64)
+        flags = torch.tensor([terminated, truncated, np.logical_or(terminated, truncated)]).T
+        observation = torch.from_numpy(np.stack(observations))
+        return {
+            "transitions": len(self.expected),
+            "vector_mismatches": [
+                f"{got['vector'][i].tolist()} != {vector[i].tolist()}" for i in (~same).nonzero()[:, 0]
+            ],
+            "reward_diff": float((got["reward"].double() - scalar).abs().max()),
+            "flag_mismatches": int((got["flags"] != flags).any(-1).sum()),
+            "observation_mismatches": self.observation_mismatches
+            + int((got["observation"] != observation).any(-1).sum()),
+        }
 
 
 def run_batched(env_id: str, seed: int = 0, *, env: Any = None) -> Run:
@@ -160,9 +175,13 @@ def run_batched(env_id: str, seed: int = 0, *, env: Any = None) -> Run:
     references = [gymnasium.make(env_id, disable_env_checker=True) for _ in range(BATCHED_ENVS)]
     run = Run()
     root = env.reset()
+
+    def sync(i: int, observation: torch.Tensor) -> None:  # a reset env's state into its reference
+        run.observation_mismatches += int(not np.array_equal(observation, sync_gymnasium_env(references[i], base, i)))
+
     for i, reference in enumerate(references):
         reference.reset(seed=seed * BATCHED_ENVS + i)
-        sync_gymnasium_env(reference, base, i)
+        sync(i, root["observation"][i].numpy())
     rng = np.random.default_rng(seed)
     low, high = references[0].action_space.low, references[0].action_space.high
     for step in range(BATCHED_STEPS):
@@ -170,17 +189,17 @@ def run_batched(env_id: str, seed: int = 0, *, env: Any = None) -> Run:
         root["action"] = torch.from_numpy(actions)
         root, next_root = env.step_and_maybe_reset(root)
         out = root["next"]
-        run.compare(out, [reference.step(actions[i].astype(np.float64)) for i, reference in enumerate(references)])
+        run.record(out, [reference.step(actions[i].astype(np.float64)) for i, reference in enumerate(references)])
         for i in out["done"][:, 0].nonzero()[:, 0].tolist():  # TorchRL has reset these envs: follow it
             run.resets += 1
-            sync_gymnasium_env(references[i], base, i)
+            sync(i, next_root["observation"][i].numpy())
         if step in BATCHED_FORCED:
             mask = torch.zeros(BATCHED_ENVS, 1, dtype=torch.bool)
             mask[BATCHED_FORCED[step]] = True
             next_root = env.reset(next_root.set("_reset", mask))
             for i in BATCHED_FORCED[step]:
                 run.resets += 1
-                sync_gymnasium_env(references[i], base, i)
+                sync(i, next_root["observation"][i].numpy())
         root = next_root
     env.close()
     for reference in references:
@@ -203,7 +222,7 @@ def run_gymnasium(env_id: str, seed: int = 0) -> Run:
         root["action"] = torch.from_numpy(action)
         root, next_root = env.step_and_maybe_reset(root)
         result = reference.step(action.astype(np.float64))
-        run.compare(root["next"].unsqueeze(0), [result])
+        run.record(root["next"], [result])
         terminated, truncated = result[2:4]
         if terminated or truncated or step in GYMNASIUM_FORCED:
             run.resets += 1
@@ -221,10 +240,13 @@ def run_gymnasium(env_id: str, seed: int = 0) -> Run:
 @pytest.mark.parametrize("env_id", IDS)
 def test_vector_rewards_equal_mo_gymnasiums_bit_for_bit(env_id: str, backend: str, mo_gymnasium: Any) -> None:
     run = run_batched(env_id) if backend == "batched" else run_gymnasium(env_id)
-    assert run.transitions >= 1000 and run.resets >= 1
-    assert not run.vector_mismatches, f"{len(run.vector_mismatches)} mismatches, first: {run.vector_mismatches[0]}"
-    assert run.reward_diff <= ATOL[backend]
-    assert run.flag_mismatches == 0 and run.observation_mismatches == 0
+    assert run.resets >= 1
+    found = run.compare()
+    mismatches = found["vector_mismatches"]
+    assert found["transitions"] >= 1000
+    assert not mismatches, f"{len(mismatches)} of {found['transitions']} vectors differ, first: {mismatches[0]}"
+    assert found["reward_diff"] <= ATOL[backend]
+    assert found["flag_mismatches"] == 0 and found["observation_mismatches"] == 0
 
 
 def test_rounding_once_in_float64_is_caught(mo_gymnasium: Any, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -233,8 +255,9 @@ def test_rounding_once_in_float64_is_caught(mo_gymnasium: Any, monkeypatch: pyte
     env = multi_objective_env("mo-walker2d-v5", num_envs=BATCHED_ENVS, seed=0, backend="batched")
     assert env.output_spec["full_reward_spec", "vector_reward"].dtype == torch.float64
     env.append_transform(_RoundToFloat32())
-    run = run_batched("mo-walker2d-v5", env=env)
-    assert run.flag_mismatches == 0 and len(run.vector_mismatches) > 0
+    found = run_batched("mo-walker2d-v5", env=env).compare()
+    assert found["flag_mismatches"] == 0 and found["observation_mismatches"] == 0
+    assert len(found["vector_mismatches"]) > 0
 
 
 class _RoundToFloat32(Transform):
