@@ -23,6 +23,10 @@ timed:
   frames/s(preset)`` of each repeat, the median over repeats (a random policy ends Hopper's episodes within ~20
   steps, so some env resets in almost every step; HalfCheetah never ends before 1000 steps: there the cost is the
   entries written at every step).
+- ``MO preset``: ``multi_objective_env("mo-<env>-v5", num_envs=N, backend="batched")``, the preset whose task is
+  a ``RewardGroupsTask`` writing MO-Gymnasium's float32 vector reward and one entry per objective (summed by its
+  ``RewardSum`` too). The ``groups cost`` column is ``1 - frames/s(MO preset) / frames/s(preset)``, the median over
+  repeats: what the reward groups cost when used. (Unused, they cost nothing: ``preset`` builds no group.)
 
 It prints milliseconds per step (one step = all N envs) and frames/s, and writes ``results.json`` and
 ``results.md`` into ``--output``. A layer's cost is the difference to the row before it; ``preset`` minus
@@ -52,6 +56,7 @@ from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import BatchedMujocoEnv, gymnasium_env
 from torchtasks.envs.batched_mujoco import ZeroBrokenStepReward
 from torchtasks.envs.locomotion import locomotion_state_layout, locomotion_task
+from torchtasks.envs.multi_objective import multi_objective_env
 from torchtasks.transforms import DomainRandomization, TaskTransform
 
 VARIANTS = (
@@ -63,6 +68,7 @@ VARIANTS = (
     "preset",
     "preset, no physics",
     "preset + domain",
+    "MO preset",
 )
 
 
@@ -121,6 +127,9 @@ def _stack(base: EnvBase, env_id: str, layers: int) -> EnvBase:
 
 def make_env(env_id: str, num_envs: int, variant: str, num_threads: int) -> EnvBase:
     """The pipeline of ``variant`` (see the module docstring)."""
+    if variant == "MO preset":  # MO-Gymnasium's id of the same env: "mo-halfcheetah-v5" for "HalfCheetah-v5"
+        mo_id = "mo-" + env_id.lower()
+        return multi_objective_env(mo_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
     if variant in ("preset", "preset + domain"):
         env = gymnasium_env(env_id, num_envs=num_envs, seed=0, backend="batched", num_threads=num_threads)
         if variant == "preset + domain":
@@ -169,9 +178,13 @@ def main(argv: list[str] | None = None) -> int:
         domain_cost = statistics.median(
             1.0 - d / p for d, p in zip(samples["preset + domain"], samples["preset"], strict=True)
         )
+        groups_cost = statistics.median(
+            1.0 - m / p for m, p in zip(samples["MO preset"], samples["preset"], strict=True)
+        )
         rows.append(
             {
                 "domain_cost": domain_cost,
+                "groups_cost": groups_cost,
                 "env_id": env_id,
                 "num_envs": num_envs,
                 "frames_per_second": fps,
@@ -183,7 +196,7 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"{env_id} x{num_envs}: "
             + ", ".join(f"{variant} {ms[variant]:.2f} ms ({ratio[variant]:.2f})" for variant in VARIANTS)
-            + f"; domain cost {100 * domain_cost:.1f}%",
+            + f"; domain cost {100 * domain_cost:.1f}%; groups cost {100 * groups_cost:.1f}%",
             flush=True,
         )
     lines = [
@@ -191,13 +204,14 @@ def main(argv: list[str] | None = None) -> int:
         f"{args.threads} MuJoCo threads, one torch thread, load average {load_before[0]:.2f} -> "
         f"{os.getloadavg()[0]:.2f})",
         "",
-        "| case | " + " | ".join(VARIANTS) + " | domain cost |",
-        "|---|" + "---|" * (len(VARIANTS) + 1),
+        "| case | " + " | ".join(VARIANTS) + " | domain cost | groups cost |",
+        "|---|" + "---|" * (len(VARIANTS) + 2),
     ]
     for row in rows:
         ms, ratio = row["ms_per_step"], row["ratio_to_physics"]
         cells = [f"{ms[variant]:.2f} ({ratio[variant]:.2f})" for variant in VARIANTS]
         cells.append(f"{100 * row['domain_cost']:.1f}%")
+        cells.append(f"{100 * row['groups_cost']:.1f}%")
         lines.append(f"| {row['env_id']} × {row['num_envs']} | " + " | ".join(cells) + " |")
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "results.md").write_text("\n".join(lines) + "\n")

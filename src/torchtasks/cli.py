@@ -53,10 +53,21 @@ _SECTIONS = (
 
 #: names a section's module imports only on first access, from submodules that need an extra:
 #: ``{module: (submodules, extra)}``; ``torchtasks list`` reads their descriptions from the source
-_LAZY = {"torchtasks.envs": (("torchtasks.envs.locomotion", "torchtasks.envs.batched_mujoco"), "mujoco")}
+_LAZY = {
+    "torchtasks.envs": (
+        ("torchtasks.envs.locomotion", "torchtasks.envs.batched_mujoco", "torchtasks.envs.multi_objective"),
+        "mujoco",
+    )
+}
 
 #: the module and name of the Gymnasium ids that ``torchtasks check`` accepts (read from the source)
 _ENV_IDS = ("torchtasks.envs.locomotion", "SUPPORTED_ENV_IDS")
+
+#: the module and name of the MO-Gymnasium ids that ``torchtasks check`` compares with MO-Gymnasium (from the source)
+_MO_ENV_IDS = ("torchtasks.envs.multi_objective", "MULTI_OBJECTIVE_ENV_IDS")
+
+#: the module and name of the command that installs MO-Gymnasium, the reference of the MO ids (from the source)
+_MO_INSTALL = ("torchtasks.parity", "MO_GYMNASIUM_INSTALL")
 
 
 # ------------------------------------------------------------------------------------------- text
@@ -218,8 +229,13 @@ def _cmd_list(args: argparse.Namespace) -> int:
             lines += [" " * (width + 4) + line for line in wrapped[1:]]
         if module_name == _ENV_IDS[0].rsplit(".", 1)[0]:
             env_ids = ", ".join(_source_constant(*_ENV_IDS) or ())
-            text = f"(the Gymnasium ids of the MuJoCo presets: {env_ids})"
-            lines += textwrap.wrap(text, WIDTH, initial_indent="  ", subsequent_indent="   ")
+            mo_ids = ", ".join(_source_constant(*_MO_ENV_IDS) or ())
+            for text in (
+                f"(the Gymnasium ids of the MuJoCo presets: {env_ids})",
+                f"(the MO-Gymnasium ids of the multi-objective presets: {mo_ids})",
+            ):
+                indents = {"initial_indent": "  ", "subsequent_indent": "   "}
+                lines += textwrap.wrap(text, WIDTH, break_on_hyphens=False, **indents)  # ids stay whole
     print("\n".join(lines))
     summaries = [summary for _, entries in sections for _, summary in entries]
     for extra in sorted({extra for _, extra in _LAZY.values()}):
@@ -391,6 +407,36 @@ def _batched_table(rows: Sequence[dict[str, Any]], passed: Callable[[dict[str, A
     return _table(header, cells) + "\n" + legend
 
 
+def _multi_objective_table(rows: Sequence[dict[str, Any]], passed: Callable[[dict[str, Any]], bool]) -> str:
+    header = ("env", "backend", "envs", "seeds", "transitions", "resets", "vector mism.", "reward", "term", "obs")
+    header += ("flag", "result", "s")
+    cells = []
+    for row in rows:
+        differences = row["max_abs_diff"]
+        cells.append(
+            (
+                row["env"],
+                row["backend"],
+                str(row["num_envs"]),
+                _seeds(row["seeds"]),
+                str(row["transitions"]),
+                str(row["episodes"] + row["forced_resets"]),
+                str(row["vector_reward_mismatches"]),
+                _number(differences["reward"]),
+                _number(max(row["max_abs_term_diff"].values(), default=0.0)),
+                _number(differences["observation"]),
+                _number(max(differences[key] for key in ("terminated", "truncated", "done"))),
+                "PASS" if passed(row) else "FAIL",
+                f"{row['seconds']:.1f}",
+            )
+        )
+    legend = (
+        "vector mism.: transitions whose vector reward is not MO-Gymnasium's bit for bit; reward (against\n"
+        "Gymnasium's terms' sum), term, obs, flag: largest |torchtasks - MO-Gymnasium|; resets: ended or forced"
+    )
+    return _table(header, cells) + "\n" + legend
+
+
 def _write_details(folder: Path, backend: str, rows: list[dict[str, Any]], markdown: str) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"check_{backend}_{time.strftime('%Y%m%d-%H%M%S')}.json"
@@ -402,11 +448,15 @@ def _write_details(folder: Path, backend: str, rows: list[dict[str, Any]], markd
 def _cmd_check(args: argparse.Namespace) -> int:
     if args.envs is not None and args.backend != "batched":
         return _usage_error("check", "--envs applies to --backend batched only")
-    known = _source_constant(*_ENV_IDS)
+    gymnasium_ids, mo_ids = _source_constant(*_ENV_IDS) or (), _source_constant(*_MO_ENV_IDS) or ()
+    known = (*gymnasium_ids, *mo_ids)
     if known:
         for env_id in args.env_ids:
             if env_id not in known:
                 return _usage_error("check", _unknown_env(env_id, known))
+    multi_objective = [env_id for env_id in args.env_ids if env_id in mo_ids]
+    if multi_objective and len(multi_objective) < len(args.env_ids):
+        return _usage_error("check", "check MO-Gymnasium ids (mo-...) and Gymnasium ids in separate commands")
     try:
         from torchtasks import parity
     except ImportError as error:  # pragma: no cover - depends on the optional mujoco extra
@@ -414,6 +464,14 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
         print(f"{missing_extra('mujoco', 'torchtasks check')} (cannot import {error.name or error})", file=sys.stderr)
         return 2
+    if multi_objective:
+        try:
+            importlib.import_module("mo_gymnasium")
+        except ImportError:
+            install = _source_constant(*_MO_INSTALL)
+            reference = "MO-Gymnasium 1.3.2 (a reference, not a dependency of torchtasks)"
+            return _usage_error("check", f"{multi_objective[0]} is compared with {reference}: {install}")
+        return _check_multi_objective(args, parity)
     from tqdm import tqdm
 
     env_ids = list(dict.fromkeys(args.env_ids))
@@ -460,6 +518,38 @@ def _cmd_check(args: argparse.Namespace) -> int:
             print(f"batched parity NOT met (tolerance {tolerance}) for: {', '.join(failed)}", file=sys.stderr)
     elif failed:
         print(f"parity NOT met (reward tolerance {PARITY_TOLERANCE}) for: {', '.join(failed)}", file=sys.stderr)
+    return 1 if failed else 0
+
+
+def _check_multi_objective(args: argparse.Namespace, parity: Any) -> int:
+    """``torchtasks check mo-...``: the multi-objective presets against MO-Gymnasium (imported by the caller)."""
+    from tqdm import tqdm
+
+    env_ids = list(dict.fromkeys(args.env_ids))
+    num_envs = (3 if args.envs is None else args.envs) if args.backend == "batched" else 1
+    rows = []
+    disable = True if args.no_progress else None  # None: shown on a terminal only
+    total = len(env_ids) * args.seeds * args.steps
+    with tqdm(total=total, desc="torchtasks check", unit="step", file=sys.stderr, disable=disable) as progress:
+        for env_id in env_ids:
+            progress.set_postfix_str(env_id)
+            rows.append(
+                parity.check_multi_objective_parity(
+                    env_id, seeds=range(args.seeds), steps=args.steps, backend=args.backend, num_envs=num_envs
+                )
+            )
+            progress.update(args.seeds * args.steps)
+    markdown = parity.format_multi_objective_parity_table(rows)
+    passed = parity.multi_objective_parity_passed
+    print(_multi_objective_table(rows, passed) if args.table == "compact" else markdown)
+    path = _write_details(Path(args.output), f"multi_objective_{args.backend}", rows, markdown)
+    print(f"wrote {path} (the details: every term, flag and count)")
+    failed = [row["env"] for row in rows if not passed(row)]
+    for row in rows:
+        if row["env"] in failed and row["first_mismatch"]:
+            print(f"{row['env']}: FAIL, first difference: {row['first_mismatch']}", file=sys.stderr)
+    if failed:
+        print(f"MO-Gymnasium parity NOT met for: {', '.join(failed)}", file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -564,11 +654,17 @@ def _parser() -> argparse.ArgumentParser:
     check = command(
         "check",
         "compare a Gymnasium MuJoCo preset with Gymnasium, step by step",
-        "Compare Gymnasium MuJoCo v5 presets with plain Gymnasium for --seeds seeds of --steps random steps; "
+        "Compare MuJoCo v5 presets with Gymnasium (MO-Gymnasium) for --seeds seeds of --steps random steps; "
         "exit status 1 when they differ. Needs the 'mujoco' extra.",
     )
     env_ids = ", ".join(_source_constant(*_ENV_IDS) or ("HalfCheetah-v5", "Ant-v5"))
-    check.add_argument("env_ids", nargs="+", metavar="ENV_ID", help=f"one or more of {env_ids}")
+    mo_id = (_source_constant(*_MO_ENV_IDS) or ("mo-hopper-v5",))[0]
+    check.add_argument(
+        "env_ids",
+        nargs="+",
+        metavar="ENV_ID",
+        help=f"one or more of {env_ids}, or of MO-Gymnasium's ids ({mo_id}, ...: 'torchtasks list')",
+    )
     check.add_argument(
         "--seeds", type=_count(1), default=3, metavar="N", help="seeds 0, ..., N-1 (default: %(default)s)"
     )

@@ -41,18 +41,23 @@ from torchrl.envs import Compose, TransformedEnv
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv
 from torchtasks.envs.gymnasium_v5 import gymnasium_config, make_v5_env
 from torchtasks.envs.locomotion import gymnasium_env
+from torchtasks.envs.multi_objective import multi_objective_env, multi_objective_record
 from torchtasks.transforms import TaskTransform
-from torchtasks.transforms.names import FAILURE_KEY, TERMS_KEY
+from torchtasks.transforms.names import FAILURE_KEY, TERMS_KEY, VECTOR_REWARD_KEY
 
 __all__ = [
     "BATCHED_PARITY_TOLERANCE",
+    "MO_GYMNASIUM_INSTALL",
     "TERM_NAMES",
     "batched_parity_passed",
     "check_batched_parity",
+    "check_multi_objective_parity",
     "check_parity",
     "compare_batched_with_gymnasium",
     "format_batched_parity_table",
+    "format_multi_objective_parity_table",
     "format_parity_table",
+    "multi_objective_parity_passed",
     "sync_gymnasium_env",
 ]
 
@@ -62,8 +67,19 @@ TERM_NAMES: tuple[str, ...] = ("forward", "ctrl", "contact", "survive")
 #: largest absolute difference to Gymnasium (observation, reward, terms, flags) that the batched check accepts
 BATCHED_PARITY_TOLERANCE = 1e-9
 
+#: largest absolute difference of a float32 reward (the Gymnasium backend's reward spec) to Gymnasium's float64 one
+#: (``torchtasks.cli.PARITY_TOLERANCE`` of ``torchtasks check``)
+_FLOAT32_REWARD_TOLERANCE = 1e-5
+
 #: the quantities :func:`compare_batched_with_gymnasium` compares besides the reward terms, in table order
 _BATCHED_QUANTITIES: tuple[str, ...] = ("observation", "reward", "terminated", "truncated", "done")
+
+#: the name of the vector reward's difference in the results (a vector-reward reference's ``step`` returns it)
+VECTOR_REWARD = "vector_reward"
+
+#: how to install the reference of the multi-objective check: MO-Gymnasium 1.3.2 (a test reference of torchtasks,
+#: never one of its dependencies; its MuJoCo envs need pygame and scipy, which it does not require itself)
+MO_GYMNASIUM_INSTALL = "pip install mo-gymnasium==1.3.2 pygame scipy"
 
 
 def _check_seeds(seeds: object) -> list[int]:
@@ -112,58 +128,118 @@ def check_parity(env_id: str, seeds: Sequence[int] = (0, 1, 2), steps: int = 100
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps must be a positive int, got {steps!r}")
     started = time.perf_counter()
-    reward_diff = 0.0
-    term_diff: dict[str, float] = {}
-    compared = episodes = termination_mismatches = observation_mismatches = 0
+    runs = []
     for seed in seeds:
         env = gymnasium_env(env_id, seed=seed, **gym_kwargs)
         reference = make_v5_env(env_id, env_checker=True, **gym_kwargs)
-        try:
-            names = env.transform[1].task.term_names
-            for name in names:
-                term_diff.setdefault(name, 0.0)
-            reference.reset(seed=seed)
-            expected_observation, _ = reference.reset()
-            tensordict = env.reset()
-            observation_mismatches += int(not np.array_equal(tensordict["observation"].numpy(), expected_observation))
-            rng = np.random.default_rng(seed)
-            low, high = reference.action_space.low, reference.action_space.high
-            for _ in range(steps):
-                action = rng.uniform(low, high).astype(reference.action_space.dtype)
-                tensordict["action"] = torch.from_numpy(action)
-                tensordict, next_root = env.step_and_maybe_reset(tensordict)
-                expected_observation, reward, terminated, truncated, info = reference.step(action)
-                result = tensordict["next"]
-                compared += 1
-                reward_diff = max(reward_diff, abs(float(result["reward"]) - float(reward)))
-                for name in names:
-                    difference = abs(float(result[TERMS_KEY, name]) - float(info[f"reward_{name}"]))
-                    term_diff[name] = max(term_diff[name], difference)
-                termination_mismatches += int(
-                    bool(result[FAILURE_KEY]) != terminated
-                    or bool(result["terminated"]) != terminated
-                    or bool(result["truncated"]) != truncated
-                )
-                observation_mismatches += int(not np.array_equal(result["observation"].numpy(), expected_observation))
-                if terminated or truncated:
-                    episodes += 1
-                    reference.reset()
-                tensordict = next_root
-        finally:
-            env.close()
-            reference.close()
+        runs.append(_lockstep_one_env(env, reference, seed, steps))
+    term_diff = {name: max(run["term_diff"][name] for run in runs) for name in runs[0]["term_diff"]}
     return {
         "env": env_id,
         "kwargs": dict(gym_kwargs),
         "seeds": seeds,
-        "steps": compared,
-        "episodes": episodes,
-        "max_abs_reward_diff": reward_diff,
+        "steps": sum(run["steps"] for run in runs),
+        "episodes": sum(run["episodes"] for run in runs),
+        "max_abs_reward_diff": max(run["max_abs_diff"]["reward"] for run in runs),
         "max_abs_term_diff": term_diff,
-        "termination_mismatches": termination_mismatches,
-        "observation_mismatches": observation_mismatches,
+        "termination_mismatches": sum(run["termination_mismatches"] for run in runs),
+        "observation_mismatches": sum(run["observation_mismatches"] for run in runs),
         "seconds": time.perf_counter() - started,
     }
+
+
+def _lockstep_one_env(
+    env: TransformedEnv,
+    reference: gymnasium.Env,
+    seed: int,
+    steps: int,
+    *,
+    vector_reward_key: str | None = None,
+    forced_resets: Iterable[int] = (),
+) -> dict[str, Any]:
+    """Step a one-env preset and a Gymnasium env seeded alike with the same actions; return the differences.
+
+    Both are seeded with ``seed`` (the preset by ``set_seed``, the reference by ``reset(seed=seed)``) and reset
+    once more, so both draw the same initial states from then on; a Gymnasium episode that ends is restarted
+    (TorchRL restarts the preset's), and after the steps in ``forced_resets`` both are reset mid-episode. The
+    actions are drawn uniformly from the action box by ``numpy.random.default_rng(seed)`` in float32 (TorchRL's
+    dtype). With ``vector_reward_key`` the reference is a vector-reward env: it gets the actions as float64 (so
+    that its control cost is computed in float64, as the task computes it), its reward is compared bit for bit
+    with ``out[vector_reward_key]`` and the preset's scalar reward with the sum of ``info["reward_<term>"]``.
+    Both envs are closed at the end.
+
+    Returns ``{"steps", "episodes", "forced_resets", "termination_mismatches" (the task's failure, TorchRL's
+    terminated or truncated differ), "observation_mismatches" (not bit-identical), "vector_reward_mismatches",
+    "max_abs_diff" ({quantity: value} as :func:`compare_batched_with_gymnasium`'s), "term_diff" ({term: value}),
+    "first_mismatch" (the first vector reward that differs, or None)}``.
+    """
+    forced = set(forced_resets)
+    vector = vector_reward_key is not None
+    result: dict[str, Any] = dict.fromkeys(
+        ("steps", "episodes", "forced_resets", "termination_mismatches", "observation_mismatches"), 0
+    )
+    result["vector_reward_mismatches"] = 0
+    maxima = result["max_abs_diff"] = dict.fromkeys((*_BATCHED_QUANTITIES, *((VECTOR_REWARD,) if vector else ())), 0.0)
+    result["first_mismatch"] = None
+
+    def observed(observation: torch.Tensor, expected: np.ndarray) -> None:
+        result["observation_mismatches"] += int(not np.array_equal(observation.numpy(), expected))
+        maxima["observation"] = max(maxima["observation"], _difference(observation.numpy(), expected))
+
+    try:
+        names = _task_transform(env).task.term_names
+        term_diff = result["term_diff"] = dict.fromkeys(names, 0.0)
+        reference.reset(seed=seed)
+        expected_observation, _ = reference.reset()
+        tensordict = env.reset()
+        observed(tensordict["observation"], expected_observation)
+        rng = np.random.default_rng(seed)
+        low, high = reference.action_space.low, reference.action_space.high
+        for step in range(steps):
+            action = rng.uniform(low, high).astype(reference.action_space.dtype)
+            tensordict["action"] = torch.from_numpy(action)
+            tensordict, next_root = env.step_and_maybe_reset(tensordict)
+            step_action = action.astype(np.float64) if vector else action
+            expected_observation, reward, terminated, truncated, info = reference.step(step_action)
+            out = tensordict["next"]
+            result["steps"] += 1
+            scalar = _info_reward(info, names) if vector else float(reward)
+            maxima["reward"] = max(maxima["reward"], abs(float(out["reward"]) - scalar))
+            for name in names:
+                term_diff[name] = max(term_diff[name], abs(float(out[TERMS_KEY, name]) - float(info[f"reward_{name}"])))
+            if vector:
+                value = out[vector_reward_key].numpy()
+                maxima[VECTOR_REWARD] = max(maxima[VECTOR_REWARD], _difference(value, reward))
+                if not _bit_identical(value, reward):
+                    result["vector_reward_mismatches"] += 1
+                    if result["first_mismatch"] is None:
+                        result["first_mismatch"] = (
+                            f"{VECTOR_REWARD} {value.tolist()} != {np.asarray(reward).tolist()} at step {step}"
+                        )
+            flags = {
+                "terminated": bool(out["terminated"]) != terminated,
+                "truncated": bool(out["truncated"]) != truncated,
+                "done": bool(out["done"]) != (terminated or truncated),
+            }
+            for key, differs in flags.items():
+                maxima[key] = max(maxima[key], float(differs))
+            result["termination_mismatches"] += int(
+                bool(out[FAILURE_KEY]) != terminated or flags["terminated"] or flags["truncated"]
+            )
+            observed(out["observation"], expected_observation)
+            if terminated or truncated:
+                result["episodes"] += 1
+                reference.reset()
+            tensordict = next_root
+            if step in forced and not (terminated or truncated):  # restart both mid-episode
+                result["forced_resets"] += 1
+                expected_observation, _ = reference.reset()
+                tensordict = env.reset()
+                observed(tensordict["observation"], expected_observation)
+    finally:
+        env.close()
+        reference.close()
+    return result
 
 
 def _number(value: float) -> str:
@@ -268,6 +344,24 @@ def _difference(value: Any, expected: Any) -> float:
     return float(difference.max(initial=0.0))
 
 
+def _bit_identical(value: Any, expected: Any) -> bool:
+    """Whether two arrays are equal bit for bit: the same dtype, shape and bytes (``-0.0 != 0.0``, NaN payloads)."""
+    value, expected = np.asarray(value), np.asarray(expected)
+    return value.dtype == expected.dtype and value.shape == expected.shape and value.tobytes() == expected.tobytes()
+
+
+def _info_reward(info: Mapping[str, Any], names: Iterable[str]) -> float:
+    """Gymnasium's scalar reward from ``info["reward_<term>"]`` (a vector-reward env's ``step`` returns no scalar)."""
+    return float(sum(float(info[f"reward_{name}"]) for name in names))
+
+
+def _check_vector_reward_options(reference_id: object, vector_reward_key: object) -> None:
+    if reference_id is not None and not isinstance(reference_id, str):
+        raise TypeError(f"reference_id must be a Gymnasium id (a string) or None, got {reference_id!r}")
+    if vector_reward_key is not None and not isinstance(vector_reward_key, str):
+        raise TypeError(f"vector_reward_key must be an entry name (a string) or None, got {vector_reward_key!r}")
+
+
 def _physics_state(env: BatchedMujocoEnv, index: int) -> tuple[float, np.ndarray, np.ndarray]:
     """``(time, qpos, qvel)`` copies of env ``index`` of a batched env."""
     batch = env.batch
@@ -314,6 +408,8 @@ def compare_batched_with_gymnasium(
     reference_kwargs: Mapping[str, Any] | None = None,
     float64_reference_actions: bool = True,
     tolerance: float = BATCHED_PARITY_TOLERANCE,
+    reference_id: str | None = None,
+    vector_reward_key: str | None = None,
 ) -> dict[str, Any]:
     """Step a batched preset and one plain Gymnasium env per batch entry in lockstep; return the largest differences.
 
@@ -331,6 +427,12 @@ def compare_batched_with_gymnasium(
     - ``"terminated"``, ``"truncated"``, ``"done"`` as 0/1 (the batched ``done`` against Gymnasium's
       ``terminated or truncated``).
 
+    With ``vector_reward_key`` the references are vector-reward envs (MO-Gymnasium's, ``reference_id``): the
+    reward their ``step`` returns is compared with ``out[vector_reward_key]`` bit for bit (``"vector_reward"``:
+    the largest difference, ``"vector_reward_mismatches"``: the transitions whose vectors are not bit-identical,
+    dtype included), and ``"reward"`` with the sum of Gymnasium's ``info["reward_<term>"]`` (Gymnasium's scalar
+    reward, up to the order of its additions).
+
     Gymnasium gets the float32 actions as float64 values (``float64_reference_actions``): given a float32
     action, Gymnasium computes its control cost in float32, which is off by up to ~1e-7 relative.
     A Gymnasium env that ends an episode the batched env continues is stepped on (the mismatch is
@@ -346,12 +448,16 @@ def compare_batched_with_gymnasium(
             Gymnasium keywords and ``max_episode_steps``); ``None``: the batched env's ``gym_kwargs``.
         float64_reference_actions: give Gymnasium the actions as float64 (else float32).
         tolerance: the largest difference that counts as equal (``"passed"`` and ``"first_mismatch"``).
+        reference_id: the Gymnasium id of the references (default: the batched env's), e.g. an MO-Gymnasium id.
+        vector_reward_key: the entry of ``env``'s vector reward, compared with the references' rewards as above;
+            ``None``: the references return Gymnasium's scalar reward.
 
     Returns:
         ``{"env", "kwargs" (the references'), "num_envs", "seeds" ([seed]), "steps" (batched steps),
         "transitions" (compared per env and step), "episodes" (ended by the batched env), "terminated",
         "truncated" (Gymnasium's counts), "forced_resets" (envs reset by ``forced_resets``),
-        "max_abs_diff" ({quantity: value} for observation, reward, terminated, truncated, done),
+        "max_abs_diff" ({quantity: value} for observation, reward, terminated, truncated, done, and
+        vector_reward with ``vector_reward_key``), "vector_reward_mismatches" (with ``vector_reward_key``),
         "max_abs_term_diff" ({term: value}), "partial_reset_problems" (forced resets that changed another
         env's observation or MuJoCo state, or did not restart the step count), "first_mismatch" (where a
         difference first exceeded ``tolerance``, or None), "passed", "seconds"}``.
@@ -375,15 +481,19 @@ def compare_batched_with_gymnasium(
         raise ValueError(f"tolerance must be a non-negative number, got {tolerance!r}")
     if reference_kwargs is not None and not isinstance(reference_kwargs, Mapping):
         raise TypeError(f"reference_kwargs must be a mapping or None, got {type(reference_kwargs).__name__}")
+    _check_vector_reward_options(reference_id, vector_reward_key)
     base: BatchedMujocoEnv = env.base_env
     n = base.num_envs
     forced = _check_forced_resets(forced_resets, n)
     names = _task_transform(env).task.term_names
     env_id = base.env_id
     kwargs = dict(base.gym_kwargs if reference_kwargs is None else reference_kwargs)
-    maxima = dict.fromkeys(_BATCHED_QUANTITIES, 0.0)
+    vector = vector_reward_key is not None
+    maxima = dict.fromkeys((*_BATCHED_QUANTITIES, *((VECTOR_REWARD,) if vector else ())), 0.0)
     term_maxima = dict.fromkeys(names, 0.0)
     counts = {"episodes": 0, "terminated": 0, "truncated": 0, "forced_resets": 0, "partial_reset_problems": 0}
+    if vector:
+        counts["vector_reward_mismatches"] = 0
     first_mismatch: str | None = None
 
     def record(table: dict[str, float], key: str, value: float, where: str) -> None:
@@ -396,7 +506,9 @@ def compare_batched_with_gymnasium(
         expected = sync_gymnasium_env(references[i], base, i)
         record(maxima, "observation", _difference(observation.numpy(), expected), where)
 
-    references = [make_v5_env(env_id, env_checker=True, **kwargs) for _ in range(n)]
+    # Gymnasium's env checker warns about a vector reward (a reward must be a number): not for vector references
+    reference_id = env_id if reference_id is None else reference_id
+    references = [make_v5_env(reference_id, env_checker=not vector, **kwargs) for _ in range(n)]
     try:
         for i, reference in enumerate(references):
             reference.reset(seed=seed * n + i)
@@ -415,7 +527,17 @@ def compare_batched_with_gymnasium(
                 observation, reward, terminated, truncated, info = reference.step(action)
                 where = f"env {i} step {step}"
                 record(maxima, "observation", _difference(out["observation"][i].numpy(), observation), where)
-                record(maxima, "reward", _difference(out["reward"][i].item(), reward), where)
+                scalar = _info_reward(info, names) if vector else reward
+                record(maxima, "reward", _difference(out["reward"][i].item(), scalar), where)
+                if vector:
+                    value = out[vector_reward_key][i].numpy()
+                    maxima[VECTOR_REWARD] = max(maxima[VECTOR_REWARD], _difference(value, reward))
+                    if not _bit_identical(value, reward):
+                        counts["vector_reward_mismatches"] += 1
+                        if first_mismatch is None:
+                            first_mismatch = (
+                                f"{VECTOR_REWARD} {value.tolist()} != {np.asarray(reward).tolist()} at {where}"
+                            )
                 for name in names:
                     value = _difference(out[TERMS_KEY, name][i].item(), info[f"reward_{name}"])
                     record(term_maxima, name, value, f"{where} (term {name!r})")
@@ -463,6 +585,7 @@ def compare_batched_with_gymnasium(
     passed = (
         all(value <= tolerance for value in (*maxima.values(), *term_maxima.values()))
         and counts["partial_reset_problems"] == 0
+        and not counts.get("vector_reward_mismatches", 0)
     )
     return {
         "env": env_id,
@@ -583,7 +706,8 @@ def batched_parity_passed(row: Mapping[str, Any], tolerance: float = BATCHED_PAR
     if missing:
         raise ValueError(f"row lacks the check_batched_parity entries {sorted(missing)}")
     values = [*row["max_abs_diff"].values(), *row["max_abs_term_diff"].values()]
-    return all(value <= tolerance for value in values) and not row.get("partial_reset_problems", 0)
+    problems = row.get("partial_reset_problems", 0) or row.get("vector_reward_mismatches", 0)
+    return all(value <= tolerance for value in values) and not problems
 
 
 def format_batched_parity_table(rows: Iterable[Mapping[str, Any]], tolerance: float = BATCHED_PARITY_TOLERANCE) -> str:
@@ -622,6 +746,188 @@ def format_batched_parity_table(rows: Iterable[Mapping[str, Any]], tolerance: fl
             *(_number(terms[term]) if term in terms else "–" for term in TERM_NAMES),
             *(_flag_number(differences[key]) for key in ("terminated", "truncated")),
             "PASS" if batched_parity_passed(row, tolerance) else "FAIL",
+            f"{row['seconds']:.1f}" if "seconds" in row else "",
+        ]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------ multi-objective presets
+def _import_mo_gymnasium() -> None:
+    """Import MO-Gymnasium (which registers its ``mo-*`` ids with Gymnasium), or raise an ImportError saying how."""
+    try:
+        import mo_gymnasium  # noqa: F401
+    except ImportError as error:
+        raise ImportError(
+            f"the multi-objective check compares with MO-Gymnasium 1.3.2: {MO_GYMNASIUM_INSTALL}"
+        ) from error
+
+
+def check_multi_objective_parity(
+    env_id: str,
+    seeds: Sequence[int] = (0, 1, 2),
+    steps: int = 1000,
+    *,
+    backend: str = "gymnasium",
+    num_envs: int = 3,
+    forced_resets: Mapping[int, Sequence[int]] | None = None,
+    **gym_kwargs: Any,
+) -> dict[str, Any]:
+    """Compare a multi-objective preset with MO-Gymnasium 1.3.2 for ``steps`` random steps per seed, resets included.
+
+    ``multi_objective_env(env_id, ..., backend=backend)`` and MO-Gymnasium's ``gymnasium.make(env_id)`` (float64
+    actions, so that both compute the control cost in float64) are driven in lockstep:
+    ``backend="batched"``: ``num_envs`` envs and one MO-Gymnasium env each, put into the batched env's state after
+    every reset (:func:`compare_batched_with_gymnasium`); ``backend="gymnasium"``: one env, seeded as the
+    reference is. Resets are forced mid-episode as :func:`check_batched_parity` forces them (one env: at the
+    same steps, the whole env). The vector rewards must be bit-identical (``"vector_reward_mismatches"``); the
+    scalar reward is compared with the sum of Gymnasium's ``info["reward_<term>"]``, the terms, flags and
+    observations as by the other checks. MO-Gymnasium must be installed (:data:`MO_GYMNASIUM_INSTALL`); it is
+    a reference of this check only.
+
+    Args:
+        env_id: one of :data:`~torchtasks.envs.multi_objective.MULTI_OBJECTIVE_ENV_IDS`.
+        seeds: the seeds (of the resets and the actions), one run each.
+        steps: steps per seed (batched: steps of all ``num_envs`` envs at once).
+        backend: ``"gymnasium"`` or ``"batched"``.
+        num_envs: envs of the batched backend.
+        forced_resets: ``{step: [env indices]}`` of forced resets; ``None``: after a third and two thirds of the
+            steps (env 0, then envs 0 and ``num_envs - 1``).
+        **gym_kwargs: the base env's keyword arguments, used by both.
+
+    Returns:
+        ``{"env", "kwargs", "backend", "num_envs", "seeds", "steps", "transitions" (env steps compared),
+        "episodes", "forced_resets", "vector_reward_mismatches", "max_abs_diff" ({quantity: value} for
+        observation, reward, terminated, truncated, done, vector_reward), "max_abs_term_diff", "first_mismatch",
+        "seconds"}``; :func:`multi_objective_parity_passed` says whether it passes.
+
+    Example:
+        >>> from torchtasks.parity import check_multi_objective_parity, multi_objective_parity_passed
+        >>> row = check_multi_objective_parity("mo-hopper-v5", seeds=[0], steps=60, backend="batched", num_envs=2)
+        >>> row["transitions"], row["vector_reward_mismatches"], multi_objective_parity_passed(row)
+        (120, 0, True)
+    """
+    record = multi_objective_record(env_id)
+    record.groups(gymnasium_config(record.base_id, gym_kwargs))  # the keywords, before MO-Gymnasium is imported
+    seeds = _check_seeds(seeds)
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive int, got {steps!r}")
+    if backend not in ("gymnasium", "batched"):
+        raise ValueError(f"backend must be 'gymnasium' or 'batched', got {backend!r}")
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int) or num_envs < 1:
+        raise ValueError(f"num_envs must be a positive int, got {num_envs!r}")
+    num_envs = num_envs if backend == "batched" else 1
+    schedule = _default_forced_resets(steps, num_envs) if forced_resets is None else forced_resets
+    schedule = _check_forced_resets(schedule, num_envs)
+    _import_mo_gymnasium()
+    started = time.perf_counter()
+    runs = []
+    for seed in seeds:
+        env = multi_objective_env(env_id, num_envs=num_envs, seed=seed, backend=backend, **gym_kwargs)
+        if backend == "batched":
+            run = compare_batched_with_gymnasium(
+                env,
+                steps,
+                seed=seed,
+                forced_resets=schedule,
+                reference_kwargs=gym_kwargs,
+                reference_id=env_id,
+                vector_reward_key=VECTOR_REWARD_KEY,
+            )
+        else:
+            reference = make_v5_env(env_id, **gym_kwargs)
+            run = _lockstep_one_env(
+                env, reference, seed, steps, vector_reward_key=VECTOR_REWARD_KEY, forced_resets=schedule
+            )
+            run["max_abs_term_diff"] = run.pop("term_diff")
+        runs.append(run)
+    counts = ("episodes", "forced_resets", "vector_reward_mismatches")
+    return {
+        "env": env_id,
+        "kwargs": dict(gym_kwargs),
+        "backend": backend,
+        "num_envs": num_envs,
+        "seeds": seeds,
+        "steps": steps * len(seeds),
+        "transitions": steps * len(seeds) * num_envs,
+        **{key: sum(run[key] for run in runs) for key in counts},
+        "max_abs_diff": {key: max(run["max_abs_diff"][key] for run in runs) for key in runs[0]["max_abs_diff"]},
+        "max_abs_term_diff": {
+            key: max(run["max_abs_term_diff"][key] for run in runs) for key in runs[0]["max_abs_term_diff"]
+        },
+        "first_mismatch": next((run["first_mismatch"] for run in runs if run["first_mismatch"]), None),
+        "seconds": time.perf_counter() - started,
+    }
+
+
+def multi_objective_parity_passed(row: Mapping[str, Any], reward_tolerance: float | None = None) -> bool:
+    """Whether a :func:`check_multi_objective_parity` result passes.
+
+    The vector rewards are bit-identical everywhere, the flags and the observations equal (within
+    :data:`BATCHED_PARITY_TOLERANCE`) and the scalar reward and the terms within ``reward_tolerance`` (default:
+    :data:`BATCHED_PARITY_TOLERANCE` for the batched backend, whose reward is float64, and 1e-5 for the
+    Gymnasium backend, whose reward spec is float32, as ``torchtasks check`` holds it).
+
+    Example:
+        >>> from torchtasks.parity import multi_objective_parity_passed
+        >>> row = {"backend": "gymnasium", "vector_reward_mismatches": 0, "max_abs_term_diff": {"ctrl": 3e-8},
+        ...        "max_abs_diff": {"observation": 0.0, "reward": 2e-7, "done": 0.0, "vector_reward": 0.0}}
+        >>> multi_objective_parity_passed(row), multi_objective_parity_passed({**row, "vector_reward_mismatches": 1})
+        (True, False)
+    """
+    if not isinstance(row, Mapping):
+        raise TypeError(f"row must be a check_multi_objective_parity result (a mapping), got {type(row).__name__}")
+    missing = {"backend", "vector_reward_mismatches", "max_abs_diff", "max_abs_term_diff"} - set(row)
+    if missing:
+        raise ValueError(f"row lacks the check_multi_objective_parity entries {sorted(missing)}")
+    if reward_tolerance is None:
+        reward_tolerance = BATCHED_PARITY_TOLERANCE if row["backend"] == "batched" else _FLOAT32_REWARD_TOLERANCE
+    rewards = [row["max_abs_diff"]["reward"], *row["max_abs_term_diff"].values()]
+    others = [value for key, value in row["max_abs_diff"].items() if key not in ("reward", VECTOR_REWARD)]
+    return (
+        not row["vector_reward_mismatches"]
+        and all(value <= reward_tolerance for value in rewards)
+        and all(value <= BATCHED_PARITY_TOLERANCE for value in others)
+    )
+
+
+def format_multi_objective_parity_table(rows: Iterable[Mapping[str, Any]]) -> str:
+    """Render :func:`check_multi_objective_parity` results as a Markdown table with a PASS/FAIL column.
+
+    Example:
+        >>> from torchtasks.parity import format_multi_objective_parity_table
+        >>> row = {"env": "mo-swimmer-v5", "kwargs": {}, "backend": "batched", "num_envs": 2, "seeds": [0],
+        ...        "steps": 10, "transitions": 20, "episodes": 0, "forced_resets": 3, "vector_reward_mismatches": 0,
+        ...        "max_abs_diff": {"observation": 0.0, "reward": 1e-15, "terminated": 0.0, "truncated": 0.0,
+        ...        "done": 0.0, "vector_reward": 0.0}, "max_abs_term_diff": {"forward": 0.0, "ctrl": 0.0},
+        ...        "seconds": 0.1}
+        >>> print(format_multi_objective_parity_table([row]).splitlines()[-1])
+        | mo-swimmer-v5 | batched | 2 | 0 | 20 | 0 | 3 | 0 | 0 | 1.0e-15 | 0 | 0 | 0 | PASS | 0.1 |
+    """
+    header = (
+        "| env | backend | envs | seeds | transitions | episodes | forced resets | vector mismatches | "
+        "max abs vector diff | max abs reward diff | max abs term diff | max abs observation diff | "
+        "max abs flag diff | result | seconds |"
+    )
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    for row in rows:
+        name = _row_name(row, "check_multi_objective_parity", {"max_abs_diff", "vector_reward_mismatches", "backend"})
+        differences = row["max_abs_diff"]
+        cells = [
+            name,
+            row["backend"],
+            str(row.get("num_envs", "")),
+            ",".join(str(seed) for seed in row["seeds"]),
+            str(row.get("transitions", "")),
+            str(row.get("episodes", "")),
+            str(row.get("forced_resets", "")),
+            str(row["vector_reward_mismatches"]),
+            _number(differences[VECTOR_REWARD]),
+            _number(differences["reward"]),
+            _number(max(row["max_abs_term_diff"].values(), default=0.0)),
+            _number(differences["observation"]),
+            _flag_number(max(differences[key] for key in ("terminated", "truncated", "done"))),
+            "PASS" if multi_objective_parity_passed(row) else "FAIL",
             f"{row['seconds']:.1f}" if "seconds" in row else "",
         ]
         lines.append("| " + " | ".join(cells) + " |")

@@ -38,6 +38,7 @@ from torchtasks.rewards import (
     ContactCostReward,
     ControlCostReward,
     CosineReward,
+    DisplacementReward,
     ExpQuadraticErrorReward,
     ForwardVelocityReward,
     HealthyReward,
@@ -376,6 +377,9 @@ SIZED = {
     "cosine": SizedCase(CosineReward, *_index_case(CosineReward, "index")),
     "shifted_cosine": SizedCase(ShiftedCosineReward, *_index_case(ShiftedCosineReward, "index")),
     "velocity": SizedCase(VelocityReward, *_index_case(lambda i: VelocityReward(0.5, index=i), "index")),
+    "displacement": SizedCase(
+        DisplacementReward, *_index_case(lambda i: DisplacementReward(10.0, index=i, origin=1.25), "index")
+    ),
     "forward_velocity": SizedCase(
         ForwardVelocityReward, *_index_case(lambda i: ForwardVelocityReward(0.05, index=i), "index")
     ),
@@ -550,6 +554,7 @@ CALL_CASES = {
     ),
     "state_function": CallCase(lambda: StateFunctionReward(lambda s: (s * s).sum(-1)), state_name="state"),
     "velocity": CallCase(lambda: VelocityReward(1.5, index=4), min_state=5),
+    "displacement": CallCase(lambda: DisplacementReward(10.0, index=4, origin=0.5), min_state=5),
     "control_cost": CallCase(lambda: ControlCostReward(0.1)),
     "healthy": CallCase(lambda: HealthyReward(1.0, index=[0, 4], low=-1.0, high=1.0), min_state=5),
     "contact_cost": CallCase(lambda: ContactCostReward(0.5, start=2, stop=5), min_state=5),

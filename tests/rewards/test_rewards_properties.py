@@ -32,6 +32,7 @@ from torchtasks.rewards import (
     ContactCostReward,
     ControlCostReward,
     CosineReward,
+    DisplacementReward,
     ExpQuadraticErrorReward,
     ForwardVelocityReward,
     HealthyReward,
@@ -216,6 +217,12 @@ CASES = [
         uses_action=False,
     ),
     Case("velocity", lambda: VelocityReward(1.25, index=2), lambda s, a: 1.25 * s[..., 2], uses_action=False),
+    Case(
+        "displacement",
+        lambda: DisplacementReward(10.0, index=1, origin=0.3),
+        lambda s, a: 10.0 * (s[..., 1] - 0.3),
+        uses_action=False,
+    ),
     Case("control_cost", lambda: ControlCostReward(0.3), lambda s, a: -0.3 * (a**2).sum(-1)),
     Case(
         "healthy",

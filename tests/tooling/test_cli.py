@@ -244,7 +244,7 @@ def test_list_shows_every_public_class_and_function(capsys: pytest.CaptureFixtur
             for name in module.__all__
             if name in vars(module) and (inspect.isclass(vars(module)[name]) or inspect.isroutine(vars(module)[name]))
         } | {name for name in module.__all__ if name not in vars(module)}  # lazy: the MuJoCo envs
-        expected -= {"SUPPORTED_ENV_IDS"}
+        expected -= {"SUPPORTED_ENV_IDS", "MULTI_OBJECTIVE_ENV_IDS"}
         assert set(sections[module_name]) == expected, module_name
     for module_name, name in (
         ("torchtasks.transforms", "TaskTransform"),
@@ -263,6 +263,7 @@ def test_list_shows_every_public_class_and_function(capsys: pytest.CaptureFixtur
     assert summaries["RewardFunction"].startswith("Base class of reward functions: nn.Modules mapping")
     assert summaries["TaskOutput"] == "The result of Task.transition for a batch of transitions."
     assert "HalfCheetah-v5, Hopper-v5" in out  # the Gymnasium ids of the MuJoCo presets
+    assert "mo-hopper-v5, mo-hopper-2obj-v5" in " ".join(out.split())  # and MO-Gymnasium's, wrapped
 
 
 # ------------------------------------------------------------------------------------------- demo

@@ -1,4 +1,5 @@
-"""Ready environments: a batched torch pendulum and, with the ``mujoco`` extra, Gymnasium presets and batched MuJoCo."""
+"""Ready environments: a batched torch pendulum and, with the ``mujoco`` extra, Gymnasium and MO-Gymnasium presets
+and batched MuJoCo."""
 
 from typing import Any
 
@@ -24,7 +25,19 @@ _LOCOMOTION = (
 #: access for the same reason
 _BATCHED_MUJOCO = ("BatchedMujocoEnv", "ZeroBrokenStepReward")
 
-__all__ = ["PendulumEnv", "PointMassEnv", "pendulum_dynamics", "swing_up_task", *_LOCOMOTION, *_BATCHED_MUJOCO]
+#: MO-Gymnasium's MuJoCo v5 envs as presets with a vector reward (torchtasks.envs.multi_objective), imported on
+#: first access for the same reason
+_MULTI_OBJECTIVE = ("MULTI_OBJECTIVE_ENV_IDS", "multi_objective_env", "multi_objective_record", "multi_objective_task")
+
+__all__ = [
+    "PendulumEnv",
+    "PointMassEnv",
+    "pendulum_dynamics",
+    "swing_up_task",
+    *_LOCOMOTION,
+    *_BATCHED_MUJOCO,
+    *_MULTI_OBJECTIVE,
+]
 
 
 def __getattr__(name: str) -> Any:
@@ -36,4 +49,8 @@ def __getattr__(name: str) -> Any:
         from torchtasks.envs import batched_mujoco
 
         return getattr(batched_mujoco, name)
+    if name in _MULTI_OBJECTIVE:
+        from torchtasks.envs import multi_objective
+
+        return getattr(multi_objective, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

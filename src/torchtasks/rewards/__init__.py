@@ -23,6 +23,7 @@ from torchtasks.rewards.terms import (
     AboveThresholdIndicator,
     ContactCostReward,
     ControlCostReward,
+    DisplacementReward,
     HealthyReward,
     VelocityReward,
 )
@@ -40,6 +41,7 @@ __all__ = [
     "ContactCostReward",
     "ControlCostReward",
     "CosineReward",
+    "DisplacementReward",
     "ExpQuadraticErrorReward",
     "ForwardVelocityReward",
     "HealthyReward",

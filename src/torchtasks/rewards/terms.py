@@ -1,4 +1,4 @@
-"""Small, general reward terms: velocity, control cost, healthy reward, contact cost, and a threshold indicator.
+"""Small, general reward terms: velocity, displacement, control cost, healthy and contact terms, a threshold indicator.
 
 Each term is one :class:`~torchtasks.rewards.RewardFunction` with one job, meant to be a named term
 of a :class:`~torchtasks.rewards.CompoundReward` (as Gymnasium's MuJoCo locomotion envs log
@@ -36,7 +36,14 @@ from torchtasks.rewards.base import (
     squared_sum,
 )
 
-__all__ = ["AboveThresholdIndicator", "ContactCostReward", "ControlCostReward", "HealthyReward", "VelocityReward"]
+__all__ = [
+    "AboveThresholdIndicator",
+    "ContactCostReward",
+    "ControlCostReward",
+    "DisplacementReward",
+    "HealthyReward",
+    "VelocityReward",
+]
 
 
 def _check_state_entry(state: torch.Tensor, index: int, owner: str, name: str) -> None:
@@ -85,6 +92,51 @@ class VelocityReward(RewardFunction):
 
     def extra_repr(self) -> str:
         return f"weight={float(self.weight)}, index={self.index}"
+
+
+class DisplacementReward(RewardFunction):
+    """A weighted displacement of a state entry from a fixed origin: ``weight · (state[index] − origin)``.
+
+    Computed in that order (the difference first, then the product), so that a value Gymnasium or
+    MO-Gymnasium compute as ``weight * (qpos[1] - init_qpos[1])`` in float64 is reproduced bit for bit:
+    MO-Gymnasium's Hopper height objective is ``DisplacementReward(10.0, index=<qpos[1]>,
+    origin=init_qpos[1])``. Linear, hence differentiable; ignores the action.
+
+    Args:
+        weight: the finite factor ``w``.
+        index: position of the entry in the state's last dimension (negative counts from the end).
+        origin: the finite value the displacement is measured from.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.rewards.terms import DisplacementReward
+        >>> DisplacementReward(10.0, index=1, origin=1.25)(torch.tensor([[0.0, 1.5], [0.0, 1.0]]), None)
+        tensor([ 2.5000, -2.5000])
+    """
+
+    uses_action = False
+
+    def __init__(self, weight: float = 1.0, index: int = 0, origin: float = 0.0) -> None:
+        super().__init__()
+        self._register_scalar("weight", check_finite_scalar(weight, "weight"))
+        self._register_scalar("origin", check_finite_scalar(origin, "origin"))
+        self.index = check_int(index, "index")
+
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return index_problem(who, "index", self.index, state_size)
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        check_input(error_state, "error_state")
+        _check_state_entry(error_state, self.index, type(self).__name__, "error_state")
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)
+
+    def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
+        displacement = error_state[..., self.index] - cast_like(self.origin, error_state)
+        return cast_like(self.weight, error_state) * displacement
+
+    def extra_repr(self) -> str:
+        return f"weight={float(self.weight)}, index={self.index}, origin={float(self.origin)}"
 
 
 class ControlCostReward(RewardFunction):

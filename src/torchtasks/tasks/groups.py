@@ -273,9 +273,13 @@ class RewardGroupsTask(CheckedLoad, ForwardingTask):
             weights = self._buffers[buffer]  # [n], or [*B, n]: one row per frame (recomputed with recorded values)
             total = None
             for source, weight in zip(names, weights.unbind(-1), strict=True):  # one op for all coefficients
+                # a weight of the task's dtype (the state's, after the transform moved the task), or one row per frame
                 value = values[source]
-                added = weight.to(value.dtype) * value
-                total = added if total is None else total.to(value.dtype) + added
+                added = (weight if weight.dtype == value.dtype else weight.to(value.dtype)) * value
+                if total is None:
+                    total = added
+                else:  # summed in the sources' dtype
+                    total = (total if total.dtype == added.dtype else total.to(added.dtype)) + added
                 if dtype is not None:  # rounded after every addition (numpy's `vec += term` on a float32 vector)
                     total = total.to(dtype)
             groups[group] = total
