@@ -96,10 +96,10 @@ class MultiObjectivePPOConfig(LocomotionPPOConfig):
     """``train_locomotion_ppo.py``'s hyper-parameters on an MO preset, with a frame budget for a sweep."""
 
     env_id: str = ENV_ID
-    total_frames: int = 250_000
-    eval_every: int = 125_000
+    total_frames: int = 300_000
+    eval_every: int = 150_000
     eval_envs: int = 8
-    max_minutes: float = 15.0
+    max_minutes: float = 12.0
 
 
 CONFIG_HELP = {

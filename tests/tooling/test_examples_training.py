@@ -2,12 +2,13 @@
 
 ``examples/train_swingup_ppo.py`` (PPO), ``examples/differentiable_shaping.py`` (analytic
 policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
-``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py`` and
+``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py``,
 ``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
-and frictions, evaluated on a grid of models) are run as scripts, as a user would, from a fresh empty
-directory with their default outputs (``runs/<example name>/``; :func:`run_quick` also checks that
-nothing else appears there). The quick runs take a few seconds each; they check the code paths
-(training, evaluation, JSON, PNG, the PPO comparison), not the learning.
+and frictions, evaluated on a grid of models) and ``examples/train_multi_objective_ppo.py`` (PPO with
+one critic per reward group on ``mo-halfcheetah-v5``, a front over weight vectors) are run as scripts,
+as a user would, from a fresh empty directory with their default outputs (``runs/<example name>/``;
+:func:`run_quick` also checks that nothing else appears there). The quick runs take a few seconds
+each; they check the code paths (training, evaluation, JSON, PNG, the PPO comparison), not the learning.
 """
 
 from __future__ import annotations
@@ -229,3 +230,40 @@ def test_hopper_domain_randomization_quick_writes_runs_table_and_png(tmp_path: P
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "robustness.png").stat().st_size > 0
         assert "robustness.png" in result.stdout
+
+
+def test_multi_objective_ppo_quick_writes_runs_front_and_png(tmp_path: Path) -> None:
+    """Two weight vectors (``--quick``'s), one run each; the front holds their last deterministic evaluation."""
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    result = run_example("train_multi_objective_ppo.py", tmp_path, "--seeds", "3")
+    output = tmp_path / "runs" / "train_multi_objective_ppo" / "quick"  # the default --output of a --quick run
+    front = json.loads((output / "front.json").read_text())
+    assert front["env_id"] == "mo-halfcheetah-v5" and front["eval_envs"] == 2 and front["eval_steps"] == 250
+    forward, ctrl = front["groups"]  # MO-Gymnasium's objectives: [x_velocity, -Σa²]
+    assert [point["weights"] for point in front["points"]] == [[1.0, 0.1], [1.0, 2.0]]
+    for point, name in zip(front["points"], ("1_0.1", "1_2"), strict=True):
+        record = json.loads((output / f"mo_ppo_w{name}_seed3.json").read_text())
+        assert record["seed"] == point["seed"] == 3 and record["weights"] == point["weights"]
+        assert record["groups"] == front["groups"]
+        # 4 envs x 125 steps per batch, two batches: no 1000-step episode ends, so no training return
+        assert [p["frames"] for p in record["curve"]] == [500, 1000] == [500, record["total_frames"]]
+        assert all(p["train_return"] is None and p[f"train_return/{ctrl}"] is None for p in record["curve"])
+        assert all(p[f"loss_critic/{forward}"] > 0 and p[f"loss_critic/{ctrl}"] > 0 for p in record["curve"])
+        (evaluation,) = record["eval_curve"]  # at the end: 2 envs x 250 steps, partial episodes
+        assert evaluation["frames"] == 1000 and evaluation["complete_episodes"] == 0
+        returns = [evaluation[f"group_return_mean/{group}"] for group in (forward, ctrl)]
+        assert point["returns"] == dict(zip((forward, ctrl), returns, strict=True)) == record["final_eval_returns"]
+        assert returns[1] < 0  # -Σa² summed over 250 steps of a policy that moves
+        # Gymnasium's reward is x_velocity - 0.1 Σa²: the scalar return is the groups scalarised with [1, 0.1]
+        assert evaluation["return_mean"] == pytest.approx(returns[0] + 0.1 * returns[1], rel=1e-5, abs=1e-4)
+        w0, w1 = point["weights"]
+        assert point["weighted_return"] == pytest.approx(w0 * returns[0] + w1 * returns[1])
+        assert point["frames"] == 1000 and point["seconds"] == record["total_seconds"] > 0
+        assert f"w = {name.replace('_', ',')} seed 3: 1000 frames in" in result.stdout
+    table = result.stdout.split("wrote", -1)[-1].splitlines()[1:]  # the table after the last "wrote" line
+    assert table[0].split() == ["weights", "seed", forward, ctrl, "w·J", "frames", "time"]
+    assert [row.split()[:2] for row in table[1:]] == [["1,0.1", "3"], ["1,2", "3"]]
+    assert "front.json (2 runs)" in result.stdout
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "front.png").stat().st_size > 0

@@ -181,3 +181,9 @@ def test_critic_loss_is_one_mean_squared_error_per_group(example: ModuleType) ->
     torch.testing.assert_close(losses["loss_critic_groups"], torch.tensor([1.5, 13 / 6]))
     torch.testing.assert_close(losses["loss_critic"], torch.tensor(1.5 + 13 / 6))
     assert {"loss_objective", "clip_fraction"} <= set(losses.keys())
+
+
+def test_weights_must_match_the_groups(example: ModuleType) -> None:
+    """A weight vector of the wrong length is refused before any training, naming the preset's groups."""
+    with pytest.raises(ValueError, match=r"--weights: mo-halfcheetah-v5 has 2 reward groups .*got 1,2,3"):
+        example.train(example.QUICK, (1.0, 2.0, 3.0), seed=0)
