@@ -37,6 +37,7 @@ A table of the front is printed at the end.
 Run: ``python examples/train_multi_objective_ppo.py [--weights 1,0.05 1,0.1 1,0.5 1,2] [--seeds 0]
 [--total-frames N] [--quick] [--plot-only]`` (runs one after the other; ``--quick``: a few seconds per weight
 vector, every code path, for the tests; ``--plot-only``: rebuild the front from the JSONs in ``--output``).
+Measured results: ``docs/reward_groups.md``.
 """
 
 from __future__ import annotations
