@@ -94,8 +94,10 @@ class VelocityReward(RewardFunction):
         return f"weight={float(self.weight)}, index={self.index}"
 
 
-class DisplacementReward(RewardFunction):
+class DisplacementReward(VelocityReward):
     """A weighted displacement of a state entry from a fixed origin: ``weight · (state[index] − origin)``.
+
+    A :class:`VelocityReward` (a weighted state entry) measured from ``origin`` instead of 0.
 
     Computed in that order (the difference first, then the product), so that a value Gymnasium or
     MO-Gymnasium compute as ``weight * (qpos[1] - init_qpos[1])`` in float64 is reproduced bit for bit:
@@ -114,29 +116,16 @@ class DisplacementReward(RewardFunction):
         tensor([ 2.5000, -2.5000])
     """
 
-    uses_action = False
-
     def __init__(self, weight: float = 1.0, index: int = 0, origin: float = 0.0) -> None:
-        super().__init__()
-        self._register_scalar("weight", check_finite_scalar(weight, "weight"))
+        super().__init__(weight, index)
         self._register_scalar("origin", check_finite_scalar(origin, "origin"))
-        self.index = check_int(index, "index")
-
-    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
-        return index_problem(who, "index", self.index, state_size)
-
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        check_input(error_state, "error_state")
-        _check_state_entry(error_state, self.index, type(self).__name__, "error_state")
-        check_ignored_action(error_state, error_action)
-        return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         displacement = error_state[..., self.index] - cast_like(self.origin, error_state)
         return cast_like(self.weight, error_state) * displacement
 
     def extra_repr(self) -> str:
-        return f"weight={float(self.weight)}, index={self.index}, origin={float(self.origin)}"
+        return f"{super().extra_repr()}, origin={float(self.origin)}"
 
 
 class ControlCostReward(RewardFunction):
