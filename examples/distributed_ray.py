@@ -141,9 +141,12 @@ class EpisodeStats:
         self.frames += batch.numel()
         self.batches += 1
         self.episodes += int(ended.sum())
-        self.successes += int(nxt["success"].sum())
-        self.failures += int(nxt["failure"].sum())
-        self.truncations += int((nxt["truncated"] & ~nxt["success"] & ~nxt["failure"]).sum())
+        # a task writes the flags of the outcomes it has: a locomotion task, which cannot succeed, writes no "success"
+        never = torch.zeros_like(ended)
+        success, failure = nxt.get("success", never), nxt.get("failure", never)
+        self.successes += int(success.sum())
+        self.failures += int(failure.sum())
+        self.truncations += int((nxt["truncated"] & ~success & ~failure).sum())
         self.episode_reward += float(nxt["episode_reward"][ended].sum())
         for key in nxt["task_reward"].keys():
             if key.startswith("episode_"):

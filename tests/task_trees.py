@@ -59,6 +59,8 @@ from torchtasks.tasks.memory import where_memory
 
 __all__ = [
     "ACTION_LABELS",
+    "CANNOT_SUCCEED",
+    "NAMED_END_CONDITIONS",
     "STATE_LABELS",
     "SUPPORTED_MODES",
     "DriveData",
@@ -503,6 +505,27 @@ def _shaped_cases() -> dict[str, Callable[[], Task]]:
 def all_task_cases() -> dict[str, Callable[[], Task]]:
     """:func:`class_cases` and three :class:`PotentialShapingTask` cases around them."""
     return {**class_cases(), **_shaped_cases()}
+
+
+#: the cases of :func:`all_task_cases` whose tree cannot succeed, read off the builders above: a leaf without a success
+#: condition (walking, Ant, optimising, a failure condition, endless flipping, a wrapper or shaping around one), or a
+#: composite whose success needs one (a parallel's all sub-tasks, unless easily satisfied; a sequence's last)
+CANNOT_SUCCEED = frozenset(
+    {
+        "goalless_forward_velocity",
+        "goalless_ant",
+        "optimization",
+        "condition_failure",
+        "final_state_goalless",
+        "masked_flipping",
+        "parallel",
+        "sequential",
+        "shaping_walk",
+    }
+)
+#: the cases whose tree names two or more conditions of a kind, with the names (Ant: out of its box or unhealthy);
+#: every case can fail (each leaf fails out of its box or on NaN; the parallel case fails when all its sub-tasks do)
+NAMED_END_CONDITIONS = {"goalless_ant": ("out_of_bounds", "unhealthy")}
 
 
 def random_transitions(task: Task, generator: torch.Generator, steps: int, batch: int) -> dict[str, torch.Tensor]:

@@ -213,10 +213,11 @@ def episode_statistics(
     - ``episodes``: number of episodes that end in the batch; ``complete_episodes``: those whose frames
       are all in the batch.
     - ``success_rate``, ``failure_rate``: fraction of the ended episodes whose last frame has the
-      task's success / failure flag.
+      task's success / failure flag; each only when the data holds that flag (a task that cannot succeed,
+      e.g. a locomotion task, has no success flag and no ``success_rate``).
     - ``timeout_rate``: truncated without success, failure or termination; ``env_termination_rate``:
-      terminated by the env itself, neither success nor failure (needs both task flags). Left out when
-      the data has neither ``terminated`` nor ``truncated``.
+      terminated by the env itself, neither success nor failure (left out when ``success_key`` or
+      ``failure_key`` is None). Left out when the data has neither ``terminated`` nor ``truncated``.
     - ``episode_length_mean``: transitions per episode.
     - ``return_mean`` and ``return_mean/<term>`` for every entry of the breakdown (TaskTransform writes
       ``step`` and ``final`` for a tree that pays a final reward and one per named reward term; nested
@@ -268,7 +269,11 @@ def episode_statistics(
     Args:
         batch: collected frames, TorchRL layout (flags and rewards under ``"next"``).
         reward_key, success_key, failure_key: entries under ``"next"``; ``None`` skips the statistics that
-            need one. A key that is given but missing raises ``KeyError``.
+            need one. A key that is given but missing raises ``KeyError``, except the default ``"success"`` and
+            ``"failure"``: a :class:`~torchtasks.transforms.TaskTransform` writes the success flag only for a tree
+            that can succeed and the failure flag only for one that can fail, so data without the default flag
+            report no such rate (and count that outcome as never happening for ``timeout_rate`` and
+            ``env_termination_rate``).
         terms_key: the TaskTransform's ``terms_key`` (the reward breakdown under ``"next"``); data without
             it report no per-term returns, as for the other optional entries below (a TaskTransform writes
             a breakdown only for a tree that has terms or a final reward): check the returned keys when you
@@ -359,11 +364,17 @@ def _statistics(
     frames = _Frames(batch, time_dim)
     # every entry that a given key names is read (and checked) up front, whether or not an episode ended
     done = _required(frames, (DONE_KEY,), DONE_KEY, flag=True)
-    flags = {
-        name: _required(frames, keys[f"{name}_key"], f"{name}_key", flag=True)
-        for name in ("success", "failure")
-        if keys[f"{name}_key"] is not None
-    }
+    # the task's outcome flags: a TaskTransform writes the default ones only for the outcomes the tree defines
+    # (no success flag for a tree that cannot succeed), so an absent default flag means "never"; another key that
+    # is given must be in the data. `verdicts_known`: every outcome is either read or known never to happen.
+    flags: dict[str, torch.Tensor] = {}
+    verdicts_known = True
+    for name, default in (("success", SUCCESS_KEY), ("failure", FAILURE_KEY)):
+        key = keys[f"{name}_key"]
+        if key is None:
+            verdicts_known = False
+        elif key != (default,) or frames.get(key) is not None:
+            flags[name] = _required(frames, key, f"{name}_key", flag=True)
     terminated = frames.flag((TERMINATED_KEY,), TERMINATED_KEY)
     truncated = frames.flag((TRUNCATED_KEY,), TRUNCATED_KEY)
     step_count = frames.scalar((STEP_COUNT_KEY,), STEP_COUNT_KEY)
@@ -472,7 +483,7 @@ def _statistics(
             task_end = task_end | flag[ends]
         end_terminated = terminated[ends]
         results["timeout_rate"] = _mean(truncated[ends] & ~end_terminated & ~task_end)
-        if len(flags) == 2:  # the env's own termination: terminated, and the task said neither success nor failure
+        if verdicts_known:  # the env's own termination: terminated, and the task said neither success nor failure
             results["env_termination_rate"] = _mean(end_terminated & ~task_end)
 
     # ------------------------------------------------------------- lengths and returns

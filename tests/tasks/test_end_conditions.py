@@ -60,7 +60,16 @@ def test_leaf_tasks_name_their_failures_and_wrappers_keep_the_names():
     spec = EnvSpec(Box([-1.0, -1.0], [1.0, 1.0]), 1)
     leaf = DesiredStateTask(spec, [0.0, 0.0], QuadraticErrorReward([1.0, 1.0]))
     assert FinalRewardTask(leaf, factor=2.0).termination_names == leaf.termination_names
-    assert ParallelTasks([leaf, leaf]).termination_names == {"success": "success", "failure": "failure"}
+    # a leaf without a success function cannot succeed: neither can a composite that needs its success
+    assert leaf.termination_names == {"out_of_bounds": "failure"}
+    assert ParallelTasks([leaf, leaf]).termination_names == {"failure": "failure"}
+    reach = DesiredStateTask(spec, [0.0, 0.0], QuadraticErrorReward([1.0, 1.0]), threshold=0.1)
+    assert ParallelTasks([reach, reach]).termination_names == {"success": "success", "failure": "failure"}
+    assert ParallelTasks([reach, leaf]).termination_names == {"failure": "failure"}
+    assert ParallelTasks([reach, leaf], easily_satisfied=True).termination_names == {
+        "success": "success",
+        "failure": "failure",
+    }
 
 
 def _walk_env(batch: int = 8) -> TransformedEnv:
@@ -84,14 +93,15 @@ def test_the_transform_writes_which_condition_ended_the_episode_and_statistics_c
     data = _walk_env().rollout(80, _policy, break_when_any_done=False)
     nxt = data["next"]
     left, fast = nxt["ended_by", "out_of_bounds"][..., 0], nxt["ended_by", "unhealthy"][..., 0]
-    assert torch.equal(left | fast, nxt["failure"][..., 0]) and not nxt["ended_by", "success"].any()
+    assert torch.equal(left | fast, nxt["failure"][..., 0])
+    assert "success" not in nxt.keys() and "success" not in nxt["ended_by"].keys()  # walking never succeeds
     done = nxt["done"][..., 0]
     assert (left & done).any() and (fast & done).any() and (done & ~left & ~fast).any()
     stats = episode_statistics(data, terms_key=None)
     ended = done.sum().item()
     assert stats["ended_by/out_of_bounds"] == pytest.approx((left & done).sum().item() / ended)
     assert stats["ended_by/unhealthy"] == pytest.approx((fast & done).sum().item() / ended)
-    assert stats["ended_by/success"] == 0.0
+    assert "ended_by/success" not in stats and "success_rate" not in stats
     assert stats["timeout_rate"] == pytest.approx((done & ~left & ~fast).sum().item() / ended)
     assert not data["ended_by", "unhealthy"][:, 0].any()  # the root of the first step: the reset's flags
 

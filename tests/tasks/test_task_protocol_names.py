@@ -24,7 +24,7 @@ from tensordict import TensorDictBase
 
 import torchtasks.tasks
 import torchtasks.tasks.base
-from task_trees import all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
+from task_trees import CANNOT_SUCCEED, all_task_cases, assert_memory_equal, assert_same, class_cases, random_transitions
 from torchtasks.rewards import ConstantReward, StateFunctionReward, VelocityReward
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks import (
@@ -68,6 +68,11 @@ CASES = {**all_task_cases(), **_constrained_cases(), **_grouped_cases()}
 
 # the cases for which a fact holds, read off the builders in task_trees.py and above
 HOLDS = {
+    # a success condition where the tree's success needs it (task_trees.CANNOT_SUCCEED lists the cases without; of
+    # the cases above, the Ant and walking ones have none)
+    "can_succeed": (set(all_task_cases()) - CANNOT_SUCCEED) | {"constrained_final_time"},
+    # every leaf fails out of its box (or on NaN); the one parallel case fails when all its sub-tasks do
+    "can_fail": set(CASES),
     # rewards with named terms: forward velocity (forward, ctrl), Ant (forward, ctrl, healthy, contact), shaping
     "has_terms": {
         "goalless_forward_velocity",
@@ -131,6 +136,8 @@ def _assert_same_field(name: str, got: object, want: object, what: str) -> None:
 def test_the_transition_fields_are_the_task_output_fields() -> None:
     assert Transition._fields == tuple(field.name for field in dataclasses.fields(TaskOutput))
     assert TaskFacts._fields == (
+        "can_succeed",
+        "can_fail",
         "has_terms",
         "reads_remaining_steps",
         "pays_final_reward",

@@ -99,8 +99,11 @@ def _expected(transform: TaskTransform) -> dict[str, set | list]:
     task = transform.task
     memory = task.reset(torch.zeros(1, task.state_size, dtype=torch.float64))
     has_memory = len(list(memory.keys(True, True))) > 0
-    flags = {transform.success_key, transform.failure_key}
     kinds = list(task.termination_names.values())
+    # the flag of each outcome the tree has a condition for (a tree that cannot succeed writes no success flag)
+    flags = {
+        key for kind, key in (("success", transform.success_key), ("failure", transform.failure_key)) if kind in kinds
+    }
     if transform.log_terms and (kinds.count("success") > 1 or kinds.count("failure") > 1):
         flags |= {_key(transform.ended_by_key, name) for name in task.termination_names}
     term_keys = []  # in the documented order: step and final reward, then the named terms

@@ -213,9 +213,13 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
         return sum(bool(flag[row, t]) for row, t, _ in ends) / len(ends)
 
     if ends:
-        stats["success_rate"] = rate(nxt["success"])
-        stats["failure_rate"] = rate(nxt["failure"])
-        task_end = nxt["success"] | nxt["failure"]
+        # a task writes the outcome flags it defines only (no "success" for a tree that cannot succeed): an outcome
+        # without a flag has no rate and never happens
+        task_end = torch.zeros_like(nxt["done"])
+        for outcome in ("success", "failure"):
+            if outcome in nxt.keys():
+                stats[f"{outcome}_rate"] = rate(nxt[outcome])
+                task_end = task_end | nxt[outcome]
         stats["timeout_rate"] = rate(nxt["truncated"] & ~nxt["terminated"] & ~task_end)
         stats["env_termination_rate"] = rate(nxt["terminated"] & ~task_end)
         stats["episode_length_mean"] = sum(length for _, _, length in ends) / len(ends)

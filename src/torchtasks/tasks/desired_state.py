@@ -130,6 +130,9 @@ class DesiredStateTask(RewardTask):
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return check_flag(self.success(self.state_error(state, memory)), state, "success")
 
+    def _has_success_condition(self) -> bool:
+        return self.success is not never_succeeded
+
 
 def _indices(spec: EnvSpec, indices: Iterable[int | str] | int | str) -> list[int]:
     return spec.state_space.indices(indices)

@@ -137,6 +137,9 @@ class FlippingTask(RewardTask):
             entries["flipped"] = flipped
         return held + value, make_memory(entries, memory.batch_size)
 
+    def _has_success_condition(self) -> bool:
+        return not self.endless  # an endless flipping task keeps going: it never succeeds
+
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         if self.endless:
             return torch.zeros(state.shape[:-1], dtype=torch.bool, device=state.device)

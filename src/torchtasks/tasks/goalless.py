@@ -14,7 +14,7 @@ from torchtasks.rewards.state_function import StateFunctionReward
 from torchtasks.spaces import Box, EnvSpec, rows_outside
 from torchtasks.tasks.desired_state import check_flag
 from torchtasks.tasks.leaf import RewardTask
-from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.protocol import Task, outcome_names
 
 __all__ = ["ConditionTask", "DesiredSpaceTask", "GoallessTask", "OptimizationTask"]
 
@@ -154,6 +154,10 @@ class ConditionTask(Task):
         terminated: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, TensorDictBase]:
         return state.new_zeros(state.shape[:-1]), memory
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        return outcome_names(can_succeed=self.is_success, can_fail=True)
 
     def _condition(self, state: torch.Tensor) -> torch.Tensor:
         return check_flag(self.condition(state), state, "condition")

@@ -11,7 +11,7 @@ from torchtasks._memory import copy_entries, read
 from torchtasks.rewards.base import RewardFunction
 from torchtasks.spaces import EnvSpec
 from torchtasks.tasks.memory import make_memory
-from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.protocol import Task, outcome_names
 
 __all__ = ["RewardTask"]
 
@@ -128,11 +128,17 @@ class RewardTask(Task):
         """Whether this task's failure is :meth:`RewardTask._has_failed` (its parts can be named)."""
         return type(self)._has_failed is RewardTask._has_failed
 
+    def _has_success_condition(self) -> bool:
+        """Whether this task can succeed: its class defines a success (a subclass whose success depends on its
+        configuration, e.g. a :class:`DesiredStateTask` without a success function, overrides this)."""
+        return type(self)._has_succeeded is not RewardTask._has_succeeded
+
     @property
     def termination_names(self) -> dict[str, str]:
         if not self._names_failures():
-            return super().termination_names
-        names = {"success": "success", "out_of_bounds": "failure"}
+            return outcome_names(self._has_success_condition(), can_fail=True)
+        names = {"success": "success"} if self._has_success_condition() else {}
+        names["out_of_bounds"] = "failure"  # NaN is out of every box: a leaf can always fail
         if self.reward.can_fail and self.reward_sees_state:
             names["unhealthy"] = "failure"
         return names
@@ -142,7 +148,8 @@ class RewardTask(Task):
     ) -> dict[str, torch.Tensor]:
         if not self._names_failures():
             return super()._termination_terms(state, memory, success, failure)
-        terms = {"success": success, "out_of_bounds": Task._has_failed(self, state, memory)}
+        terms = {"success": success} if self._has_success_condition() else {}
+        terms["out_of_bounds"] = Task._has_failed(self, state, memory)
         if self.reward.can_fail and self.reward_sees_state:
             terms["unhealthy"] = self.reward.has_failed(state)
         return terms

@@ -10,7 +10,7 @@ from tensordict import TensorDictBase
 from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.memory import make_memory
-from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.protocol import Task, outcome_names
 
 __all__ = ["ParallelTasks"]
 
@@ -103,6 +103,16 @@ class ParallelTasks(CompositeTask):
         if held is not None:
             entries["held"] = torch.stack(held, dim=-1)
         return total, make_memory(entries, memory.batch_size)
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        # success: all sub-tasks succeeded (any, easily satisfied); failure: any failed (all, allowing failures)
+        successes = [task.facts.can_succeed for task in self.tasks]
+        failures = [task.facts.can_fail for task in self.tasks]
+        return outcome_names(
+            any(successes) if self.easily_satisfied else all(successes),
+            all(failures) if self.allow_failures else any(failures),
+        )
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         succeeded = read(memory, "succeeded")

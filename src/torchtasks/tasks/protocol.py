@@ -58,6 +58,14 @@ _Fact = TypeVar("_Fact")
 DEFAULT_TERMINATIONS = {"success": "success", "failure": "failure"}
 
 
+def outcome_names(can_succeed: bool, can_fail: bool) -> dict[str, str]:
+    """The end conditions of a tree that names none beyond its success and its failure, for those it has."""
+    names = {"success": "success"} if can_succeed else {}
+    if can_fail:
+        names["failure"] = "failure"
+    return names
+
+
 def _without_terminated(method: Callable[..., Any]) -> Callable[..., Any]:
     """Adapt a ``_step_reward``/``_step_terms`` written without the ``terminated`` argument (it is dropped)."""
 
@@ -334,12 +342,16 @@ class Task(nn.Module):
 
     @property
     def termination_names(self) -> dict[str, str]:
-        """The tree's named end conditions: ``{name: "success" | "failure"}``.
+        """The tree's named end conditions: ``{name: "success" | "failure"}``, only those the tree has.
 
         By default the task's success and failure themselves (``{"success": "success", "failure": "failure"}``);
         a leaf task with a reward names its failures (``"out_of_bounds"``: the state left the box or is NaN;
-        ``"unhealthy"``: the reward's own failure, e.g. a fallen robot); wrappers and masks keep their
-        task's names; composites report their own success and failure.
+        ``"unhealthy"``: the reward's own failure, e.g. a fallen robot) and names ``"success"`` only when it has
+        a success condition (a :class:`GoallessTask` has none); wrappers and masks keep their task's names;
+        composites report their own success and failure, each when their sub-tasks can reach it. A tree without
+        a ``"success"`` condition cannot succeed (:attr:`TaskFacts.can_succeed
+        <torchtasks.tasks.transition.TaskFacts.can_succeed>` is False): a :class:`~torchtasks.transforms.TaskTransform`
+        writes no success flag for it, and statistics report no success rate.
         """
         return dict(DEFAULT_TERMINATIONS)
 
@@ -348,7 +360,8 @@ class Task(nn.Module):
     ) -> dict[str, torch.Tensor]:
         """``{name: flag [*B]}`` of :attr:`termination_names` on ``state``, given the task's ``success`` and
         ``failure`` there: the OR of the success conditions is ``success``, that of the failure ones ``failure``."""
-        return {"success": success, "failure": failure}
+        flags = {"success": success, "failure": failure}
+        return {name: flags[name] for name in self.termination_names}
 
     @property
     def memory_layout(self) -> MemoryLayout:
@@ -369,8 +382,8 @@ class Task(nn.Module):
             >>> from torchtasks.spaces import EnvSpec
             >>> from torchtasks.tasks import GoallessTask
             >>> task = GoallessTask(EnvSpec(1, 1), CompoundReward({"alive": ConstantReward(1.0)}))
-            >>> task.facts.has_terms, task.facts.pays_final_reward
-            (True, False)
+            >>> task.facts.has_terms, task.facts.pays_final_reward, task.facts.can_succeed, task.facts.can_fail
+            (True, False, False, True)
         """
         return self._cached("_facts", self._derive_facts)
 
@@ -378,6 +391,8 @@ class Task(nn.Module):
         # named flags say more than success and failure only where a kind has two or more conditions
         kinds = list(self.termination_names.values())
         return TaskFacts(
+            can_succeed="success" in kinds,
+            can_fail="failure" in kinds,
             has_terms=bool(self.term_names),
             reads_remaining_steps=self.uses_remaining_steps,
             pays_final_reward=self.pays_final_reward,

@@ -14,7 +14,7 @@ from torchtasks._memory import copy_entries, read
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.goals import replace_entry
 from torchtasks.tasks.memory import MemoryLayout, make_memory
-from torchtasks.tasks.protocol import Task
+from torchtasks.tasks.protocol import Task, outcome_names
 
 __all__ = ["SequentialTasks"]
 
@@ -179,6 +179,12 @@ class SequentialTasks(CompositeTask):
         if held is not None:
             entries["held"] = torch.stack(held, dim=-1)
         return total, make_memory(entries, memory.batch_size)
+
+    @property
+    def termination_names(self) -> dict[str, str]:
+        # success: every sub-task from the start on succeeded; a start (``start_index``, also per reset) may skip
+        # all but the last, so the tree can succeed when its last sub-task can. Failure: the state left the box.
+        return outcome_names(self.tasks[-1].facts.can_succeed, can_fail=True)
 
     def _has_succeeded(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
         return read(memory, "succeeded").all(dim=-1)

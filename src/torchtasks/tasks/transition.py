@@ -69,6 +69,9 @@ class TaskFacts(NamedTuple):
     them once and caches them, since the per-step path reads them to skip work nobody needs.
 
     Fields:
+        can_succeed: some named end condition of the tree is a success (:attr:`~torchtasks.tasks.Task.termination_names`
+            holds a ``"success"`` kind); else its success flag is always False and is not written.
+        can_fail: likewise for failure.
         has_terms: the step reward has named terms (:attr:`~torchtasks.tasks.Task.term_names` is not empty).
         reads_remaining_steps: some task of the tree reads ``remaining_steps``
             (:attr:`~torchtasks.tasks.Task.uses_remaining_steps`).
@@ -85,10 +88,12 @@ class TaskFacts(NamedTuple):
         >>> from torchtasks.spaces import EnvSpec
         >>> from torchtasks.tasks import FinalRewardTask, GoallessTask
         >>> facts = FinalRewardTask(GoallessTask(EnvSpec(1, 1), ConstantReward(1.0))).facts
-        >>> facts.pays_final_reward, facts.has_terms, facts.reads_remaining_steps
-        (True, False, False)
+        >>> facts.pays_final_reward, facts.has_terms, facts.reads_remaining_steps, facts.can_succeed
+        (True, False, False, False)
     """
 
+    can_succeed: bool
+    can_fail: bool
     has_terms: bool
     reads_remaining_steps: bool
     pays_final_reward: bool

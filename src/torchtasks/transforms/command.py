@@ -22,7 +22,7 @@ from torchtasks._torchrl import container_env, flat_transforms, key_parts, neste
 from torchtasks.spaces import Box
 from torchtasks.transforms.names import SUCCESS_KEY
 from torchtasks.transforms.seeding import SeededTransform
-from torchtasks.transforms.task import TaskTransform
+from torchtasks.transforms.task import TaskTransform, undefined_flag_note
 
 __all__ = ["GoalCommand"]
 
@@ -374,6 +374,12 @@ class GoalCommand(CheckedLoad, SeededTransform):
                 "GoalCommand(resample_on_success=True) must come after the TaskTransform that writes "
                 f"{self.success_key!r}: it reads the success of the step to draw the next goal. Put it after "
                 "TaskTransform in the Compose."
+            )
+        if self.resample_on_success and undefined_flag_note(self, self.success_key):
+            raise ValueError(
+                f"GoalCommand(resample_on_success=True) reads the success of the step ({self.success_key!r})"
+                f"{undefined_flag_note(self, self.success_key)}; give the task a success condition or pass "
+                "resample_on_success=False"
             )
         for _, task in tasks:
             if task.goal_key != self.goal_key:

@@ -44,7 +44,7 @@ from torchtasks.transforms.targets import (
     command_ranges,
     resolve_targets,
 )
-from torchtasks.transforms.task import RecordedValue
+from torchtasks.transforms.task import RecordedValue, undefined_flag_note
 
 __all__ = ["Curriculum"]
 
@@ -407,6 +407,7 @@ class Curriculum(CheckedLoad, TargetWriter):
                 raise ValueError(
                     f"Curriculum: a gated schedule reads {key!r}, which is not in the env's observation spec (put "
                     "Curriculum after the transform that writes it, e.g. the TaskTransform or a RewardSum)"
+                    + undefined_flag_note(self, key)
                 )
         observation_spec[self._frames_key] = Unbounded(shape=(*batch, 1), dtype=torch.int64, device=device)
         for key, target, schedule in zip(self._value_keys, targets, self.schedules.values(), strict=True):

@@ -126,7 +126,8 @@ class TaskEntries:
 
     Attributes:
         claims: ``(argument, key)`` for every key argument whose key (and all below it) the transform owns: the
-            reward, the memory (also for a tree without memory), the flags, the breakdown (with ``log_terms``,
+            reward, the memory (also for a tree without memory), the flags (also one the tree does not define,
+            which is then not written), the breakdown (with ``log_terms``,
             also when it is empty), the costs (for a tree with costs) and the end conditions (for a tree that
             names them). No two claims may overlap, nor an input of the transform.
         rows: the entries, in the order the transform writes them.
@@ -202,8 +203,10 @@ def task_entries(
 ) -> TaskEntries:
     """The table of the entries a ``TaskTransform`` with these (unravelled) keys writes for ``task``.
 
-    From the task tree: a memory entry when its memory holds a tensor; the breakdown (with ``log_terms``) of
-    the step and final reward when some task pays a final reward, then one entry per named term; the costs
+    From the task tree: the success flag when the tree can succeed and the failure flag when it can fail
+    (``task.facts.can_succeed``, ``task.facts.can_fail``); a memory entry when its memory holds a tensor; the
+    breakdown (with ``log_terms``) of the step and final reward when some task pays a final reward, then one entry
+    per named term; the costs
     (all stacked under ``cost_key``, and one per cost under ``cost_terms_key``) when it has costs; the reward groups
     (all stacked under ``vector_reward_key``, and one per group under ``groups_key``) when it has some; one flag per
     end condition (with ``log_terms``) when a kind of end has two or more named conditions.
@@ -244,11 +247,13 @@ def task_entries(
     claims += [("vector_reward_key", vector_reward_key), ("groups_key", groups_key)] if group_names else []
     claims += [("ended_by_key", ended_by_key)] if termination_names else []
 
-    rows = [
-        Entry(reward_key, "reward", "reward_key", "reward", None, EVERY_STEP),
-        Entry(success_key, "flag", "success_key", "success", None, EVERY_STEP_AND_RESET),
-        Entry(failure_key, "flag", "failure_key", "failure", None, EVERY_STEP_AND_RESET),
-    ]
+    rows = [Entry(reward_key, "reward", "reward_key", "reward", None, EVERY_STEP)]
+    # the outcome flags the tree defines: no success flag for a tree that cannot succeed, no failure flag for one
+    # that cannot fail, so the data say what the task is (and statistics of it report only what applies)
+    if task.facts.can_succeed:
+        rows.append(Entry(success_key, "flag", "success_key", "success", None, EVERY_STEP_AND_RESET))
+    if task.facts.can_fail:
+        rows.append(Entry(failure_key, "flag", "failure_key", "failure", None, EVERY_STEP_AND_RESET))
     rows += [
         Entry(under(ended_by_key, name), "flag", "ended_by_key", "ended_by", name, EVERY_STEP_AND_RESET)
         for name in termination_names

@@ -266,10 +266,16 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         placement = find_placement(self)
         if self.rule is None:
             task_transform = placement.task_transform
-            self.__dict__["_flags"] = (
-                self.success_key or task_transform.success_key,
-                self.failure_key or task_transform.failure_key,
-            )
+            flags = (self.success_key or task_transform.success_key, self.failure_key or task_transform.failure_key)
+            for argument, key in zip(("success_key", "failure_key"), flags, strict=True):
+                reason = task_transform.undefined_flag(key)
+                if reason is not None:  # the default rule moves up on success and down on failure: it needs both
+                    raise ValueError(
+                        f"DifficultyLevels: the default rule (a level up on success, down on failure) reads "
+                        f"{argument}={key!r}, but {reason}; pass rule=... with the level change your task can "
+                        "decide, or a task with both outcomes"
+                    )
+            self.__dict__["_flags"] = flags
         if self.level.numel() == 0:
             self.level = torch.full(batch, self.initial_level, dtype=torch.int64, device=self.level.device)
         elif self.level.shape != batch:

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import functools
 import math
+import operator
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Literal, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey
+from tensordict.utils import NestedKey, unravel_key
 from torch import nn
 from torchrl.data import Categorical, Composite, Unbounded
 from torchrl.envs.transforms import RewardSum, StepCounter, Transform, TransformedEnv
@@ -46,7 +47,7 @@ from torchtasks.transforms.names import (
     target_name,
 )
 
-__all__ = ["TaskTransform"]
+__all__ = ["TaskTransform", "undefined_flag_note"]
 
 ResetOverrides = Callable[[torch.Tensor], dict[str, Any]]
 
@@ -107,6 +108,32 @@ def _refuse_summed_over(entries: TaskEntries) -> None:
                 f"and TorchRL's RewardSum writes the episode sum of {other.key!r} as {row.key!r}: the sum would "
                 "overwrite it. Pick another key."
             )
+
+
+def undefined_flag_note(transform: Transform, key: NestedKey) -> str:
+    """``"; <why>"`` when a TaskTransform of ``transform``'s env writes no ``key`` because its task cannot reach that
+    outcome (see :meth:`TaskTransform.undefined_flag`), else ``""``: the end of the error of a reader of the flag.
+
+    Example:
+        >>> from torchrl.envs import Compose, TransformedEnv
+        >>> from torchtasks.envs import PendulumEnv
+        >>> from torchtasks.rewards import ConstantReward
+        >>> from torchtasks.spaces import EnvSpec
+        >>> from torchtasks.tasks import GoallessTask
+        >>> reader = Transform()
+        >>> task = TaskTransform(GoallessTask(EnvSpec(3, 1), ConstantReward(1.0)))
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(task, reader))
+        >>> undefined_flag_note(reader, "success")[:38]
+        '; its task (GoallessTask) has no succe'
+    """
+    container = container_env(transform)
+    if container is None or getattr(container, "transform", None) is None:
+        return ""
+    for other in flat_transforms(container.transform):
+        reason = other.undefined_flag(key) if isinstance(other, TaskTransform) else None
+        if reason is not None:
+            return "; " + reason
+    return ""
 
 
 class RecordedValue(NamedTuple):
@@ -318,7 +345,9 @@ class TaskTransform(EnvDerivedTransform):
         state_key: the key (or keys, concatenated on the last dim) holding the task's state.
         action_key: the action key.
         reward_on: ``"next"`` or ``"state"``: which state the step reward is evaluated on.
-        memory_key, success_key, failure_key, terms_key: output keys.
+        memory_key, success_key, failure_key, terms_key: output keys. The success flag is written only for a
+            tree that can succeed, the failure flag only for one that can fail (``task.facts.can_succeed``,
+            ``task.facts.can_fail``; e.g. a :class:`~torchtasks.tasks.GoallessTask` writes no success flag).
         log_terms: write the reward breakdown.
         max_steps: time limit for the remaining steps; by default read from a preceding StepCounter.
             Needed offline, and when the env's StepCounters are out of the transform's sight. ``math.inf``
@@ -367,7 +396,7 @@ class TaskTransform(EnvDerivedTransform):
         >>> from torchtasks.spaces import EnvSpec
         >>> from torchtasks.tasks import RadiallySymmetricDesiredStateTask
         >>> task = RadiallySymmetricDesiredStateTask(
-        ...     EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.001]), indices=[0])
+        ...     EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.001]), indices=[0], threshold=0.1)
         >>> transforms = Compose(StepCounter(50), TaskTransform(task), RewardSum())
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), transforms)
         >>> rollout = env.rollout(10)
@@ -487,6 +516,8 @@ class TaskTransform(EnvDerivedTransform):
         self.task = task
         self._writes = self._write_plans(entries)
         self._reset_flags = tuple(entries.keys(occasion="reset", kinds=("flag",)))
+        # the success and failure flags the tree defines (see TaskFacts.can_succeed, can_fail)
+        self._outcome_keys = tuple(row.key for row in entries.select(kinds=("flag",)) if row.item is None)
         if log_terms:
             _refuse_episode_sums(entries.names("terms_key"), "reward term", "terms_key", self.terms_key)
         _refuse_episode_sums(entries.names("cost_terms_key"), "cost", "cost_terms_key", self.cost_terms_key)
@@ -544,6 +575,34 @@ class TaskTransform(EnvDerivedTransform):
             ['reward', 'success', 'failure', 'terminated', 'done']
         """
         return self._entries
+
+    def undefined_flag(self, key: NestedKey) -> str | None:
+        """Why this transform writes no entry ``key``, when ``key`` is its success (failure) key and the task tree
+        cannot succeed (fail); ``None`` otherwise. For the errors of the transforms that read the flags.
+
+        Example:
+            >>> from torchtasks.rewards import ConstantReward
+            >>> from torchtasks.spaces import EnvSpec
+            >>> from torchtasks.tasks import GoallessTask
+            >>> transform = TaskTransform(GoallessTask(EnvSpec(1, 1), ConstantReward(1.0)))
+            >>> print(transform.undefined_flag("success"))  # doctest: +NORMALIZE_WHITESPACE
+            its task (GoallessTask) has no success condition (task.facts.can_succeed is False), so the
+            TaskTransform writes no success_key='success'
+            >>> transform.undefined_flag("failure") is None
+            True
+        """
+        key = unravel_key(key)
+        facts = self.task.facts
+        for name, flag_key, fact in (
+            ("success", self.success_key, "can_succeed"),
+            ("failure", self.failure_key, "can_fail"),
+        ):
+            if key == flag_key and not getattr(facts, fact):
+                return (
+                    f"its task ({type(self.task).__name__}) has no {name} condition (task.facts.{fact} is False), "
+                    f"so the TaskTransform writes no {name}_key={flag_key!r}"
+                )
+        return None
 
     @property
     def term_keys(self) -> list[NestedKey]:
@@ -1129,11 +1188,10 @@ class TaskTransform(EnvDerivedTransform):
             truncated = done & ~terminated
         if not has_terminated:
             terminated = done
-        if offline:
-            old_success = td_get(next_tensordict, self.success_key)
-            old_failure = td_get(next_tensordict, self.failure_key)
-            if old_success is not None and old_failure is not None:
-                terminated = terminated & ~(old_success | old_failure)
+        if offline:  # the stored verdicts of the outcome flags the tree defines (all of them, or none, stored)
+            old = [td_get(next_tensordict, key) for key in self._outcome_keys]
+            if old and all(flag is not None for flag in old):
+                terminated = terminated & ~functools.reduce(operator.or_, old)
         truncated = None if truncated is None else truncated.reshape(batch)
         return done, terminated.reshape(batch), truncated, has_terminated
 
