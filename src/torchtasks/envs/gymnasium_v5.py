@@ -571,8 +571,10 @@ def gymnasium_config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, An
     defaults = _gymnasium_defaults(env_id)
     unknown = sorted(set(gym_kwargs) - set(defaults))
     if unknown:
+        hint = "; for float32 observations pass observation_dtype=torch.float32" if "dtype" in unknown else ""
         raise TypeError(
             f"{env_id} got unexpected keyword argument(s) {unknown}; its keyword arguments are {sorted(defaults)}"
+            + hint
         )
     config = {**defaults, **gym_kwargs}
     checks: dict[str, Callable[[object, str], object]] = {

@@ -62,7 +62,16 @@ import numpy as np
 import torch
 from tensordict import TensorDictBase
 from torchrl.data import Composite, Unbounded
-from torchrl.envs import Compose, EnvBase, ParallelEnv, RewardSum, StepCounter, Transform, TransformedEnv
+from torchrl.envs import (
+    Compose,
+    DoubleToFloat,
+    EnvBase,
+    ParallelEnv,
+    RewardSum,
+    StepCounter,
+    Transform,
+    TransformedEnv,
+)
 from torchrl.envs.gym_like import default_info_dict_reader
 
 from torchtasks._checks import check_positive_int, check_weight
@@ -434,6 +443,7 @@ def gymnasium_env(
     device: torch.device | str | None = None,
     backend: Literal["batched", "gymnasium"] | None = None,
     num_threads: int | None = None,
+    observation_dtype: torch.dtype = torch.float64,
     **gym_kwargs: Any,
 ) -> TransformedEnv:
     """Return a TorchRL env of a Gymnasium MuJoCo v5 locomotion env whose reward comes from :func:`locomotion_task`.
@@ -467,6 +477,12 @@ def gymnasium_env(
         device: device of the TorchRL env and the task.
         backend: ``"batched"`` or ``"gymnasium"``; ``None``: ``"batched"`` when ``num_envs > 1``.
         num_threads: threads of the batched backend (default: the CPUs this process may use).
+        observation_dtype: ``torch.float64`` (Gymnasium's ``"observation"``, the default) or ``torch.float32``:
+            a ``DoubleToFloat(in_keys=["observation"])`` after ``RewardSum`` casts the policy's observation, for
+            a float32 policy (else torch says ``mat1 and mat2 must have the same dtype``). The task still judges
+            the float64 state entries, so rewards, flags and terms are those of the float64 env; the action is
+            float32 in both (Gymnasium's action space), cast to float64 for the physics. Other dtypes:
+            ``ValueError``.
         **gym_kwargs: the env's Gymnasium keyword arguments, used by both Gymnasium and the task
             (see :func:`locomotion_task`).
 
@@ -480,6 +496,8 @@ def gymnasium_env(
         >>> batched = gymnasium_env("Hopper-v5", num_envs=2, seed=0)
         >>> batched.rollout(3)["next", "reward"].shape
         torch.Size([2, 3, 1])
+        >>> gymnasium_env("Hopper-v5", seed=0, observation_dtype=torch.float32).reset()["observation"].dtype
+        torch.float32
     """
     record = locomotion_record(env_id)
     config = gymnasium_config(env_id, gym_kwargs)
@@ -488,7 +506,9 @@ def gymnasium_env(
         return _build_task(record, config, facts)
 
     keys = record.state_keys
-    return _preset_env(record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task)
+    return _preset_env(
+        record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
+    )
 
 
 def safety_velocity_task(
@@ -543,6 +563,7 @@ def safety_velocity_env(
     backend: Literal["batched", "gymnasium"] | None = None,
     num_threads: int | None = None,
     cost_limit: float | None = SAFETY_COST_LIMIT,
+    observation_dtype: torch.dtype = torch.float64,
     **gym_kwargs: Any,
 ) -> TransformedEnv:
     """Return :func:`gymnasium_env` with the task of :func:`safety_velocity_task`: v5's reward plus the velocity cost.
@@ -557,7 +578,7 @@ def safety_velocity_env(
     too, bit-identical).
 
     Args:
-        env_id, num_envs, seed, device, backend, num_threads: as for :func:`gymnasium_env`.
+        env_id, num_envs, seed, device, backend, num_threads, observation_dtype: as for :func:`gymnasium_env`.
         cost_limit: the constraint's limit on the expected episode cost (default 25); ``None``: none.
         **gym_kwargs: the env's Gymnasium keyword arguments.
 
@@ -581,7 +602,21 @@ def safety_velocity_env(
         return _build_safety_task(record, config, facts, cost_limit)
 
     keys = record.safety_state_keys
-    return _preset_env(record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task)
+    return _preset_env(
+        record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
+    )
+
+
+def _observation_cast(observation_dtype: object) -> list[Transform]:
+    """The transforms that give the policy's observation ``observation_dtype`` (float64 as is, or float32)."""
+    if observation_dtype is torch.float64:
+        return []
+    if observation_dtype is torch.float32:
+        return [DoubleToFloat(in_keys=["observation"], in_keys_inv=[])]
+    raise ValueError(
+        f"observation_dtype must be torch.float32 (for a float32 policy) or torch.float64 (Gymnasium's, the "
+        f"default), got {observation_dtype!r}"
+    )
 
 
 def _check_cost_limit(cost_limit: object) -> float | None:
@@ -601,10 +636,12 @@ def _preset_env(
     num_threads: int | None,
     keys: tuple[str, ...],
     build_task: Callable[[ModelFacts], Task],
+    observation_dtype: torch.dtype = torch.float64,
 ) -> TransformedEnv:
     """The preset stack on the task state ``keys`` for the task ``build_task(facts)`` (of the one env made here)."""
     env_id = record.env_id
     num_envs = check_positive_int(num_envs, "num_envs")
+    cast = _observation_cast(observation_dtype)
     if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
         raise TypeError(f"seed must be an int or None, got {seed!r}")
     if backend is None:
@@ -642,7 +679,8 @@ def _preset_env(
     ]
     if backend == "batched":
         transforms.append(ZeroBrokenStepReward())  # a broken step (marked "broken") pays 0, not a NaN control cost
-    env = TransformedEnv(base, Compose(*transforms, RewardSum()))
+    # the cast comes last: the task reads the float64 state entries, never the policy's observation
+    env = TransformedEnv(base, Compose(*transforms, RewardSum(), *cast))
     if seed is not None and backend == "gymnasium":
         env.set_seed(int(seed))
     return env

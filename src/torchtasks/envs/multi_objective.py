@@ -415,6 +415,7 @@ def multi_objective_env(
     device: torch.device | str | None = None,
     backend: Literal["batched", "gymnasium"] | None = None,
     num_threads: int | None = None,
+    observation_dtype: torch.dtype = torch.float64,
     **gym_kwargs: Any,
 ) -> TransformedEnv:
     """Return a TorchRL env of an MO-Gymnasium MuJoCo v5 env: Gymnasium's scalar reward and the vector reward.
@@ -431,7 +432,8 @@ def multi_objective_env(
 
     Args:
         env_id: one of :data:`MULTI_OBJECTIVE_ENV_IDS`.
-        num_envs, seed, device, backend, num_threads: as for :func:`~torchtasks.envs.locomotion.gymnasium_env`.
+        num_envs, seed, device, backend, num_threads, observation_dtype: as for
+            :func:`~torchtasks.envs.locomotion.gymnasium_env` (``torch.float32``: a float32 ``"observation"``).
         **gym_kwargs: the base env's Gymnasium keyword arguments (see :func:`multi_objective_task`).
 
     Example:
@@ -452,5 +454,7 @@ def multi_objective_env(
     def build_task(facts: ModelFacts) -> Task:
         return _build_multi_objective_task(record, config, facts, groups)
 
-    keys = record.state_keys
-    return _preset_env(record.base, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task)
+    keys, base = record.state_keys, record.base
+    return _preset_env(
+        base, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
+    )
