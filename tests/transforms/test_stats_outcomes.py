@@ -176,3 +176,22 @@ def test_a_reader_of_a_defined_flag_is_unchanged() -> None:
     curriculum = Curriculum({"reward.Q": gated([[1.0], [2.0]], metric="success", threshold=0.5, window=2)})
     data = _walk(near, curriculum).rollout(6, break_when_any_done=False)
     assert "success" in data["next"].keys() and "curriculum" in data["next"].keys()
+
+
+def test_the_hopper_preset_reports_no_success() -> None:
+    """The case of the issue: Hopper's task has no success condition, so neither its data nor its statistics do."""
+    pytest.importorskip("mujoco")
+    pytest.importorskip("gymnasium")
+    from torchtasks.envs import gymnasium_env
+
+    env = gymnasium_env("Hopper-v5", seed=0)
+    task = next(t for t in env.transform if isinstance(t, TaskTransform)).task
+    assert task.termination_names == {"out_of_bounds": "failure", "unhealthy": "failure"}
+    torch.manual_seed(0)
+    data = env.rollout(100, break_when_any_done=False)
+    assert "success" not in data["next"].keys() and "success" not in env.observation_spec.keys()
+    stats = episode_statistics(data)
+    assert stats["episodes"] > 0
+    got = {key for key in stats if key in OUTCOME_STATS or key.startswith("ended_by/")}
+    ended_by = {"ended_by/out_of_bounds", "ended_by/unhealthy"}
+    assert got == {"failure_rate", "timeout_rate", "env_termination_rate"} | ended_by
