@@ -375,11 +375,11 @@ class GoalCommand(CheckedLoad, SeededTransform):
                 f"{self.success_key!r}: it reads the success of the step to draw the next goal. Put it after "
                 "TaskTransform in the Compose."
             )
-        if self.resample_on_success and undefined_flag_note(self, self.success_key):
+        note = undefined_flag_note(self, self.success_key) if self.resample_on_success else ""
+        if note:  # a task that cannot succeed writes no success flag: the command would never resample
             raise ValueError(
-                f"GoalCommand(resample_on_success=True) reads the success of the step ({self.success_key!r})"
-                f"{undefined_flag_note(self, self.success_key)}; give the task a success condition or pass "
-                "resample_on_success=False"
+                f"GoalCommand(resample_on_success=True) reads the success of the step ({self.success_key!r}){note}; "
+                "give the task a success condition or pass resample_on_success=False"
             )
         for _, task in tasks:
             if task.goal_key != self.goal_key:
