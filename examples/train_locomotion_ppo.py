@@ -526,12 +526,11 @@ def main() -> None:
     defaults = LocomotionPPOConfig()
     config_arguments(parser, defaults, PPO_CONFIG_HELP, FLAGS)
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
-    args.output.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         record = train(config, seed)
         json_path = args.output / file_name(seed)
