@@ -41,6 +41,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ControlCostReward
 from torchtasks.spaces import Box, EnvSpec
@@ -398,6 +399,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
         fontsize=11,
     )
     figure.tight_layout()
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path

@@ -63,6 +63,7 @@ from torchrl.data import Bounded, HERReplayBuffer, LazyTensorStorage, TensorDict
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 from torchrl.objectives import SoftUpdate, TD3Loss
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
@@ -276,6 +277,7 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
     ax.set_title(f"Point-mass goal reaching, TD3 ± HER ({EVAL_ENVS} fixed goals; dot: {target:.0%} reached)")
     ax.legend(loc="upper left")
     fig.tight_layout()
+    mark_short_series(fig)  # a --quick run's few points stay visible
     fig.savefig(path, dpi=120)
     plt.close(fig)
 

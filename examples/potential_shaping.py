@@ -66,6 +66,7 @@ from _ppo_common import (
 )
 from torchrl.envs import TransformedEnv
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
@@ -261,6 +262,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
     )
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path

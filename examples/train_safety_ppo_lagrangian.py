@@ -68,6 +68,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, mlp, normalised, training_returns
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
 from torchtasks.stats import episode_statistics
 
@@ -395,6 +396,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     )
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
