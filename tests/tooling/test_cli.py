@@ -72,6 +72,7 @@ def _markdown_rows(text: str) -> list[list[str]]:
 
 
 # ------------------------------------------------------------------------------------------- help
+@pytest.mark.quick
 def test_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exit_info:
         main(["--help"])
@@ -121,6 +122,7 @@ def test_help_fits_a_screen(command: str, capsys: pytest.CaptureFixture[str], mo
             assert default in " ".join(out.split()), default
 
 
+@pytest.mark.quick
 def test_bare_command_prints_the_help(capsys: pytest.CaptureFixture[str]) -> None:
     """A bare ``torchtasks`` prints the help on stdout and returns 2 (nothing was run)."""
     assert main([]) == 2
