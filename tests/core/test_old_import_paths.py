@@ -17,6 +17,7 @@ OLD_PATHS = {
 }
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("path", sorted(OLD_PATHS))
 def test_an_old_path_exports_the_package_objects(path: str) -> None:
     module = importlib.import_module(path)
