@@ -22,6 +22,9 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from torchtasks.cli import QUICK_FOLDER, SuggestingParser, make_output_folder
+from torchtasks.cli import output_folder as resolve_output
+
 if TYPE_CHECKING:
     from tqdm import tqdm
 
@@ -64,19 +67,19 @@ def shown(value: Any) -> str:
     return repr(value) if isinstance(value, float) else str(value)
 
 
-QUICK_FOLDER = "quick"  # a --quick run's default output folder, inside the example's own
-
-
 def add_output_argument(parser: argparse.ArgumentParser, default: Path, what: str) -> None:
     """Add ``--output DIR`` (``what`` the run writes there), whose default is ``default``, ``default/quick`` for a
     ``--quick`` run: a smoke run never overwrites a full run's results. :func:`output_folder` resolves it.
 
     Example:
-        >>> parser = argparse.ArgumentParser()
+        >>> import tempfile
+        >>> parser = make_parser("An example.")
         >>> _ = parser.add_argument("--quick", action="store_true")
         >>> add_output_argument(parser, Path("runs/demo"), "directory for the JSON")
-        >>> str(output_folder(parser.parse_args(["--quick"]), Path("runs/demo")))
-        'runs/demo/quick'
+        >>> with tempfile.TemporaryDirectory() as root:
+        ...     args = parser.parse_args(["--quick", "--output", f"{root}/x"])
+        ...     output_folder(parser, args, Path("runs/demo")).is_dir()
+        True
     """
     note = f"{default / QUICK_FOLDER} with --quick"
     parser.add_argument(
@@ -84,11 +87,16 @@ def add_output_argument(parser: argparse.ArgumentParser, default: Path, what: st
     )
 
 
-def output_folder(args: argparse.Namespace, default: Path) -> Path:
-    """The ``--output`` folder of parsed ``args``: the one given, else ``default`` (``default/quick`` with --quick)."""
-    if args.output is not None:
-        return args.output
-    return default / QUICK_FOLDER if args.quick else default
+def output_folder(parser: argparse.ArgumentParser, args: argparse.Namespace, default: Path) -> Path:
+    """The ``--output`` folder of ``args`` parsed by ``parser``, created before the run: the one given, else
+    ``default`` (``default/quick`` with --quick), the ``torchtasks`` command's rule
+    (:func:`torchtasks.cli.output_folder`). A folder that cannot be created or written is refused on one line
+    with the system's reason (``parser.error``: exit status 2), before anything runs."""
+    folder = resolve_output(args.output, default, args.quick)
+    problem = make_output_folder(folder)
+    if problem is not None:
+        parser.error(problem)
+    return folder
 
 
 def default_text(value: Any, note: str = "") -> str:
@@ -134,8 +142,12 @@ class _Formatter(argparse.HelpFormatter):
 
 
 def make_parser(doc: str | None) -> argparse.ArgumentParser:
-    """Return a parser whose ``--help`` is the docstring's first paragraph and the options with their defaults."""
-    return argparse.ArgumentParser(
+    """Return a parser whose ``--help`` is the docstring's first paragraph and the options with their defaults.
+
+    It is the ``torchtasks`` command's :class:`~torchtasks.cli.SuggestingParser`: a misspelt option gets ``did you
+    mean '--quick'?``, a misspelt choice the choice meant.
+    """
+    return SuggestingParser(
         usage="%(prog)s [-h] [options]",
         description=short_description(doc),
         epilog=EPILOG,

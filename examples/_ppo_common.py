@@ -33,6 +33,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PendulumEnv
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import Task
@@ -373,6 +374,7 @@ def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     figure.suptitle(title)
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path

@@ -41,6 +41,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ControlCostReward
 from torchtasks.spaces import Box, EnvSpec
@@ -398,6 +399,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
         fontsize=11,
     )
     figure.tight_layout()
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
@@ -417,7 +419,7 @@ def main() -> None:
         "--effort-weight", type=float, help=f"the full task's effort weight w {default_text(EFFORT_WEIGHT)}"
     )
     args = parser.parse_args()
-    args.output = output_folder(args, Path("runs") / NAME)
+    args.output = output_folder(parser, args, Path("runs") / NAME)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else Config()
     if args.frames is not None:
@@ -459,7 +461,6 @@ def main() -> None:
         print(f"{variant}: final success {finals}; {reached} of {len(runs)} runs reached {config.target:.0%}")
     experiment["total_seconds"] = time.perf_counter() - start
     experiment["machine_end"] = machine_info()
-    args.output.mkdir(parents=True, exist_ok=True)
     json_path = args.output / f"{NAME}.json"
     json_path.write_text(json.dumps(experiment, indent=1))
     print(f"wrote {json_path} ({experiment['total_seconds']:.0f} s)")

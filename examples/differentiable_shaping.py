@@ -238,7 +238,7 @@ def main() -> None:
         "--learning-rate", type=float, help=f"Adam's learning rate {default_text(ShapingConfig.learning_rate)}"
     )
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else ShapingConfig()
     overrides = {

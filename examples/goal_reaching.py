@@ -63,6 +63,7 @@ from torchrl.data import Bounded, HERReplayBuffer, LazyTensorStorage, TensorDict
 from torchrl.envs import Compose, StepCounter, TransformedEnv
 from torchrl.objectives import SoftUpdate, TD3Loss
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
@@ -276,6 +277,7 @@ def plot(experiment: dict[str, Any], path: Path) -> None:
     ax.set_title(f"Point-mass goal reaching, TD3 ± HER ({EVAL_ENVS} fixed goals; dot: {target:.0%} reached)")
     ax.legend(loc="upper left")
     fig.tight_layout()
+    mark_short_series(fig)  # a --quick run's few points stay visible
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -292,7 +294,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, help=f"frame budget per run {default_text(Config.total_frames)}")
     parser.add_argument("--target", type=float, help=f"stop a run at this success rate {default_text(Config.target)}")
     args = parser.parse_args()
-    args.output = output_folder(args, Path("runs/goal_reaching"))
+    args.output = output_folder(parser, args, Path("runs/goal_reaching"))
     torch.set_num_threads(1)
     config = QUICK if args.quick else Config()
     if args.frames is not None:
@@ -323,7 +325,6 @@ def main() -> None:
             )
         experiment["variants"][variant] = {"runs": runs, "frames_to_target": [r["frames_to_target"] for r in runs]}
     experiment["total_seconds"] = time.perf_counter() - start
-    args.output.mkdir(parents=True, exist_ok=True)
     json_path, png_path = args.output / "goal_reaching.json", args.output / "goal_reaching.png"
     json_path.write_text(json.dumps(experiment, indent=1))
     plot(experiment, png_path)

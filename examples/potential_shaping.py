@@ -66,6 +66,7 @@ from _ppo_common import (
 )
 from torchrl.envs import TransformedEnv
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
@@ -261,6 +262,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
     )
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
@@ -286,7 +288,7 @@ def main() -> None:
         help=f"sparse and/or shaped {default_text(list(VARIANTS))}",
     )
     args = parser.parse_args()
-    args.output = output_folder(args, Path("runs") / NAME)
+    args.output = output_folder(parser, args, Path("runs") / NAME)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
     # the frame budget ends every run; the wall-clock limit is only a safety net on a very busy machine
@@ -295,7 +297,6 @@ def main() -> None:
     frames = args.frames or (QUICK_FRAMES if args.quick else FRAMES)
     eval_envs = QUICK_EVAL_ENVS if args.quick else EVAL_ENVS
     experiment = run_experiment(config, seeds, frames, args.success_threshold, args.variants, eval_envs)
-    args.output.mkdir(parents=True, exist_ok=True)
     json_path = args.output / f"{NAME}.json"
     json_path.write_text(json.dumps(experiment, indent=2))
     png_path = plot(experiment, args.output / f"{NAME}.png")

@@ -334,13 +334,12 @@ def main() -> None:
     args = parser.parse_args()
     if args.eval_episodes is not None and args.eval_episodes < 1:
         parser.error(f"--eval-episodes must be at least 1, got {args.eval_episodes}")
-    output = output_folder(args, DEFAULT_OUTPUT)
+    output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK_CONFIG if args.quick else CONFIG
     overrides = {name: value for name in ("total_frames", "max_minutes") if (value := getattr(args, name)) is not None}
     config = replace(config, **overrides)
     episodes = args.eval_episodes or (QUICK_EVAL_EPISODES if args.quick else EVAL_EPISODES)
-    output.mkdir(parents=True, exist_ok=True)
     for variant in args.variants:
         for seed in args.seeds:
             record = run(config, variant, seed, episodes)

@@ -88,6 +88,7 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs.gymnasium_v5 import locomotion_record
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, gymnasium_env
 from torchtasks.stats import episode_statistics
@@ -513,6 +514,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     figure.suptitle(f"PPO on {records[0]['env_id']} (BatchedMujocoEnv, {layout})")
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
@@ -526,12 +528,11 @@ def main() -> None:
     defaults = LocomotionPPOConfig()
     config_arguments(parser, defaults, PPO_CONFIG_HELP, FLAGS)
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
-    args.output.mkdir(parents=True, exist_ok=True)
     for seed in args.seeds:
         record = train(config, seed)
         json_path = args.output / file_name(seed)

@@ -498,12 +498,11 @@ def main() -> None:
     parser.add_argument("--env-id", metavar="ID", help=f"the multi-objective preset {default_text(defaults.env_id)}")
     config_arguments(parser, defaults, CONFIG_HELP, FLAGS)
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
-    args.output.mkdir(parents=True, exist_ok=True)
     sweep = args.weights or (QUICK_WEIGHTS if args.quick else DEFAULT_WEIGHTS)
     for weights in () if args.plot_only else sweep:
         for seed in args.seeds:

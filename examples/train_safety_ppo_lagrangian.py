@@ -15,7 +15,7 @@ with TorchRL's PPO pieces and a Lagrange multiplier, as OmniSafe's PPOLag:
   Adam moments are in its ``state_dict``), updated once per batch in which episodes ended, before
   the policy update, from the mean cost ``J_c`` of those episodes: one Adam step on the loss
   ``−λ (J_c − limit)`` then ``λ ← max(0, λ)`` (OmniSafe's ``Lagrange``: init 0.001, Adam).
-- ``--variant ppo``: the same code with λ fixed at 0 (its cost critic is trained but unused), so the
+- ``--variants ppo``: the same code with λ fixed at 0 (its cost critic is trained but unused), so the
   unconstrained run logs its episode costs too.
 
 Batch layout: 16 envs × 128 steps (2048 frames per batch, as ``train_locomotion_ppo.py``'s 64 × 32).
@@ -68,6 +68,7 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, mlp, normalised, training_returns
 
+from torchtasks._plotting import mark_short_series
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
 from torchtasks.stats import episode_statistics
 
@@ -395,6 +396,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     )
     figure.tight_layout()
     path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     plt.close(figure)
     return path
@@ -421,12 +423,11 @@ def main() -> None:
     defaults = SafetyPPOConfig()
     config_arguments(parser, defaults, CONFIG_HELP)
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
-    args.output.mkdir(parents=True, exist_ok=True)
     for variant in () if args.plot_only else args.variants:
         for seed in args.seeds:
             record = train(config, variant, seed)

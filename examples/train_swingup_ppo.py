@@ -140,7 +140,7 @@ def main() -> None:
         "--minibatch-size", type=int, help=f"frames per PPO minibatch {default_text(PPOConfig.minibatch_size)}"
     )
     args = parser.parse_args()
-    args.output = output_folder(args, DEFAULT_OUTPUT)
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # the ops are small: a second intra-op thread costs more than it gives (measured)
     config = QUICK if args.quick else PPOConfig()
     overrides = {

@@ -18,13 +18,14 @@ got <value> of type <type>``):
 
 from __future__ import annotations
 
-import difflib
 import math
 import numbers
 from collections.abc import Sequence
 
 import numpy as np
 import torch
+
+from torchtasks._did_you_mean import did_you_mean  # noqa: F401  (re-exported: one "did you mean")
 
 FLOAT64 = torch.float64
 
@@ -215,24 +216,3 @@ def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     if constant.dtype == x.dtype and constant.device == x.device:
         return constant
     return constant.to(device=x.device, dtype=x.dtype)
-
-
-def did_you_mean(name: str, choices: Sequence[str], *, n: int = 1) -> str:
-    """``"; did you mean 'x'?"`` for the choices closest to a misspelt ``name`` (``""`` when none is close).
-
-    Dotted names (``reward.rewards.effort.weight``) are compared whole, so one wrong letter in a long
-    path still finds its match. ``n`` is the most choices named, closest first (``"'x', 'y' or 'z'"``).
-
-    Example:
-        >>> did_you_mean("reward.rewards.efort.weight", ["reward.rewards.effort.weight", "reward.Q"])
-        "; did you mean 'reward.rewards.effort.weight'?"
-        >>> did_you_mean("speed", ["reward.Q"])
-        ''
-        >>> did_you_mean("body_mass:thigh", ["body_mass:thigh_left", "body_mass:thigh", "gravity"], n=3)
-        "; did you mean 'body_mass:thigh' or 'body_mass:thigh_left'?"
-    """
-    close = [repr(choice) for choice in difflib.get_close_matches(name, list(choices), n=n, cutoff=0.8)]
-    if not close:
-        return ""
-    listed = close[0] if len(close) == 1 else f"{', '.join(close[:-1])} or {close[-1]}"
-    return f"; did you mean {listed}?"

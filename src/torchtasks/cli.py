@@ -1,8 +1,9 @@
 """The ``torchtasks`` command: ``demo``, ``list``, ``check`` and ``bench``.
 
-Every mistake in the arguments is reported on one line, before anything runs, naming the choice meant
-when one is close and the valid choices otherwise (exit status 2, no traceback); a bare ``torchtasks``
-prints the help and exits with status 2 (nothing was run). The help, ``list`` and ``check``'s table fit
+Every mistake in the arguments is reported on one line, before anything runs, naming the choice or option
+meant when one is close and the valid choices otherwise (exit status 2, no traceback); an ``--output`` folder
+is created before the run, or refused with the system's reason. A bare ``torchtasks`` prints the help and
+exits with status 2 (nothing was run). The help, ``list`` and ``check``'s table fit
 ``WIDTH`` (100) columns; progress bars are drawn on a terminal only.
 """
 
@@ -10,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import ast
-import difflib
 import importlib
 import importlib.util
 import inspect
@@ -19,19 +19,39 @@ import os
 import re
 import shutil
 import sys
+import tempfile
 import textwrap
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, NoReturn
 
-__all__ = ["CHECK_OUTPUT", "DEMO_OUTPUT", "PARITY_TOLERANCE", "WIDTH", "catalogue", "main", "plain_text"]
+from torchtasks._did_you_mean import closest, did_you_mean
+
+__all__ = [
+    "CHECK_OUTPUT",
+    "DEMO_OUTPUT",
+    "PARITY_TOLERANCE",
+    "QUICK_FOLDER",
+    "WIDTH",
+    "SuggestingParser",
+    "catalogue",
+    "main",
+    "make_output_folder",
+    "output_folder",
+    "plain_text",
+]
 
 #: largest absolute reward difference to Gymnasium that ``torchtasks check`` accepts
 PARITY_TOLERANCE = 1e-5
 
-#: where ``torchtasks demo`` writes its files unless ``--output`` says otherwise (relative to the current folder)
+#: where ``torchtasks demo`` writes its files unless ``--output`` says otherwise (relative to the current folder;
+#: a ``--quick`` run writes into its :data:`QUICK_FOLDER`)
 DEMO_OUTPUT = "runs/demo"
+
+#: the folder, inside a run's default output folder, of a ``--quick`` run (the demo's and the examples'): a smoke
+#: run never overwrites a full run's results
+QUICK_FOLDER = "quick"
 
 #: where ``torchtasks check`` writes its JSON details unless ``--output`` says otherwise
 CHECK_OUTPUT = "runs/check"
@@ -245,21 +265,54 @@ def _cmd_list(args: argparse.Namespace) -> int:
 
 
 # ------------------------------------------------------------------------------------------- demo
-def _unwritable(folder: str | Path) -> str | None:
-    """Why files cannot be written into ``folder`` (created if missing), or None: checked before a run, not after."""
+def output_folder(given: str | Path | None, default: str | Path, quick: bool) -> Path:
+    """The folder a run writes into: ``given`` (its ``--output``), else ``default``, or ``default/quick`` for a
+    ``--quick`` run (:data:`QUICK_FOLDER`). One rule for ``torchtasks demo`` and the example scripts.
+
+    Example:
+        >>> [str(output_folder(given, "runs/demo", quick)) for given, quick in ((None, 0), (None, 1), ("x", 1))]
+        ['runs/demo', 'runs/demo/quick', 'x']
+    """
+    if given is not None:
+        return Path(given)
+    return Path(default) / QUICK_FOLDER if quick else Path(default)
+
+
+def make_output_folder(folder: str | Path) -> str | None:
+    """Create ``folder`` (parents included) and write a scratch file into it, before a run: None when that
+    worked, else why not, on one line (``--output: cannot create '/proc/x': No such file or directory``).
+
+    Checked by doing, not by ``os.access``, which grants root everything (``/proc`` included).
+
+    Example:
+        >>> import tempfile
+        >>> with tempfile.TemporaryDirectory() as root:
+        ...     (make_output_folder(Path(root) / "a" / "b"), (Path(root) / "a" / "b").is_dir())
+        (None, True)
+        >>> make_output_folder("/dev/null/x")
+        "--output: cannot create '/dev/null/x': Not a directory"
+    """
     path = Path(folder).expanduser()
-    if path.exists():
-        if not path.is_dir():
-            return f"--output: {str(folder)!r} exists and is not a folder"
-        return None if os.access(path, os.W_OK | os.X_OK) else f"--output: {str(folder)!r} is not writable"
-    parent = path.absolute().parent
-    while not parent.exists():
-        parent = parent.parent
-    if not parent.is_dir():
-        return f"--output: cannot create {str(folder)!r}: {str(parent)!r} is not a folder"
-    if not os.access(parent, os.W_OK | os.X_OK):
-        return f"--output: cannot create {str(folder)!r}: {str(parent)!r} is not writable"
+    if path.exists() and not path.is_dir():
+        return f"--output: {str(folder)!r} exists and is not a folder"
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        return f"--output: cannot create {str(folder)!r}: {_reason(error, path)}"
+    try:
+        with tempfile.TemporaryFile(dir=path):
+            pass
+    except OSError as error:
+        return f"--output: cannot write into {str(folder)!r}: {_reason(error, path)}"
     return None
+
+
+def _reason(error: OSError, path: Path) -> str:
+    """An OSError's reason on one line, naming the file it concerns when that is not ``path`` (a parent)."""
+    reason = error.strerror or str(error)
+    if error.filename is not None and Path(error.filename) != path:
+        reason += f" ({error.filename})"
+    return reason
 
 
 def _cmd_demo(args: argparse.Namespace) -> int:
@@ -293,7 +346,7 @@ def _usage_error(command: str, message: str) -> int:
 
 def _unknown_env(env_id: str, env_ids: Sequence[str]) -> str:
     by_lower = {name.lower(): name for name in env_ids}
-    close = difflib.get_close_matches(env_id.lower(), list(by_lower), n=1, cutoff=0.6)
+    close = closest(env_id.lower(), list(by_lower), cutoff=_CHOICE_CUTOFF)
     if close:  # the one valid choice the user meant: a line that fits a terminal
         return f"unknown env {env_id!r}; did you mean {by_lower[close[0]]}?"
     return f"unknown env {env_id!r}; choose one of {', '.join(env_ids)}"
@@ -445,18 +498,24 @@ def _write_details(folder: Path, backend: str, rows: list[dict[str, Any]], markd
     return path
 
 
-def _cmd_check(args: argparse.Namespace) -> int:
+def _check_refusal(args: argparse.Namespace) -> str | None:
+    """Why ``torchtasks check``'s arguments cannot run (an unknown env id, ids of both kinds, ...), or None."""
     if args.envs is not None and args.backend != "batched":
-        return _usage_error("check", "--envs applies to --backend batched only")
+        return "--envs applies to --backend batched only"
     gymnasium_ids, mo_ids = _source_constant(*_ENV_IDS) or (), _source_constant(*_MO_ENV_IDS) or ()
     known = (*gymnasium_ids, *mo_ids)
-    if known:
-        for env_id in args.env_ids:
-            if env_id not in known:
-                return _usage_error("check", _unknown_env(env_id, known))
+    unknown = [env_id for env_id in args.env_ids if known and env_id not in known]
+    if unknown:
+        return _unknown_env(unknown[0], known)
     multi_objective = [env_id for env_id in args.env_ids if env_id in mo_ids]
     if multi_objective and len(multi_objective) < len(args.env_ids):
-        return _usage_error("check", "check MO-Gymnasium ids (mo-...) and Gymnasium ids in separate commands")
+        return "check MO-Gymnasium ids (mo-...) and Gymnasium ids in separate commands"
+    return None
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    mo_ids = _source_constant(*_MO_ENV_IDS) or ()
+    multi_objective = [env_id for env_id in args.env_ids if env_id in mo_ids]
     try:
         from torchtasks import parity
     except ImportError as error:  # pragma: no cover - depends on the optional mujoco extra
@@ -562,6 +621,10 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 # ----------------------------------------------------------------------------------------- parser
+#: how close a command or env id must be to be suggested (an id of 9 letters written in 7 still finds its match)
+_CHOICE_CUTOFF = 0.6
+
+
 def _suggest(message: str) -> str:
     """argparse's ``invalid choice: 'chek' (choose from ...)`` as ``invalid choice: 'chek'; did you mean 'check'?``
     when one choice is close (the whole list otherwise)."""
@@ -569,13 +632,59 @@ def _suggest(message: str) -> str:
     if match is None:
         return message
     choices = re.findall(r"'([^']*)'", match.group(2))
-    close = difflib.get_close_matches(match.group(1), choices, n=1, cutoff=0.6)
-    if not close:
+    hint = did_you_mean(match.group(1), choices, cutoff=_CHOICE_CUTOFF)
+    if not hint:
         return message
-    return f"{message[: match.start()]}invalid choice: {match.group(1)!r}; did you mean {close[0]!r}?"
+    return f"{message[: match.start()]}invalid choice: {match.group(1)!r}{hint}"
 
 
-class _Parser(argparse.ArgumentParser):
+def _unrecognized(parser: argparse.ArgumentParser, extras: Sequence[str]) -> str:
+    """``unrecognized arguments: --quik; did you mean '--quick'?``: argparse's message, with the options of
+    ``parser`` meant by the unknown ones that are close to one, in their order (``--quik=3`` is compared as
+    ``--quik``)."""
+    options = [option for option in parser._option_string_actions if option.startswith("--")]
+    meant = {}
+    for token in extras:
+        name = token.split("=", 1)[0]
+        if name.startswith("-") and len(name) > 1 and (close := closest(name, options)):
+            meant[name] = close[0]
+    message = f"unrecognized arguments: {' '.join(extras)}"
+    if len(meant) == 1:
+        return message + did_you_mean(*meant, options)
+    listed = [repr(option) for option in meant.values()]  # in the order of the unknown ones
+    return message + (f"; did you mean {', '.join(listed[:-1])} and {listed[-1]}?" if meant else "")
+
+
+class SuggestingParser(argparse.ArgumentParser):
+    """An ``argparse.ArgumentParser`` whose errors name the option or choice meant when one is close: ``--quik``
+    gets ``did you mean '--quick'?``, a misspelt choice the choice (the whole list when none is close).
+
+    The parser of the ``torchtasks`` command and of the example scripts. Abbreviations of options work as in
+    argparse (``--qui`` is ``--quick``; an ambiguous one lists the options it could be).
+
+    Example:
+        >>> import contextlib, io
+        >>> parser = SuggestingParser(prog="demo")
+        >>> _ = parser.add_argument("--quick", action="store_true")
+        >>> with contextlib.redirect_stderr(io.StringIO()) as err, contextlib.suppress(SystemExit):
+        ...     _ = parser.parse_args(["--quik"])
+        >>> err.getvalue().splitlines()[-1]
+        "demo: error: unrecognized arguments: --quik; did you mean '--quick'?"
+    """
+
+    def parse_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> argparse.Namespace:
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            self.error(_unrecognized(self, extras))
+        return namespace
+
+    def error(self, message: str) -> NoReturn:
+        super().error(_suggest(message))
+
+
+class _Parser(SuggestingParser):
     """An argument parser whose errors are one line: ``torchtasks check: argument --seeds: ...``."""
 
     def error(self, message: str) -> NoReturn:
@@ -638,7 +747,10 @@ def _parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--quick", action="store_true", help="a short run: 64 000 frames instead of 320 000")
     demo.add_argument(
-        "--output", default=DEMO_OUTPUT, metavar="DIR", help="folder of the JSON and PNG (default: %(default)s)"
+        "--output",
+        default=None,
+        metavar="DIR",
+        help=f"folder of the JSON and PNG (default: {DEMO_OUTPUT}; {Path(DEMO_OUTPUT) / QUICK_FOLDER} with --quick)",
     )
     demo.add_argument("--seed", type=_seed, default=0, metavar="N", help="random seed (default: %(default)s)")
     demo.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -700,7 +812,7 @@ def _parser() -> argparse.ArgumentParser:
         help="compact (100 columns) or full (a column per reward term) (default: %(default)s)",
     )
     check.add_argument("--no-progress", action="store_true", help="hide the progress bar (shown on a terminal)")
-    check.set_defaults(run=_cmd_check)
+    check.set_defaults(run=_cmd_check, refuse=_check_refusal)
 
     bench = command(
         "bench",
@@ -740,11 +852,17 @@ def main(argv: Sequence[str] | None = None) -> int:
     args, unknown = parser.parse_known_args(argv)
     commands = next(action for action in parser._actions if isinstance(action, argparse._SubParsersAction))
     if unknown:  # reported by the subcommand's parser, whose options the user meant
-        commands.choices.get(args.command, parser).error(f"unrecognized arguments: {' '.join(unknown)}")
+        command_parser = commands.choices.get(args.command, parser)
+        command_parser.error(_unrecognized(command_parser, unknown))
     if args.command is None:
         parser.print_help()
         return 2
-    problem = _unwritable(args.output) if getattr(args, "output", None) is not None else None
+    refusal = args.refuse(args) if "refuse" in args else None  # checks that need no import, before any folder
+    if refusal is not None:
+        return _usage_error(args.command, refusal)
+    if args.command == "demo":
+        args.output = output_folder(args.output, DEMO_OUTPUT, args.quick)
+    problem = make_output_folder(args.output) if getattr(args, "output", None) is not None else None
     if problem is not None:
         commands.choices[args.command].error(problem)
     try:

@@ -263,6 +263,8 @@ def _plot(result: DemoResult, figure_class: type, path: Path) -> Path:
     def values(key: str) -> list[float]:
         return [math.nan if value is None else value for value in result.curves[key]]
 
+    from torchtasks._plotting import mark_short_series
+
     frames = result.curves["frames"]
     figure = figure_class(figsize=(8, 9), layout="constrained")
     axes = figure.subplots(3, 1, sharex=True)
@@ -300,6 +302,7 @@ def _plot(result: DemoResult, figure_class: type, path: Path) -> Path:
         f"torchtasks demo: swing-up task, {result.frames:,} frames\n"
         f"means over the episodes finished in the last {MAX_STEPS} steps (one episode length)"
     )
+    mark_short_series(figure)  # a --quick run's few points stay visible
     figure.savefig(path, dpi=100)
     return path
 

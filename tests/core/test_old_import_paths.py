@@ -17,6 +17,7 @@ OLD_PATHS = {
 }
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("path", sorted(OLD_PATHS))
 def test_an_old_path_exports_the_package_objects(path: str) -> None:
     module = importlib.import_module(path)
@@ -25,6 +26,7 @@ def test_an_old_path_exports_the_package_objects(path: str) -> None:
         assert getattr(module, name) is getattr(transforms, name), name
 
 
-def test_the_package_exports_every_old_name_the_task_transform_and_domain_randomization() -> None:
-    names = {name for names in OLD_PATHS.values() for name in names} | {"TaskTransform", "DomainRandomization"}
+def test_the_package_exports_every_old_name_the_task_transform_domain_randomization_and_the_listing() -> None:
+    names = {name for names in OLD_PATHS.values() for name in names}
+    names |= {"TaskTransform", "DomainRandomization", "TargetTable", "target_names"}
     assert names == set(transforms.__all__)

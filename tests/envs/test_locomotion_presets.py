@@ -420,6 +420,7 @@ def test_device_argument() -> None:
     env.close()
 
 
+@pytest.mark.quick
 @mujoco
 def test_reward_sum_reports_episode_sums_per_term() -> None:
     env = gymnasium_env("HalfCheetah-v5", seed=0)

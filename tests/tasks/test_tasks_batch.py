@@ -142,6 +142,7 @@ def test_example_trees_exercise_every_kind_of_episode_end():
     assert all(count > 0 for count in seen.values()), seen
 
 
+@pytest.mark.quick
 def test_one_env_data_does_not_leak_into_others():
     """Changing environment 0's states changes nothing for environments 1..N-1."""
     task = example_trees()["sequential_nested"]

@@ -170,6 +170,7 @@ def _oracle_snapshot_mismatches(actual: dict[str, dict[str, Any]], expected: dic
 # --------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.quick
 @pytest.mark.parametrize("case", _params(MATCHING))
 def test_rollout_matches_pyrado(case: dict[str, Any]) -> None:
     """Replay in float64: every column of every step, and the internal state, as in Pyrado."""

@@ -72,6 +72,7 @@ def _markdown_rows(text: str) -> list[list[str]]:
 
 
 # ------------------------------------------------------------------------------------------- help
+@pytest.mark.quick
 def test_help_lists_every_subcommand(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as exit_info:
         main(["--help"])
@@ -121,6 +122,7 @@ def test_help_fits_a_screen(command: str, capsys: pytest.CaptureFixture[str], mo
             assert default in " ".join(out.split()), default
 
 
+@pytest.mark.quick
 def test_bare_command_prints_the_help(capsys: pytest.CaptureFixture[str]) -> None:
     """A bare ``torchtasks`` prints the help on stdout and returns 2 (nothing was run)."""
     assert main([]) == 2
@@ -152,8 +154,16 @@ USER_MISTAKES = {
     "seed too large": (["demo", "--seed", str(2**64)], ("--seed: expected an integer from 0 to 2**63 - 1",)),
     "negative seed": (["demo", "--seed", "-1"], ("--seed: expected an integer from 0 to 2**63 - 1",)),
     "unknown option": (["list", "--all"], ("unrecognized arguments: --all",)),
+    "misspelt option": (["demo", "--quik"], ("unrecognized arguments: --quik; did you mean '--quick'?",)),
+    "misspelt option with a value": (["demo", "--quik=3"], ("arguments: --quik=3; did you mean '--quick'?",)),
+    "misspelt option and its value": (["check", "Hopper-v5", "--stesp", "5"], ("5; did you mean '--steps'?",)),
+    "two misspelt options": (["demo", "--quik", "--outptu", "x"], ("did you mean '--quick' and '--output'?",)),
+    "misspelt option before the command": (["--quik", "demo"], ("did you mean '--quick'?",)),
+    "ambiguous abbreviation": (["check", "Hopper-v5", "--s", "3"], ("--s could match --seeds, --steps",)),
+    "misspelt choice of an option": (["check", "Hopper-v5", "--backend", "batchd"], ("did you mean 'batched'?",)),
     "misspelt command": (["chek"], ("invalid choice: 'chek'", "did you mean 'check'?")),
     "output inside a file": (["demo", "--output", "/dev/null/x"], ("--output: cannot create '/dev/null/x'",)),
+    "output in /proc": (["demo", "--output", "/proc/nope"], ("--output: cannot create '/proc/nope': ",)),
     "output is a file": (["check", "Hopper-v5", "--output", __file__], ("exists and is not a folder",)),
 }
 
@@ -172,9 +182,11 @@ def test_user_mistakes_are_one_line(case: str, capsys: pytest.CaptureFixture[str
     assert captured.out == ""
     lines = captured.err.splitlines()
     assert len(lines) == 1, captured.err
-    assert lines[0].startswith(f"torchtasks {argv[0]}: " if argv[0] in SUBCOMMANDS else "torchtasks: ")
+    command = next((word for word in argv if word in SUBCOMMANDS), None)  # its parser reports the mistake
+    assert lines[0].startswith(f"torchtasks {command}: " if command else "torchtasks: ")
     for text in expected:
         assert text in lines[0], (text, lines[0])
+    assert ("did you mean" in lines[0]) == any("did you mean" in text for text in expected), lines[0]
     if "did you mean" in lines[0]:  # a suggestion, not the whole list: fits a terminal
         assert len(lines[0]) <= 100, lines[0]
 
@@ -304,18 +316,72 @@ def test_demo_quick(
     assert returns[-1] > returns[0] + 100
 
 
-def test_demo_default_output_is_runs_demo() -> None:
-    from torchtasks.cli import DEMO_OUTPUT, _parser
+@pytest.mark.parametrize(
+    ("argv", "folder"),
+    [
+        (["demo"], "runs/demo"),
+        (["demo", "--quick"], "runs/demo/quick"),  # as the examples: a smoke run keeps the full run's results
+        (["demo", "--qui"], "runs/demo/quick"),  # an abbreviation is the option
+        (["demo", "--quick", "--output", "elsewhere"], "elsewhere"),
+        (["demo", "--output", "a/b"], "a/b"),
+        (["check", "Hopper-v5"], "runs/check"),
+        (["bench", "--tiny"], "runs/bench"),
+    ],
+)
+def test_output_folder_is_created_before_the_run(
+    argv: list[str], folder: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Every command with ``--output`` resolves it (the demo's ``--quick`` as the examples') and creates the folder
+    before its run starts; the run (replaced here) gets that folder and nothing else is written."""
+    from torchtasks import cli
 
-    assert DEMO_OUTPUT == "runs/demo"
-    assert _parser().parse_args(["demo"]).output == "runs/demo"
-    assert _parser().parse_args(["demo", "--output", "elsewhere"]).output == "elsewhere"
+    monkeypatch.chdir(tmp_path)
+    runs: list[Path] = []
+    for name in ("_cmd_demo", "_cmd_check", "_cmd_bench"):
+        monkeypatch.setattr(cli, name, lambda args: runs.append(Path(args.output)) or 0)
+    assert main(argv) == 0
+    assert runs == [Path(folder)]
+    assert (tmp_path / folder).is_dir() and not list((tmp_path / folder).iterdir())
+    assert sorted(path.name for path in tmp_path.iterdir()) == [folder.split("/")[0]]
+
+
+UNWRITABLE = {
+    "in /proc (root may write anywhere else)": "/proc/nope",
+    "below a missing folder of /proc": "/proc/nope/deeper",
+    "inside a file": "/dev/null/x",
+    "a file": __file__,
+}
+
+
+@pytest.mark.parametrize("command", [["demo"], ["demo", "--quick"], ["check", "Hopper-v5"], ["bench", "--tiny"]])
+@pytest.mark.parametrize("case", UNWRITABLE)
+def test_unwritable_output_is_refused_before_the_run(
+    command: list[str], case: str, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An ``--output`` that cannot be created (checked by creating it, not by ``os.access``, which says yes to root
+    for ``/proc``): one line naming the folder and the system's reason, exit status 2, the run never starts."""
+    from torchtasks import cli
+
+    runs: list[str] = []
+    for name in ("_cmd_demo", "_cmd_check", "_cmd_bench"):
+        monkeypatch.setattr(cli, name, lambda args: runs.append(args.output) or 0)
+    with pytest.raises(SystemExit) as exit_info:
+        main([*command, "--output", UNWRITABLE[case]])
+    assert exit_info.value.code == 2
+    assert runs == []
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    lines = captured.err.splitlines()
+    assert len(lines) == 1 and "Traceback" not in captured.err, captured.err
+    assert lines[0].startswith(f"torchtasks {command[0]}: --output: "), lines[0]
+    assert repr(UNWRITABLE[case]) in lines[0], lines[0]
+    assert lines[0].split(repr(UNWRITABLE[case]), 1)[1].strip(": "), f"no reason given: {lines[0]}"
 
 
 @pytest.mark.slow
 def test_demo_writes_only_under_runs_demo(tmp_path: Path) -> None:
-    """``torchtasks demo --quick`` run in ``tmp_path`` without ``--output`` writes ``runs/demo/`` and nothing else;
-    with stderr not a terminal (a log file), no progress bar is drawn into it."""
+    """``torchtasks demo --quick`` run in ``tmp_path`` without ``--output`` writes ``runs/demo/quick/`` and nothing
+    else; with stderr not a terminal (a log file), no progress bar is drawn into it."""
     result = subprocess.run(
         [sys.executable, "-m", "torchtasks.cli", "demo", "--quick"],
         cwd=tmp_path,
@@ -326,8 +392,9 @@ def test_demo_writes_only_under_runs_demo(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr
     assert sorted(path.name for path in tmp_path.iterdir()) == ["runs"]
     assert sorted(path.name for path in (tmp_path / "runs").iterdir()) == ["demo"]
-    assert {path.name for path in (tmp_path / "runs" / "demo").iterdir()} == DEMO_FILES
-    assert f"wrote {Path('runs/demo/torchtasks_demo.png')} (plot)" in result.stdout
+    assert sorted(path.name for path in (tmp_path / "runs" / "demo").iterdir()) == ["quick"]
+    assert {path.name for path in (tmp_path / "runs" / "demo" / "quick").iterdir()} == DEMO_FILES
+    assert f"wrote {Path('runs/demo/quick/torchtasks_demo.png')} (plot)" in result.stdout
     assert "\r" not in result.stderr and "swing-up demo" not in result.stderr, result.stderr[:200]
 
 

@@ -117,7 +117,14 @@ def restore_torch_state() -> Iterator[None]:
     torch.set_rng_state(rng)
 
 
-@pytest.mark.parametrize("snippet", SNIPPETS, ids=[snippet.id for snippet in SNIPPETS])
+QUICK_SNIPPET = next(snippet for snippet in SNIPPETS if snippet.path.name == "README.md")  # in `make test-quick`
+
+
+@pytest.mark.parametrize(
+    "snippet",
+    [pytest.param(snippet, marks=pytest.mark.quick) if snippet is QUICK_SNIPPET else snippet for snippet in SNIPPETS],
+    ids=[snippet.id for snippet in SNIPPETS],
+)
 def test_snippet_runs(snippet: Snippet, restore_torch_state: None) -> None:
     reason = snippet.skip_reason
     if reason is not None:

@@ -150,6 +150,7 @@ def test_collector(keep_threads) -> None:
     _check(data, envs=(0,), min_frames_per_env=64)
 
 
+@pytest.mark.quick
 def test_collector_on_batched_env(keep_threads) -> None:
     collector = Collector(
         functools.partial(_batched_env, SerialEnv, False), replay_policy(), frames_per_batch=32, total_frames=96

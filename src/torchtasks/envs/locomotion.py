@@ -467,6 +467,13 @@ def gymnasium_env(
     step (a non-finite action or a diverged simulation, marked ``("next", "broken")``) ends that
     env's episode and pays 0 in the reward and every term, so the episode sums stay finite.
 
+    Extending the preset: it is a finished ``TransformedEnv``, so append to it (``env.append_transform``).
+    :func:`~torchtasks.transforms.target_names` lists what a :class:`~torchtasks.transforms.Curriculum` or
+    :class:`~torchtasks.transforms.DifficultyLevels` can set, with short names (``forward.weight``,
+    ``ctrl.weight``, ``survive.healthy_reward``). Append :class:`~torchtasks.transforms.BaseEnvState` too if you
+    checkpoint: TorchRL saves the transforms' state, not the base env's (generators, physics). The recipe, with
+    the resume: "Extending a preset" in docs/torchrl_integration.md.
+
     Args:
         env_id: one of :data:`SUPPORTED_ENV_IDS`.
         num_envs: number of environments (both backends handle partial resets).
@@ -498,6 +505,22 @@ def gymnasium_env(
         torch.Size([2, 3, 1])
         >>> gymnasium_env("Hopper-v5", seed=0, observation_dtype=torch.float32).reset()["observation"].dtype
         torch.float32
+
+        Extended with a curriculum on the forward weight, and the base env's state for checkpoints:
+
+        >>> from torchrl.collectors import Collector
+        >>> from torchtasks.transforms import BaseEnvState, Curriculum, linear, target_names
+        >>> print(target_names(batched))  # doctest: +ELLIPSIS
+        alias                   name                                   source  shape  writers     value
+        ...
+        forward.weight          reward.rewards.forward.weight          task    []     Curriculum  1
+        ...
+        >>> _ = batched.append_transform(Curriculum({"forward.weight": linear(0.0, 1.0, 0, 100)}))
+        >>> _ = batched.append_transform(BaseEnvState())  # collector.state_dict() then holds the physics too
+        >>> collector = Collector(batched, None, frames_per_batch=20, total_frames=20)  # None: random actions
+        >>> [batch["curriculum", "forward/weight"][0, :3, 0].tolist() for batch in collector]
+        [[0.0, 0.02, 0.04]]
+        >>> collector.shutdown()
     """
     record = locomotion_record(env_id)
     config = gymnasium_config(env_id, gym_kwargs)
@@ -577,6 +600,9 @@ def safety_velocity_env(
     ``"y_velocity"`` for Ant and Humanoid (Gymnasium's ``info["y_velocity"]``; the batched env writes it
     too, bit-identical).
 
+    Extending the preset: as for :func:`gymnasium_env` (append a writer; its short names, e.g. the velocity cost's
+    ``cost.threshold``, from :func:`~torchtasks.transforms.target_names`).
+
     Args:
         env_id, num_envs, seed, device, backend, num_threads, observation_dtype: as for :func:`gymnasium_env`.
         cost_limit: the constraint's limit on the expected episode cost (default 25); ``None``: none.
@@ -592,6 +618,12 @@ def safety_velocity_env(
         >>> speeding = (rollout["next", "x_velocity"] > 0.7402).to(torch.float64)
         >>> bool((rollout["next", "cost"] == speeding).all())
         True
+        >>> from torchtasks.transforms import Curriculum, linear, target_names
+        >>> target_names(env).aliases[-6:]
+        ['forward.weight', 'ctrl.weight', 'survive.healthy_reward', 'survive.low', 'survive.high', 'cost.threshold']
+        >>> _ = env.append_transform(Curriculum({"cost.threshold": linear(2.0, 0.7402, 0, 100)}))  # tighten the limit
+        >>> env.rollout(3)["curriculum", "cost/threshold"][0, :, 0].tolist()
+        [2.0, 1.97480..., 1.94960...]
         >>> env.close()
     """
     record = locomotion_record(env_id)

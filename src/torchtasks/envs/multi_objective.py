@@ -428,7 +428,9 @@ def multi_objective_env(
     ``("next", "reward_groups", name)`` each objective, and ``RewardSum`` writes ``"episode_vector_reward"``
     beside ``"episode_reward"``. Append TorchRL's ``LineariseRewards(in_keys=["vector_reward"], out_keys=[...],
     weights=record.weights)`` to scalarise (see :class:`MultiObjectiveRecord` for what the weights leave over).
-    MO-Gymnasium itself is not used: the Gymnasium backend runs ``gymnasium.make(base id)``.
+    MO-Gymnasium itself is not used: the Gymnasium backend runs ``gymnasium.make(base id)``. Extending the
+    preset: as for :func:`~torchtasks.envs.locomotion.gymnasium_env` (append a writer; its short names, e.g. an
+    objective's ``weights_energy``, from :func:`~torchtasks.transforms.target_names`).
 
     Args:
         env_id: one of :data:`MULTI_OBJECTIVE_ENV_IDS`.
@@ -446,6 +448,12 @@ def multi_objective_env(
         (torch.Size([2, 3, 3]), torch.float32, torch.Size([2, 3, 1]))
         >>> rollout["next", "episode_vector_reward"].shape
         torch.Size([2, 3, 3])
+        >>> from torchtasks.transforms import Curriculum, constant, target_names
+        >>> "weights_energy" in target_names(env).aliases
+        True
+        >>> _ = env.append_transform(Curriculum({"weights_energy": constant([0.0, 0.0])}))  # energy objective off
+        >>> env.rollout(2)["next", "reward_groups", "energy"].abs().max().item()
+        0.0
         >>> env.close()
     """
     record = multi_objective_record(env_id)

@@ -194,7 +194,8 @@ class RewardGroupsTask(CheckedLoad, ForwardingTask):
         """Raise ``ValueError`` naming ``writer`` unless ``value`` fits the weights ``name`` (``weights_<group>``).
 
         A writer (a :class:`~torchtasks.transforms.Curriculum`, levels) may write finite coefficients of the
-        group's shape (one per source; ``[*B, n]`` for one row per env).
+        group's shape (one per source; ``[*B, n]`` for one row per env). Another buffer of the task (a state bound)
+        has no rule here.
 
         Example:
             >>> import torch
@@ -208,6 +209,8 @@ class RewardGroupsTask(CheckedLoad, ForwardingTask):
             ...     print(error)
             a schedule can write [inf] into the reward group 'all' (sources ['step']), whose coefficients must be finite
         """
+        if all(buffer != name for _, buffer, _ in self._plan):
+            return  # another buffer of the task (its state bounds): no rule of the groups
         group, sources = self._group_of(name)
         value = torch.as_tensor(value)
         if value.shape[-1:] != (len(sources),):

@@ -28,6 +28,7 @@ from torchtasks.transforms.domain import DomainRandomization
 from torchtasks.transforms.levels import DifficultyLevels, LevelRule
 from torchtasks.transforms.schedules import GatedSchedule, Schedule, constant, gated, linear, staged
 from torchtasks.transforms.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
+from torchtasks.transforms.targets import TargetTable, target_names
 from torchtasks.transforms.task import TaskTransform
 
 __all__ = [
@@ -41,6 +42,7 @@ __all__ = [
     "Schedule",
     "SeedHook",
     "SeededTransform",
+    "TargetTable",
     "TaskTransform",
     "collector_state",
     "constant",
@@ -50,4 +52,5 @@ __all__ = [
     "load_collector_state",
     "seed_transforms",
     "staged",
+    "target_names",
 ]

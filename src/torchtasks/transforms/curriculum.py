@@ -26,7 +26,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import key_parts, nested_key
-from torchtasks.transforms.names import CURRICULUM_KEY, DOMAIN, FRAMES, entry_name, names_task_buffer
+from torchtasks.transforms.names import CURRICULUM_KEY, DOMAIN, FRAMES, entry_name, respelt_entries
 from torchtasks.transforms.schedules import (
     GatedSchedule,
     Schedule,
@@ -36,6 +36,7 @@ from torchtasks.transforms.schedules import (
     value_at,
 )
 from torchtasks.transforms.targets import (
+    TASK,
     Target,
     TargetWriter,
     check_domain_combinations,
@@ -255,6 +256,7 @@ class Curriculum(CheckedLoad, TargetWriter):
                 "Curriculum.load_state_dict: the checkpoint schedules other targets than this Curriculum: saved "
                 f"{sorted(saved)}, here {sorted(own)} (entry names: the targets with '/' for '.'; a checkpoint is "
                 "loaded by target, in any order, never by position). Build the Curriculum with the saved targets"
+                + respelt_entries(unknown, missing)
             )
         for entry in sorted(set(own) & set(saved)):
             own_kind, saved_kind = schedule_kind(own[entry]), schedule_kind(saved[entry])
@@ -373,10 +375,10 @@ class Curriculum(CheckedLoad, TargetWriter):
         """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by
         all envs); offline recomputation with the env's TaskTransform reads them (a GoalCommand's range needs none:
         the goal drawn is in the data)."""
-        return [
-            RecordedValue(target, key, None)
-            for target, key in zip(self.targets, self._value_keys, strict=True)
-            if names_task_buffer(target)
+        return [  # by the buffer's full name: a target may be written by its short name
+            RecordedValue(target.path, key, None)
+            for target, key in zip(self.written_targets(), self._value_keys, strict=True)
+            if target.source == TASK
         ]
 
     def written_targets(self) -> list[Target]:

@@ -29,8 +29,9 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
-from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, entry_name, names_task_buffer
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, entry_name, respelt_entries
 from torchtasks.transforms.targets import (
+    TASK,
     Target,
     TargetWriter,
     check_domain_combinations,
@@ -238,6 +239,7 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
                 "DifficultyLevels.load_state_dict: the checkpoint sets other targets than this DifficultyLevels: "
                 f"saved {sorted(saved)}, here {sorted(own)} (the targets with '/' for '.'; loaded by target, "
                 "in any order, never by position). Build it with the saved targets"
+                + respelt_entries(set(saved) - set(own), set(own) - set(saved))
             )
         for entry in sorted(set(saved) & set(own)):
             if isinstance(saved[entry], torch.Tensor) and saved[entry].shape != own[entry].shape:
@@ -320,10 +322,11 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task-tree targets, each with the entry recording every env's value of the step (one row of its
         table); offline recomputation with the env's TaskTransform reads them."""
+        targets = self.written_targets()  # by the buffer's full name: a target may be written by its short name
         return [
-            RecordedValue(self.targets[i], key, self._table(i).shape[1:])
+            RecordedValue(targets[i].path, key, self._table(i).shape[1:])
             for i, key in self._value_keys.items()
-            if names_task_buffer(self.targets[i])
+            if targets[i].source == TASK
         ]
 
     def written_targets(self) -> list[Target]:

@@ -11,9 +11,16 @@ task tree as ``task.named_buffers()`` does, a GoalCommand's range under :data:`C
 base env under :data:`ENV` and a DomainRandomization's distribution parameter under :data:`DOMAIN`; the drawn
 physics values are written under :data:`DOMAIN_KEY`. The transforms, offline recomputation and
 :func:`~torchtasks.stats.episode_statistics` read these names from here.
+
+A task-tree buffer may also be named by a dotted suffix of its name that no other buffer of the tree ends with
+(:func:`suffix_matches`); :func:`short_names` gives each its shortest such suffix of two parts or more, the alias
+:func:`~torchtasks.transforms.target_names` lists (``"forward.weight"`` for
+``"wrapped_task.reward.rewards.forward.weight"``).
 """
 
 from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
 
 from torchtasks.tasks.transition import FINAL_SOURCE, STEP_SOURCE
 
@@ -43,6 +50,9 @@ __all__ = [
     "VECTOR_REWARD_KEY",
     "entry_name",
     "names_task_buffer",
+    "respelt_entries",
+    "short_names",
+    "suffix_matches",
     "target_name",
 ]
 
@@ -122,3 +132,71 @@ def target_name(entry: str) -> str:
         'wrapped_task.reward.Q'
     """
     return entry.replace("/", ".")
+
+
+def suffix_matches(name: str, names: Iterable[str]) -> list[str]:
+    """The names ``name`` stands for among ``names``: itself if it is one of them, else each that ends with it.
+
+    "Ends with" is on dot boundaries: ``"forward.weight"`` matches ``"reward.rewards.forward.weight"``, not
+    ``"reward.rewards.backforward.weight"``. One match: ``name`` is that name or an alias of it; several: ``name`` is
+    ambiguous; none: unknown. A name given in full always means itself, even if it ends another name.
+
+    Example:
+        >>> names = ["reward.rewards.forward.weight", "reward.rewards.ctrl.weight", "state_low"]
+        >>> suffix_matches("forward.weight", names), suffix_matches("weight", names)
+        (['reward.rewards.forward.weight'], ['reward.rewards.forward.weight', 'reward.rewards.ctrl.weight'])
+        >>> suffix_matches("state_low", names + ["wrapped_task.state_low"])
+        ['state_low']
+    """
+    names = list(names)
+    if name in names:
+        return [name]
+    return [full for full in names if full.endswith("." + name)]
+
+
+def short_names(names: Sequence[str]) -> dict[str, str]:
+    """Each task-tree name's alias: its shortest dotted suffix of two parts or more that stands for it alone.
+
+    A suffix stands for a name alone when :func:`suffix_matches` finds that name only among ``names`` and the suffix
+    names no target of another source (it does not start with ``"command."``, ``"env."`` or ``"domain."``). A name
+    of one or two parts, or one with no such suffix, is its own alias.
+
+    Example:
+        >>> names = ["wrapped_task.reward.rewards.forward.weight", "wrapped_task.reward.rewards.ctrl.weight",
+        ...          "state_low", "wrapped_task.state_low", "a.cost.threshold", "b.cost.threshold"]
+        >>> list(short_names(names).values())
+        ['forward.weight', 'ctrl.weight', 'state_low', 'wrapped_task.state_low', 'a.cost.threshold', 'b.cost.threshold']
+    """
+    aliases = {}
+    for name in names:
+        parts = name.split(".")
+        aliases[name] = name
+        for start in range(len(parts) - 2, 0, -1):  # the suffixes of 2, 3, ... parts, shorter than the name
+            suffix = ".".join(parts[start:])
+            if names_task_buffer(suffix) and suffix_matches(suffix, names) == [name]:
+                aliases[name] = suffix
+                break
+    return aliases
+
+
+def respelt_entries(saved: Iterable[str], own: Iterable[str]) -> str:
+    """The sentence a refused checkpoint load adds when saved and own entries may be one target spelt two ways.
+
+    Entries are keyed by the target as written (:func:`entry_name`); a short name and the full name of one buffer give
+    two entries, one ending the other. ``""`` when no pair of ``saved`` and ``own`` entries does.
+
+    Example:
+        >>> print(respelt_entries(["wrapped_task/reward/rewards/forward/weight"], ["forward/weight"])[:80])
+         ('forward/weight' here may be 'wrapped_task/reward/rewards/forward/weight' of t
+        >>> respelt_entries(["reward/Q"], ["reward/R"])
+        ''
+    """
+    own = list(own)
+    for entry in saved:
+        for mine in own:
+            if mine != entry and (entry.endswith("/" + mine) or mine.endswith("/" + entry)):
+                return (
+                    f" ({mine!r} here may be {entry!r} of the checkpoint spelt another way: a checkpoint is keyed by "
+                    "the targets as written; build the writer with the saved spelling)"
+                )
+    return ""

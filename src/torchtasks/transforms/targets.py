@@ -27,16 +27,24 @@ from typing import NamedTuple
 
 import torch
 from torch import nn
-from torchrl.envs.transforms import Transform
+from torchrl.envs.transforms import Transform, TransformedEnv
 
 from torchtasks._checks import did_you_mean
-from torchtasks._torchrl import container_env, key_parts
+from torchtasks._torchrl import container_env, flat_transforms, key_parts
 from torchtasks.rewards import RewardFunction
 from torchtasks.rewards.base import check_written_value
 from torchtasks.transforms._base import EnvDerivedTransform, ResetWritingTransform
 from torchtasks.transforms.command import GoalCommand
 from torchtasks.transforms.domain import DomainRandomization
-from torchtasks.transforms.names import COMMAND, DOMAIN, ENV, entry_name
+from torchtasks.transforms.names import (
+    COMMAND,
+    DOMAIN,
+    ENV,
+    entry_name,
+    names_task_buffer,
+    short_names,
+    suffix_matches,
+)
 from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owner
 
 __all__ = [
@@ -44,6 +52,8 @@ __all__ = [
     "Placement",
     "ResolvedTargets",
     "Target",
+    "TargetRow",
+    "TargetTable",
     "TargetWriter",
     "check_domain_combinations",
     "check_in_goal_space",
@@ -52,6 +62,7 @@ __all__ = [
     "command_ranges",
     "find_placement",
     "resolve_targets",
+    "target_names",
 ]
 
 #: the source of a target in the task tree (the others are :data:`~torchtasks.transforms.names.COMMAND`,
@@ -87,6 +98,14 @@ class Target(NamedTuple):
     value_shape: torch.Size
     #: whether the buffer holds one value per env (``[*B, *value_shape]``)
     per_env: bool
+    #: the name ``name`` stands for: a task-tree buffer's ``task.named_buffers()`` name when ``name`` is a short name
+    #: of it; ``""``: ``name`` itself
+    full_name: str = ""
+
+    @property
+    def path(self) -> str:
+        """The target's full name: :attr:`full_name`, or :attr:`name` when that is empty."""
+        return self.full_name or self.name
 
     @property
     def entry(self) -> str:
@@ -207,31 +226,39 @@ class _Candidate(NamedTuple):
 
 class _Choices(NamedTuple):
     """The names a writer can set, the short command names that several GoalCommands share (with their qualified
-    choices), and the names an error lists."""
+    choices), the names an error lists, and the task tree's float buffer names (which a dotted suffix may stand for,
+    :func:`~torchtasks.transforms.names.suffix_matches`)."""
 
     named: dict[str, _Candidate]
     ambiguous: dict[str, list[str]]
     listed: list[str]
+    task_names: list[str]
 
 
-def _choices(writer: EnvDerivedTransform, placement: Placement, env_fields: bool, names: Sequence[str]) -> _Choices:
-    task = placement.task_transform.task
+def _choices(
+    who: str, task: nn.Module, transforms: Sequence[Transform], base_env: nn.Module | None, names: Sequence[str]
+) -> _Choices:
+    """Every name a writer can set in an env: the task tree's float buffers, with ``base_env`` its float buffers as
+    ``"env.<name>"``, the distribution parameters of the DomainRandomizations and the ranges of the GoalCommands among
+    ``transforms``. The one walk of the targets: writers resolve through it, :func:`target_names` lists it."""
     named = {name: _Candidate(task, name, TASK) for name, buffer in task.named_buffers() if buffer.is_floating_point()}
+    task_names = list(named)
     listed = sorted(named)
-    if env_fields:
-        base = container_env(writer).base_env
-        fields = {f"{ENV}.{n}": _Candidate(base, n, ENV) for n, b in base.named_buffers() if b.is_floating_point()}
+    if base_env is not None:
+        fields = {
+            f"{ENV}.{n}": _Candidate(base_env, n, ENV) for n, b in base_env.named_buffers() if b.is_floating_point()
+        }
         named.update(fields)
         listed += sorted(fields)
-    for randomization in (t for t in placement.transforms if isinstance(t, DomainRandomization)):
+    for randomization in (t for t in transforms if isinstance(t, DomainRandomization)):
         for name, _ in randomization.params.named_buffers():
             named[f"{DOMAIN}.{name}"] = _Candidate(randomization.params, name, DOMAIN)
             listed.append(f"{DOMAIN}.{name}")
-    commands = [t for t in placement.transforms if isinstance(t, GoalCommand)]
+    commands = [t for t in transforms if isinstance(t, GoalCommand)]
     goal_keys = [command.goal_key for command in commands]
     if len(set(goal_keys)) < len(goal_keys) and any(name.startswith(COMMAND + ".") for name in names):
         raise ValueError(
-            f"{type(writer).__name__}: several GoalCommands of the env write the same goal key (goal keys "
+            f"{who}: several GoalCommands of the env write the same goal key (goal keys "
             f"{goal_keys}): their {COMMAND + '.'!r} targets cannot be told apart"
         )
     short: dict[str, list[str]] = {}
@@ -243,14 +270,23 @@ def _choices(writer: EnvDerivedTransform, placement: Placement, env_fields: bool
                 short.setdefault(f"{COMMAND}.{leaf}", []).append(f"{COMMAND}.{qualifier}.{leaf}")
     if len(commands) == 1:
         named.update({name: named[full] for name, (full,) in short.items()})
-        return _Choices(named, {}, listed + sorted(short))
-    return _Choices(named, short, listed + sorted(choice for choices in short.values() for choice in choices))
+        return _Choices(named, {}, listed + sorted(short), task_names)
+    qualified = sorted(choice for choices in short.values() for choice in choices)
+    return _Choices(named, short, listed + qualified, task_names)
 
 
-def _refuse_unknown(
+def _writer_choices(
+    writer: EnvDerivedTransform, placement: Placement, env_fields: bool, names: Sequence[str]
+) -> _Choices:
+    base = container_env(writer).base_env if env_fields else None
+    return _choices(type(writer).__name__, placement.task_transform.task, placement.transforms, base, names)
+
+
+def _full_names(
     writer: EnvDerivedTransform, placement: Placement, choices: _Choices, names: Sequence[str], env_fields: bool
-) -> None:
-    """The one message for names that are no target: every name the writer can set, and the closest one."""
+) -> list[str]:
+    """The name each of ``names`` stands for (itself, or the task-tree name a dotted suffix stands for alone); the one
+    message for a name that is no target, one that is ambiguous, and two names of one target."""
     who = type(writer).__name__
     for name in names:
         if name in choices.ambiguous:
@@ -258,9 +294,39 @@ def _refuse_unknown(
                 f"{who}: the target {name!r} is ambiguous: the env has several GoalCommands; name one of "
                 f'{choices.ambiguous[name]} ("{COMMAND}.<goal key>.<buffer>")'
             )
-    unknown = [name for name in names if name not in choices.named]
-    if not unknown:
-        return
+    full: list[str | None] = []
+    for name in names:
+        if name in choices.named:
+            full.append(name)
+            continue
+        matches = suffix_matches(name, choices.task_names) if names_task_buffer(name) else []
+        if len(matches) > 1:
+            aliases = short_names(choices.task_names)
+            listed = " or ".join(repr(aliases[match]) for match in matches)
+            raise ValueError(
+                f"{who}: the target {name!r} is ambiguous: it ends {len(matches)} buffer names of the task tree, "
+                f"{matches}; did you mean {listed}? (a short name must end one name only)"
+            )
+        full.append(matches[0] if matches else None)
+    unknown = [name for name, found in zip(names, full, strict=True) if found is None]
+    if unknown:
+        _refuse_unknown(who, placement, choices, unknown, env_fields)
+    seen: dict[tuple[int, str], str] = {}
+    for name, found in zip(names, full, strict=True):
+        candidate = choices.named[found]
+        first = seen.setdefault((id(candidate.root), candidate.path), name)
+        if first != name:
+            raise ValueError(
+                f"{who}: {first!r} and {name!r} name the same target ({candidate.source} buffer "
+                f"{candidate.path!r}); name it once"
+            )
+    return full
+
+
+def _refuse_unknown(
+    who: str, placement: Placement, choices: _Choices, unknown: Sequence[str], env_fields: bool
+) -> None:
+    """The one message for names that are no target: every name the writer can set, and the closest one."""
     commands = [t for t in placement.transforms if isinstance(t, GoalCommand)]
     samplers = [repr(c.goal_key) for c in commands if not any(b.is_floating_point() for b in c.buffers(False))]
     where = f"the {type(placement.task_transform.task).__name__} tree" + (", the base env" if env_fields else "")
@@ -276,11 +342,14 @@ def _refuse_unknown(
         where += " (the env has no DomainRandomization)"
     legend = "float buffers are named as named_buffers() names them"
     legend += f", those of the base env under {ENV + '.'!r}" if env_fields else ""
+    aliases = [alias for full, alias in short_names(choices.task_names).items() if alias != full]
     raise ValueError(
-        f"{who}: unknown target {unknown[0]!r}{did_you_mean(unknown[0], choices.listed) or '.'} "
+        f"{who}: unknown target {unknown[0]!r}{did_you_mean(unknown[0], choices.listed + aliases) or '.'} "
         + (f"(Also unknown: {unknown[1:]}.) " if len(unknown) > 1 else "")
         + f"It is not in {where}; the names {who} can set are {choices.listed} ({legend}, a GoalCommand's "
-        f"sampling range under {COMMAND + '.'!r}, a domain distribution under {DOMAIN + '.<field>.'!r})"
+        f"sampling range under {COMMAND + '.'!r}, a domain distribution under {DOMAIN + '.<field>.'!r}; a task "
+        "buffer also by a dotted suffix that ends its name only, e.g. its short name that "
+        "torchtasks.transforms.target_names(env) lists)"
     )
 
 
@@ -328,10 +397,10 @@ def resolve_targets(
     """
     who = type(writer).__name__
     placement = find_placement(writer)
-    choices = _choices(writer, placement, env_fields, names)
-    _refuse_unknown(writer, placement, choices, names, env_fields)
+    choices = _writer_choices(writer, placement, env_fields, names)
+    fulls = _full_names(writer, placement, choices, names, env_fields)
+    found = [choices.named[full] for full in fulls]
     leading = [] if rows is None else [rows]
-    found = [choices.named[name] for name in names]
     for command in (t for t in placement.transforms[: placement.position] if isinstance(t, GoalCommand)):
         ranges = [repr(name) for name, candidate in zip(names, found, strict=True) if candidate.root is command]
         if ranges:
@@ -357,7 +426,7 @@ def resolve_targets(
         if isinstance(randomization, DomainRandomization) and any(c.root is randomization.params for c in found):
             randomization.fields()  # its params bound to the env's fields: their checks below include the ranges
     targets = []
-    for name, candidate, received in zip(names, found, value_shapes, strict=True):
+    for name, full, candidate, received in zip(names, fulls, found, value_shapes, strict=True):
         module, leaf = buffer_owner(candidate.root, candidate.path)
         source = candidate.source
         shape = module._buffers[leaf].shape
@@ -367,7 +436,7 @@ def resolve_targets(
                     f"{who}: the values of {name!r} have shape {tuple(received)}, but the target has shape "
                     f"{tuple(shape)}; give values of shape {tuple(shape)} or scalars"
                 )
-            targets.append(Target(name, module, leaf, source, shape, per_env=False))
+            targets.append(Target(name, module, leaf, source, shape, False, full))
         elif source == DOMAIN:  # made per env below (a parameter of one env: the shared buffer's shape)
             own = shape[len(batch) :] if shape[: len(batch)] == batch and shape[len(batch) :] == received else shape
             if received != own:
@@ -375,14 +444,14 @@ def resolve_targets(
                     f"{who}: the values of {name!r} must have shape {[*leading, *own]} (one distribution parameter "
                     f"per row), got {[*leading, *received]}"
                 )
-            targets.append(Target(name, module, leaf, source, own, per_env=True))
+            targets.append(Target(name, module, leaf, source, own, True, full))
         elif source == COMMAND:  # made per env below
             if received != shape[-1:]:
                 raise ValueError(
                     f"{who}: the values of {name!r} must have shape {[*leading, *shape[-1:]]} (one range bound per "
                     f"row), got {[*leading, *received]}"
                 )
-            targets.append(Target(name, module, leaf, source, shape[-1:], per_env=True))
+            targets.append(Target(name, module, leaf, source, shape[-1:], True, full))
         else:
             expected = (*batch, *received)
             if tuple(shape) != expected:
@@ -391,7 +460,7 @@ def resolve_targets(
                     f"{list(received)} needs a buffer of shape {list(expected)} (the env batch {list(batch)} first); "
                     "a value shared by all envs is scheduled with a Curriculum"
                 )
-            targets.append(Target(name, module, leaf, source, received, per_env=True))
+            targets.append(Target(name, module, leaf, source, received, True, full))
     if batch is not None:
         for command in command_ranges(targets):
             command.use_per_env_range(batch)
@@ -399,6 +468,133 @@ def resolve_targets(
             if target.source == DOMAIN:
                 target.module.use_per_env(batch)
     return ResolvedTargets(placement, targets)
+
+
+#: the writers, as :class:`TargetRow` names them
+_CURRICULUM, _LEVELS = "Curriculum", "DifficultyLevels"
+
+
+class TargetRow(NamedTuple):
+    """One target an env's writers can set (a row of :class:`TargetTable`)."""
+
+    #: the short name to type: the shortest dotted suffix of two parts or more that ends this name only
+    alias: str
+    #: the full name (also accepted)
+    name: str
+    #: where it lives: ``"task"``, ``"command"``, ``"env"`` or ``"domain"``
+    source: str
+    #: the buffer's shape now
+    shape: torch.Size
+    #: the writers that accept it: ``"Curriculum"`` and/or ``"DifficultyLevels"``
+    writers: tuple[str, ...]
+    #: the buffer's value now, shortened for the table
+    value: str
+
+
+class TargetTable(tuple):
+    """The targets of an env (:func:`target_names`): a tuple of :class:`TargetRow`\\ s that prints as a table."""
+
+    @property
+    def aliases(self) -> list[str]:
+        """The short names, row by row."""
+        return [row.alias for row in self]
+
+    @property
+    def names(self) -> list[str]:
+        """The full names, row by row."""
+        return [row.name for row in self]
+
+    def __str__(self) -> str:
+        header = ("alias", "name", "source", "shape", "writers", "value")
+        cells = [header] + [
+            (row.alias, row.name, row.source, str(list(row.shape)), ", ".join(row.writers) or "-", row.value)
+            for row in self
+        ]
+        widths = [max(len(line[i]) for line in cells) for i in range(len(header) - 1)]
+        return "\n".join(
+            "  ".join(cell.ljust(width) for cell, width in zip(line[:-1], widths, strict=True)) + "  " + line[-1]
+            for line in cells
+        )
+
+    __repr__ = __str__
+
+
+def _short_value(value: torch.Tensor) -> str:
+    flat = value.detach().reshape(-1)[:4].to("cpu", torch.float64).tolist()
+    text = ", ".join(f"{v:.4g}" for v in flat[:3])
+    if value.dim() == 0:
+        return text
+    return f"[{text}{', ...' if value.numel() > 3 else ''}]"
+
+
+def target_names(env: TransformedEnv) -> TargetTable:
+    """List what a :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels`
+    added to ``env`` could set: one :class:`TargetRow` per target, printed as a table.
+
+    Call it on the env before adding the writer (a preset, any ``TransformedEnv`` with one
+    :class:`~torchtasks.transforms.TaskTransform`). The rows are the names the writers' resolver walks:
+
+    - ``"task"``: a float buffer of the task tree (``task.named_buffers()``). A Curriculum schedules any of them (one
+      value for all envs); DifficultyLevels only one that holds a value per env (its shape starts with the env's
+      batch);
+    - ``"command"``: a GoalCommand's sampling range, both writers, which must come before the GoalCommand (insert the
+      writer before it rather than appending it);
+    - ``"env"``: a float buffer of the base env, DifficultyLevels only and only one with a value per env;
+    - ``"domain"``: a DomainRandomization's distribution parameter, both writers, which must come after it.
+
+    Both writers take a row's ``alias`` or its full ``name``: the alias is the shortest dotted suffix of two parts
+    or more that ends no other task buffer's name (a GoalCommand's range: ``"command.low"`` with one command);
+    any suffix that ends one name only is accepted too, one that ends several is refused naming them. The data
+    and the checkpoints key a target by the name as written (see :func:`resolve_targets`).
+
+    Args:
+        env: a ``TransformedEnv`` whose transforms hold one TaskTransform.
+
+    Example:
+        >>> from torchrl.envs import Compose, TransformedEnv
+        >>> from torchtasks.envs import PendulumEnv, swing_up_task
+        >>> from torchtasks.transforms import TaskTransform
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(TaskTransform(swing_up_task())))
+        >>> table = target_names(env)
+        >>> table.aliases[-3:]
+        ['track.Q', 'effort.Q', 'effort.R']
+        >>> print(table)  # doctest: +ELLIPSIS
+        alias                    name                                  source  shape  writers     value
+        state_low                state_low                             task    [2]    Curriculum  [-inf, -8]
+        ...
+        track.Q                  wrapped_task.reward.rewards.track.Q   task    [2]    Curriculum  [1, 0.1]
+        ...
+    """
+    transform = getattr(env, "transform", None)
+    if transform is None or not hasattr(env, "base_env"):
+        raise TypeError(f"target_names: env must be a TransformedEnv holding a TaskTransform, got {type(env).__name__}")
+    transforms = flat_transforms(transform)
+    tasks = [t for t in transforms if isinstance(t, TaskTransform)]
+    if len(tasks) != 1:
+        raise ValueError(f"target_names: env must hold exactly one TaskTransform, found {len(tasks)}")
+    base = env.base_env
+    choices = _choices("target_names", tasks[0].task, transforms, base, ())
+    aliases = short_names(choices.task_names)
+    for name, candidate in choices.named.items():  # a GoalCommand's short range name, with one command
+        if candidate.source == COMMAND and name.count(".") == 1:
+            qualified = next(full for full, other in choices.named.items() if other is candidate and full != name)
+            aliases[qualified] = name
+    batch = tuple(env.batch_size)
+    rows = []
+    for name, candidate in choices.named.items():
+        if name in aliases.values() and name not in aliases:  # a short name, listed with its full name
+            continue
+        module, leaf = buffer_owner(candidate.root, candidate.path)
+        value = module._buffers[leaf]
+        per_env = tuple(value.shape[: len(batch)]) == batch
+        writers = {
+            TASK: (_CURRICULUM, _LEVELS) if per_env else (_CURRICULUM,),
+            ENV: (_LEVELS,) if per_env else (),
+        }.get(candidate.source, (_CURRICULUM, _LEVELS))
+        rows.append(
+            TargetRow(aliases.get(name, name), name, candidate.source, value.shape, writers, _short_value(value))
+        )
+    return TargetTable(rows)
 
 
 def command_ranges(targets: Sequence[Target]) -> dict[GoalCommand, dict[str, int]]:

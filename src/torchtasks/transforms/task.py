@@ -35,7 +35,9 @@ from torchtasks.transforms.names import (
     EPISODE_SUM_PREFIX,
     FAILURE_KEY,
     FINAL_TERM,
+    FRAMES,
     GROUPS_KEY,
+    LEVEL,
     MEMORY_KEY,
     REWARD_KEY,
     STEP_TERM,
@@ -44,6 +46,8 @@ from torchtasks.transforms.names import (
     TERMS_KEY,
     TRUNCATED_KEY,
     VECTOR_REWARD_KEY,
+    names_task_buffer,
+    suffix_matches,
     target_name,
 )
 
@@ -1082,21 +1086,22 @@ class TaskTransform(EnvDerivedTransform):
         node = None if self.curriculum_key is None else td_get(tensordict, self.curriculum_key)
         if not isinstance(node, TensorDictBase):
             return {}
-        buffers = dict(self.task.named_buffers())
+        buffers = {name: buffer for name, buffer in self.task.named_buffers() if buffer.is_floating_point()}
         found = {}
         for name in node.keys():
-            buffer = buffers.get(target_name(name))
-            if buffer is None or not buffer.is_floating_point():
+            target = target_name(name)  # a buffer's name in full, or a short name of it (a suffix ending it only)
+            recorded = names_task_buffer(target) and name not in (FRAMES, LEVEL)
+            matches = suffix_matches(target, buffers) if recorded else []
+            if len(matches) != 1:
                 continue  # e.g. the frame count, the levels, a GoalCommand's range or an env field
+            buffer = buffers[matches[0]]
             trailing, shape = node.get(name).shape[len(batch) :], buffer.shape
             per_env = (
                 trailing not in (shape, (1,))
                 and len(shape) > len(trailing)
                 and shape[len(shape) - len(trailing) :] == trailing
             )
-            record = RecordedValue(
-                target_name(name), (*key_parts(self.curriculum_key), name), trailing if per_env else None
-            )
+            record = RecordedValue(matches[0], (*key_parts(self.curriculum_key), name), trailing if per_env else None)
             found[record.buffer] = record
         return found
 

@@ -1,0 +1,118 @@
+"""The example scripts' command lines, without running them: every flag their docstrings and ``--help`` mention
+exists, a misspelt option gets the option meant, an ``--output`` that cannot be created is refused first.
+
+Each script runs in-process as ``__main__`` until it parses its arguments: the parser's ``parse_args`` is replaced
+by one that hands the parser back (nothing is trained, nothing written).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import logging
+import re
+import runpy
+import sys
+from pathlib import Path
+
+import pytest
+
+from example_runs import EXAMPLES
+from torchtasks.cli import SuggestingParser
+
+SCRIPTS = sorted(path.name for path in EXAMPLES.glob("[!_]*.py"))
+WITH_OUTPUT = [name for name in SCRIPTS if "add_output_argument(" in (EXAMPLES / name).read_text(encoding="utf-8")]
+FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+
+class _Built(Exception):
+    def __init__(self, parser: argparse.ArgumentParser) -> None:
+        self.parser = parser
+
+
+def _raise_built(parser: argparse.ArgumentParser, *args: object, **kwargs: object) -> argparse.Namespace:
+    raise _Built(parser)
+
+
+def build_parser(script: str, monkeypatch: pytest.MonkeyPatch) -> argparse.ArgumentParser:
+    """The parser ``examples/<script>`` builds when run, captured at its ``parse_args`` call."""
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    monkeypatch.setattr(sys, "argv", [str(EXAMPLES / script)])
+    monkeypatch.setattr(SuggestingParser, "parse_args", _raise_built)
+    torchrl_logger = logging.getLogger("torchrl")
+    monkeypatch.setattr(torchrl_logger, "level", torchrl_logger.level)  # the script quiets TorchRL's logger
+    with pytest.raises(_Built) as built:
+        runpy.run_path(str(EXAMPLES / script), run_name="__main__")
+    monkeypatch.undo()
+    return built.value.parser
+
+
+def mentioned_flags(text: str) -> set[str]:
+    """The ``--flags`` that ``text`` (reST) mentions as the script's own: a literal that starts with another
+    command (``ray start --head``) names that command's flags, not the script's."""
+    own = text
+    for literal in re.findall(r"``(.*?)``", text, flags=re.DOTALL):
+        first = literal.split()[0] if literal.split() else ""
+        if not (first.startswith("-") or first == "python"):
+            own = own.replace(f"``{literal}``", "")
+    return set(FLAG.findall(own))
+
+
+def test_the_scripts_are_found() -> None:
+    assert len(SCRIPTS) >= 13 and len(WITH_OUTPUT) >= 9, (SCRIPTS, WITH_OUTPUT)
+
+
+def test_mentioned_flags_reads_the_scripts_own() -> None:
+    text = "Use ``--quick`` or ``python x.py [--seeds 0 1]``, with --output; start ``ray start --head`` first."
+    assert mentioned_flags(text) == {"--quick", "--seeds", "--output"}
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_every_flag_the_docs_mention_exists(script: str, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A flag in the module docstring or in an option's help is one of the script's options (``--variant`` for
+    ``--variants`` was not)."""
+    parser = build_parser(script, monkeypatch)
+    options = set(parser._option_string_actions)
+    docstring = ast.get_docstring(ast.parse((EXAMPLES / script).read_text(encoding="utf-8"))) or ""
+    missing = sorted(mentioned_flags(docstring) - options)
+    assert not missing, f"{script}'s docstring mentions {missing}, not options of the script: {sorted(options)}"
+    for action in parser._actions:
+        missing = sorted(mentioned_flags(action.help or "") - options)
+        assert not missing, f"{script}: the help of {action.option_strings} mentions {missing}"
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_a_misspelt_option_gets_the_option_meant(
+    script: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Every example parses with the ``torchtasks`` command's parser: ``--quik`` gets ``did you mean '--quick'?``
+    (every example has ``--quick``), a choice-less unknown option gets no guess."""
+    parser = build_parser(script, monkeypatch)
+    assert isinstance(parser, SuggestingParser)
+    for argv, expected in ((["--quik"], "--quik; did you mean '--quick'?\n"), (["--zzz"], "arguments: --zzz\n")):
+        with pytest.raises(SystemExit) as exit_info:
+            parser.parse_args(argv)
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert err.endswith(expected), err
+
+
+@pytest.mark.parametrize("script", WITH_OUTPUT)
+def test_an_output_that_cannot_be_created_is_refused_before_the_run(
+    script: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``--output /proc/nope`` (root may write anywhere else): one line with the system's reason, exit status 2,
+    from the parsed arguments, before the run (``_cli.output_folder``, which every script with ``--output`` calls
+    right after parsing)."""
+    source = (EXAMPLES / script).read_text(encoding="utf-8")
+    assert re.search(r"= output_folder\(parser, args, [^\n]*\)\n", source), f"{script} does not call output_folder"
+    parser = build_parser(script, monkeypatch)
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    from _cli import output_folder
+
+    args = parser.parse_args(["--quick", "--output", "/proc/nope"])
+    with pytest.raises(SystemExit) as exit_info:
+        output_folder(parser, args, Path("runs") / "x")
+    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[-1].startswith(f"{parser.prog}: error: --output: cannot create '/proc/nope': "), lines
