@@ -130,6 +130,7 @@ class EpisodeStats:
         self.episodes = 0
         self.successes = 0
         self.failures = 0
+        self.outcomes: tuple[str, ...] = ()  # the flags the task writes: the outcomes it defines
         self.truncations = 0
         self.episode_reward = 0.0
         self.terms: dict[str, float] = {}
@@ -142,6 +143,7 @@ class EpisodeStats:
         self.batches += 1
         self.episodes += int(ended.sum())
         # a task writes the flags of the outcomes it has: a locomotion task, which cannot succeed, writes no "success"
+        self.outcomes = tuple(flag for flag in ("success", "failure") if flag in nxt.keys())
         never = torch.zeros_like(ended)
         success, failure = nxt.get("success", never), nxt.get("failure", never)
         self.successes += int(success.sum())
@@ -157,10 +159,11 @@ class EpisodeStats:
 
     def report(self) -> str:
         n = max(self.episodes, 1)
+        counted = {"success": f"successes: {self.successes}, ", "failure": f"failures: {self.failures}, "}
+        counts = [counted[flag] for flag in self.outcomes]  # no count of an outcome the task does not define
         lines = [
             f"frames collected: {self.frames} in {self.batches} batches",
-            f"episodes ended: {self.episodes} (successes: {self.successes}, failures: {self.failures}, "
-            f"truncations: {self.truncations})",
+            f"episodes ended: {self.episodes} ({', '.join(counts)}truncations: {self.truncations})",
             f"mean episode reward: {self.episode_reward / n:+.3f}",
             "mean episode reward per term:",
         ]

@@ -130,7 +130,8 @@ def test_distributed_ray(tmp_path: Path) -> None:
     episodes = _number(r"^episodes ended: (\d+)", out)
     # random actions: Hopper falls (a task failure) long before the 1000-step limit
     assert episodes > 0 and _number(r"failures: (\d+)", out) == episodes
-    assert _number(r"successes: (\d+)", out) == 0 and _number(r"truncations: (\d+)", out) == 0
+    assert "successes" not in out  # the locomotion task cannot succeed: no count of it
+    assert _number(r"truncations: (\d+)", out) == 0
     for term in ("forward", "ctrl", "survive"):  # no step/final pair: the preset pays no final reward
         assert re.search(rf"^\s+{term}\s+[+-]\d+\.\d+$", out, flags=re.MULTILINE), term
     assert _number(r"^\s+survive\s+([+-]\d+\.\d+)$", out) > 0  # healthy_reward 1 per healthy step
@@ -162,6 +163,7 @@ def test_distributed_ray_pendulum_pieces() -> None:
     # the controller only ends episodes by success, each paid +100 once
     assert stats.terms["final"] == pytest.approx(100.0 * stats.successes)
     assert stats.max_offline_diff == 0.0
+    assert f"successes: {stats.successes}, " in stats.report()  # the swing-up task defines success
     assert module.make_policy("Hopper-v5") is None
     with pytest.raises(ValueError, match="env_id"):
         module.make_offline_transform("CartPole-v1")
