@@ -153,6 +153,7 @@ except UserWarning as error:
 """
 
 
+@pytest.mark.slow  # a fresh interpreter imports torch and TorchRL: ~10 s of CPU
 def test_import_silences_the_notices_under_w_error() -> None:
     """``python -W error``: the feed-forward Collector runs; the recurrent notice and a user's warning raise."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])))
