@@ -8,13 +8,16 @@ with a marker comment on its first line::
     # doctest: +SKIP
 
 Test ids are ``<file>:<line of the opening fence>``; a failing block's traceback points at the
-lines of the Markdown file.
+lines of the Markdown file. A block fails if it emits any warning (a reader who runs it would see it):
+every warning is recorded, except the TorchRL notices ``import torchtasks`` silences for every user.
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +25,7 @@ import pytest
 import torch
 
 from repo_paths import ROOT
+from torchtasks._warnings import quiet_torchrl_notices
 
 DOC_FILES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 
@@ -117,6 +121,32 @@ def restore_torch_state() -> Iterator[None]:
     torch.set_rng_state(rng)
 
 
+@contextmanager
+def record_warnings() -> Iterator[list[warnings.WarningMessage]]:
+    """Record every warning of the block as a user would see it after ``import torchtasks``.
+
+    pytest resets the filters around each test, and ``simplefilter("always")`` (which also shows a warning
+    already shown elsewhere in this process) goes in front of them all, torchtasks' included: so the
+    package's filters are installed again after it, in front, as they are in a user's process.
+    """
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        quiet_torchrl_notices()
+        yield caught
+
+
+def test_recording_keeps_only_torchtasks_filters() -> None:
+    """The snippets' recorder drops what ``import torchtasks`` silences, and records everything else."""
+    silenced = "The env passed to Collector is missing transforms required by the policy (InitTracker). From ..."
+    shown = "The env passed to Collector is missing transforms required by the policy (InitTracker, TensorDictPrimer). "
+    with record_warnings() as caught:
+        for message in (silenced, shown):
+            warnings.warn_explicit(message, FutureWarning, "_single.py", 1, module="torchrl.collectors._single")
+        for _ in range(2):  # recorded twice: "always"
+            warnings.warn("about the user's code", DeprecationWarning, stacklevel=1)
+    assert [str(warning.message) for warning in caught] == [shown] + ["about the user's code"] * 2
+
+
 QUICK_SNIPPET = next(snippet for snippet in SNIPPETS if snippet.path.name == "README.md")  # in `make test-quick`
 
 
@@ -132,4 +162,7 @@ def test_snippet_runs(snippet: Snippet, restore_torch_state: None) -> None:
     # pad with blank lines so that tracebacks show the line numbers of the Markdown file
     code = compile("\n" * snippet.line + snippet.source, str(snippet.path), "exec")
     namespace = {"__name__": "__docs_snippet__", "__file__": str(snippet.path)}
-    exec(code, namespace)
+    with record_warnings() as caught:
+        exec(code, namespace)
+    shown = [f"{item.filename}:{item.lineno}: {item.category.__name__}: {item.message}" for item in caught]
+    assert not shown, f"{snippet.id} emits {len(shown)} warning(s), a reader would see:\n" + "\n".join(shown)

@@ -96,8 +96,7 @@ class BaseEnvState(Transform):
         >>> def make_collector():
         ...     env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(StepCounter(10), BaseEnvState()))
         ...     policy = TensorDictModule(torch.nn.Linear(2, 1), ["observation"], ["action"])
-        ...     return Collector(env, policy, frames_per_batch=20, total_frames=-1,
-        ...                      auto_register_policy_transforms=False)
+        ...     return Collector(env, policy, frames_per_batch=20, total_frames=-1)
         >>> running = make_collector()
         >>> _ = running.set_seed(0)
         >>> batches = iter(running)
@@ -263,8 +262,7 @@ def collector_state(collector: Collector | MultiSyncCollector) -> dict[str, Any]
         ...     env = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
         ...         StepCounter(30), TaskTransform(swing_up_task()), RewardSum(), BaseEnvState()))
         ...     policy = TensorDictModule(torch.nn.Linear(2, 1), ["observation"], ["action"])
-        ...     return Collector(env, policy, frames_per_batch=40, total_frames=-1,
-        ...                      auto_register_policy_transforms=False)
+        ...     return Collector(env, policy, frames_per_batch=40, total_frames=-1)
         >>> running = make_collector()
         >>> batches = iter(running)
         >>> _ = next(batches)
@@ -315,8 +313,7 @@ def load_collector_state(collector: Collector | MultiSyncCollector, state: Mappi
         >>> def make_collector(batch):
         ...     env = TransformedEnv(PointMassEnv(batch_size=[batch]), Compose(StepCounter(30), BaseEnvState()))
         ...     policy = TensorDictModule(torch.nn.Linear(4, 2), ["observation"], ["action"])
-        ...     return Collector(env, policy, frames_per_batch=4 * batch, total_frames=-1,
-        ...                      auto_register_policy_transforms=False)
+        ...     return Collector(env, policy, frames_per_batch=4 * batch, total_frames=-1)
         >>> running = make_collector(3)
         >>> _ = next(iter(running))
         >>> saved = collector_state(running)
