@@ -33,12 +33,14 @@ QUIET_NOTICES: tuple[Notice, ...] = (
         category=FutureWarning,
         module=r"torchrl\.",
     ),
-    # Raised while torchrl.collectors is imported, about torchrl's own four WeightUpdaterBase subclasses;
+    # Raised while torchrl.collectors is imported, about torchrl's own WeightUpdaterBase subclasses
+    # (four there, two more when its distributed collectors are imported);
     # attributed to the ``abc`` module (class creation), so only the class names tell it from a user's subclass.
     # Without this filter ``python -W error`` cannot import torchtasks.transforms.
     Notice(
         message=(
-            r"Creating (VanillaWeightUpdater|MultiProcessedWeightUpdater|RemoteModuleWeightUpdater|RayWeightUpdater)"
+            r"Creating (VanillaWeightUpdater|MultiProcessedWeightUpdater|RemoteModuleWeightUpdater|RayWeightUpdater"
+            r"|DistributedWeightUpdater|RPCWeightUpdater)"
             r" which inherits from WeightUpdaterBase is deprecated\. "
         ),
         category=DeprecationWarning,

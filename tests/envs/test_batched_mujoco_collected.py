@@ -329,6 +329,9 @@ def test_parallel_env_of_batched_envs(placement: str) -> None:
 
 
 # ------------------------------------------------------------------------------------------ Ray
+# the test's policy is a plain callable with no weights: TorchRL's notices about syncing weights do not apply
+@pytest.mark.filterwarnings("ignore:The policy is not an nn.Module:UserWarning")
+@pytest.mark.filterwarnings("ignore:RayCollector iteration started before weight synchronization:UserWarning")
 @pytest.mark.ray
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")

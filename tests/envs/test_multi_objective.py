@@ -155,7 +155,7 @@ class Run:
         assert got["vector"].dtype == vector.dtype == torch.float32
         same = (got["vector"] == vector).all(-1) & (got["vector"].view(torch.int32) == vector.view(torch.int32)).all(-1)
         scalar = torch.tensor([gymnasium_scalar(info) for info in infos], dtype=torch.float64)
-        flags = torch.tensor([terminated, truncated, np.logical_or(terminated, truncated)]).T
+        flags = torch.from_numpy(np.array([terminated, truncated, np.logical_or(terminated, truncated)])).T
         observation = torch.from_numpy(np.stack(observations))
         return {
             "transitions": len(self.expected),

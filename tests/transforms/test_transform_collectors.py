@@ -231,6 +231,9 @@ def test_multi_collector(cls, keep_threads, fork_start_method) -> None:
 TESTS_DIR = str(TESTS)  # replay_env.py, golden.py, ... for the Ray workers
 
 
+# the test's policy is a plain callable with no weights: TorchRL's notices about syncing weights do not apply
+@pytest.mark.filterwarnings("ignore:The policy is not an nn.Module:UserWarning")
+@pytest.mark.filterwarnings("ignore:RayCollector iteration started before weight synchronization:UserWarning")
 @pytest.mark.ray
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")

@@ -17,6 +17,7 @@ import torch
 from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule
 from torch import nn
+from torchrl import set_auto_unwrap_transformed_env
 from torchrl.envs import Compose, GymEnv, GymWrapper, RewardSum, StepCounter, TransformedEnv
 from torchrl.envs.utils import check_env_specs
 
@@ -282,7 +283,7 @@ def test_autoresetting_gymnasium_vector_env_raises() -> None:
     def make():
         return TransformedEnv(_make_vec(gym.vector.AutoresetMode.SAME_STEP), TaskTransform(_gym_pendulum_task()))
 
-    with pytest.raises(ValueError, match="ParallelEnv"):
+    with set_auto_unwrap_transformed_env(True), pytest.raises(ValueError, match="ParallelEnv"):  # nesting on purpose
         _build_and_reset(make)
 
 
@@ -291,7 +292,8 @@ def test_autoresetting_gymnasium_vector_env_raises() -> None:
 def test_gym_env_num_envs_raises() -> None:
     base = GymEnv("Pendulum-v1", num_envs=2)
     try:
-        with pytest.raises(ValueError, match="ParallelEnv"):
+        # GymEnv(num_envs=2) is a TransformedEnv: the nesting is the test's point
+        with set_auto_unwrap_transformed_env(True), pytest.raises(ValueError, match="ParallelEnv"):
             env = TransformedEnv(base, Compose(StepCounter(10), TaskTransform(_gym_pendulum_task())))
             env.reset()
     finally:
