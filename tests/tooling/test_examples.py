@@ -4,6 +4,11 @@ Each example runs as a subprocess (``sys.executable``), as a user would run it, 
 directory and with its default outputs: :func:`run_quick` also checks that it writes nothing there
 but ``runs/<example name>/`` (see ``test_examples_write_under_runs.py``). The Ray example starts (and
 shuts down) its own local Ray cluster; the MuJoCo example needs the ``mujoco`` extra.
+
+Every script's ``--help`` runs in one interpreter (:func:`help_outputs`): each script as ``__main__`` with
+``sys.argv = [script, "--help"]``, as ``python examples/<script> --help`` runs it, one after the other. A fresh
+interpreter per script cost an import of torch and TorchRL each (~6 s of CPU apiece on the 2-core machine); the
+``--quick`` runs below still start every script in an interpreter of its own.
 """
 
 from __future__ import annotations
@@ -19,7 +24,9 @@ import pytest
 
 from example_runs import EXAMPLES, run_quick
 
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
+# no xdist group for the module: each ``--quick`` run is a test of its own, which either worker may take; the
+# ``--help`` checks share one interpreter (a module-scoped fixture), so they go to one worker together
+pytestmark = [pytest.mark.slow]
 
 
 SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":attr:")
@@ -42,23 +49,81 @@ def assert_no_torchrl_info(output: str) -> None:
     assert not lines, f"TorchRL INFO logs in the example's output: {lines[:3]}"
 
 
-@pytest.mark.parametrize("script", sorted(path.name for path in EXAMPLES.glob("[!_]*.py")))
-def test_help_is_short_plain_and_shows_defaults(script: str, tmp_path: Path) -> None:
+SCRIPTS = sorted(path.name for path in EXAMPLES.glob("[!_]*.py"))
+
+#: runs ``<examples>/<script> --help`` for each script named on its command line, in its current directory, as
+#: ``__main__`` (the scripts' folder first on ``sys.path``, as for ``python <script>``): a marker line before each
+#: script's output on both streams, then a JSON object with each script's exit status and the entries that appeared
+#: in the current directory while it ran
+HELP_DRIVER = """
+import json, os, runpy, sys, traceback
+folder, scripts = sys.argv[1], sys.argv[2:]
+sys.path[0] = folder  # the script's folder in place of -c's current directory, as for python <script>
+results = {}
+for script in scripts:
+    marker = "\\0" + script + "\\0"
+    print(marker, flush=True)
+    print(marker, file=sys.stderr, flush=True)
+    before = set(os.listdir("."))
+    sys.argv = [os.path.join(folder, script), "--help"]
+    status = 0
+    try:
+        runpy.run_path(sys.argv[0], run_name="__main__")
+    except SystemExit as exit:
+        status = exit.code if isinstance(exit.code, int) else (exit.code is not None)
+    except BaseException:
+        traceback.print_exc()
+        status = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    results[script] = {"status": status, "written": sorted(set(os.listdir(".")) - before)}
+print("\\0RESULTS\\0" + json.dumps(results), flush=True)
+print("\\0RESULTS\\0", file=sys.stderr, flush=True)
+"""
+
+
+def _per_script(stream: str) -> dict[str, str]:
+    """What each script wrote to ``stream``: the driver starts each script's part with a line ``\\0<script>\\0``
+    (and ends the last one with ``\\0RESULTS\\0``)."""
+    pieces = stream.split("\0")
+    assert pieces[0] == "", f"output before the first script's --help: {pieces[0][-3000:]}"
+    return {name: text.removeprefix("\n") for name, text in zip(pieces[1::2], pieces[2::2], strict=True)}
+
+
+@pytest.fixture(scope="module")
+def help_outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
+    """Per script: ``status``, ``stdout``, ``stderr`` and ``written`` (new entries in the current directory) of its
+    ``--help``, all scripts run by :data:`HELP_DRIVER` in one interpreter from an empty directory."""
+    cwd = tmp_path_factory.mktemp("help")
+    command = [sys.executable, "-c", HELP_DRIVER, str(EXAMPLES), *SCRIPTS]
+    result = subprocess.run(command, cwd=cwd, capture_output=True, text=True, timeout=300, check=False)
+    assert result.returncode == 0, f"the --help driver failed:\n{result.stderr[-3000:]}"
+    stdouts, stderrs = _per_script(result.stdout), _per_script(result.stderr)
+    outputs = json.loads(stdouts.pop("RESULTS"))
+    stderrs.pop("RESULTS")
+    assert list(outputs) == SCRIPTS and list(stdouts) == SCRIPTS and list(stderrs) == SCRIPTS
+    for script in SCRIPTS:
+        outputs[script].update(stdout=stdouts[script], stderr=stderrs[script])
+    return outputs
+
+
+@pytest.mark.xdist_group("example_help")
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_help_is_short_plain_and_shows_defaults(script: str, help_outputs: dict[str, dict]) -> None:
     """``--help``: the docstring's first paragraph, then every option with a description and its default, in 40 x 100.
 
     One format everywhere: ``(default: 0 1 2)`` (``_cli.default_text``), short metavars, the same footer.
     """
-    command = [sys.executable, str(EXAMPLES / script), "--help"]
-    result = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=120, check=False)
-    assert result.returncode == 0, result.stderr
-    assert not list(tmp_path.iterdir()), "--help wrote files"
-    text = result.stdout
+    result = help_outputs[script]
+    assert result["status"] == 0, result["stderr"]
+    assert not result["written"], f"--help wrote {result['written']}"
+    text = result["stdout"]
     lines = text.splitlines()
     assert len(lines) <= 40, f"{len(lines)} lines:\n{text}"
     wide = [line for line in lines if len(line) > 100]
     assert not wide, f"lines over 100 columns: {wide}"
     assert not [mark for mark in SPHINX_MARKUP if mark in text], text
-    assert "[torchrl][INFO]" not in text + result.stderr
+    assert "[torchrl][INFO]" not in text + result["stderr"]
     assert lines[-1] == EPILOG, "the footer differs from the other examples'"
     options = text.split("options:", 1)[1].split("\n\n", 1)[0]
     for block in re.split(r"\n(?=  -)", options.strip("\n")):
