@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
 from typing import Any
 
 import pytest
 
 from golden import load_golden
+from repo_paths import TESTS
 
 
 @pytest.fixture(scope="session")
@@ -53,3 +55,57 @@ def fork_start_method():
     mp.set_start_method("fork", force=True)
     yield
     mp.set_start_method(previous, force=True)
+
+
+RAY_CLUSTER = "ray_cluster"
+
+
+@pytest.fixture
+def ray_cluster():
+    """A local Ray cluster of 2 CPUs, started by the first test that asks for it and shared by the tests that follow.
+
+    Starting a cluster costs ~10 s on this machine, so the tests using it run one after the other
+    (:func:`pytest_collection_modifyitems`) and the cluster stops after the last of them
+    (:func:`pytest_runtest_teardown`). Mark such tests ``ray`` and ``multiprocess`` and put them in the
+    ``multiprocess`` xdist group: then one worker runs them all and starts one cluster.
+
+    Ray's workers inherit the environment ``ray.init`` starts the cluster in: ``tests/`` is put on their
+    ``PYTHONPATH`` there (the shared helpers, e.g. ``replay_env``, are what env constructors are pickled by). A
+    ``runtime_env`` with the same variable would make Ray start fresh workers for it instead of the ones it has
+    ready (~15 s more per test under load).
+    """
+    ray = pytest.importorskip("ray")
+    if not ray.is_initialized():
+        previous = os.environ.get("PYTHONPATH")
+        os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, [str(TESTS), previous]))
+        try:
+            ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        finally:
+            if previous is None:
+                del os.environ["PYTHONPATH"]
+            else:
+                os.environ["PYTHONPATH"] = previous
+    return ray
+
+
+def _uses_ray_cluster(item: pytest.Item | None) -> bool:
+    return item is not None and RAY_CLUSTER in getattr(item, "fixturenames", ())
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The tests using :func:`ray_cluster` run one after the other, where the first of them was collected."""
+    users = [item for item in items if _uses_ray_cluster(item)]
+    if len(users) < 2:
+        return
+    first = items.index(users[0])
+    others = [item for item in items if not _uses_ray_cluster(item)]
+    items[:] = others[:first] + users + others[first:]
+
+
+@pytest.hookimpl(trylast=True)
+def pytest_runtest_teardown(item: pytest.Item, nextitem: pytest.Item | None) -> None:
+    """Stop the shared Ray cluster after the last of the consecutive tests using it."""
+    if _uses_ray_cluster(item) and not _uses_ray_cluster(nextitem):
+        import ray
+
+        ray.shutdown()

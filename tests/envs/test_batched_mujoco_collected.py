@@ -335,30 +335,25 @@ def test_parallel_env_of_batched_envs(placement: str) -> None:
 @pytest.mark.ray
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
-def test_ray_collector_over_batched_envs() -> None:
+def test_ray_collector_over_batched_envs(ray_cluster) -> None:
     """``Collector(backend="ray")``: two Ray actors, each collecting from its own batched Hopper preset.
 
-    Ray start-up (the local cluster, then two actors importing torch, mujoco and gymnasium) takes
-    15-25 s on this 2-core machine; the collection itself is under a second.
+    The cluster is shared with the other Ray tests (the ``ray_cluster`` fixture); the two actors importing torch,
+    mujoco and gymnasium take most of this test's time on this 2-core machine, the collection under a second.
     """
-    ray = pytest.importorskip("ray")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    make = [functools.partial(gymnasium_env, "Hopper-v5", num_envs=4, seed=i, num_threads=1) for i in range(2)]
+    collector = Collector(
+        make,
+        None,
+        backend="ray",
+        frames_per_batch=400,
+        total_frames=1200,
+        remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
+    )
     try:
-        make = [functools.partial(gymnasium_env, "Hopper-v5", num_envs=4, seed=i, num_threads=1) for i in range(2)]
-        collector = Collector(
-            make,
-            None,
-            backend="ray",
-            frames_per_batch=400,
-            total_frames=1200,
-            remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
-        )
-        try:
-            batches = [batch.clone() for batch in collector]
-        finally:
-            collector.shutdown()
+        batches = [batch.clone() for batch in collector]
     finally:
-        ray.shutdown()
+        collector.shutdown()
     assert [batch.shape for batch in batches] == [torch.Size([4, 100])] * 3
     totals = {"failures": 0, "partial_reset_steps": 0}
     for batch in batches:

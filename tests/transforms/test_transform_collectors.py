@@ -18,7 +18,6 @@ functions of ``replay_env``).
 from __future__ import annotations
 
 import functools
-import os
 
 import pytest
 import torch
@@ -37,7 +36,6 @@ from replay_env import (
     replay_policy,
     task_transforms,
 )
-from repo_paths import TESTS
 
 NAME = "final_rew/default"  # episodes of 7 (success), 4 (failure) and 20 (time limit) steps
 NUM_ENVS = 2
@@ -228,39 +226,27 @@ def test_multi_collector(cls, keep_threads, fork_start_method) -> None:
         _check(data, envs=None)
 
 
-TESTS_DIR = str(TESTS)  # replay_env.py, golden.py, ... for the Ray workers
-
-
 # the test's policy is a plain callable with no weights: TorchRL's notices about syncing weights do not apply
 @pytest.mark.filterwarnings("ignore:The policy is not an nn.Module:UserWarning")
 @pytest.mark.filterwarnings("ignore:RayCollector iteration started before weight synchronization:UserWarning")
 @pytest.mark.ray
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
-def test_ray_collector(keep_threads) -> None:
-    ray = pytest.importorskip("ray")
-    python_path = os.pathsep.join(filter(None, [TESTS_DIR, os.environ.get("PYTHONPATH")]))
-    ray.init(
-        num_cpus=2,
-        include_dashboard=False,
-        runtime_env={"env_vars": {"PYTHONPATH": python_path}},
-        log_to_driver=False,
+def test_ray_collector(keep_threads, ray_cluster) -> None:
+    """Two Ray actors, each collecting from a replay env built from a ``functools.partial`` of ``make_task_env``
+    (a module of ``tests/``, on the actors' ``PYTHONPATH``: see the ``ray_cluster`` fixture)."""
+    collector = Collector(
+        _env_fns(),
+        replay_policy(),
+        backend="ray",
+        frames_per_batch=40,
+        total_frames=120,
+        remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
     )
     try:
-        collector = Collector(
-            _env_fns(),
-            replay_policy(),
-            backend="ray",
-            frames_per_batch=40,
-            total_frames=120,
-            remote_configs={"num_cpus": 1, "memory": 512 * 1024**2},
-        )
-        try:
-            batches = [batch.clone() for batch in collector]
-        finally:
-            collector.shutdown()
+        batches = [batch.clone() for batch in collector]
     finally:
-        ray.shutdown()
+        collector.shutdown()
     data = torch.cat([batch.reshape(-1) for batch in batches])
     assert data.numel() == 120, data.numel()
     _check(data, envs=None)
