@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import functools
 import importlib
 import importlib.util
 import inspect
@@ -147,7 +148,9 @@ def _source_file(module_name: str) -> Path | None:
     return None
 
 
+@functools.cache
 def _parse(module_name: str) -> ast.Module | None:
+    """The syntax tree of a module's source (``None`` without one); each file is read and parsed once per process."""
     try:
         path = _source_file(module_name)
         return None if path is None else ast.parse(path.read_text(encoding="utf-8"))
@@ -155,12 +158,13 @@ def _parse(module_name: str) -> ast.Module | None:
         return None
 
 
-def _source_summaries(module_name: str, _seen: frozenset[str] = frozenset()) -> dict[str, str]:
-    """Summaries of the classes and functions of ``module_name`` (and of the torchtasks names it imports),
-    read from the source without importing it."""
+@functools.cache
+def _defined_and_imported(module_name: str) -> tuple[dict[str, str], dict[str, list[str]]] | None:
+    """The summaries of the classes and functions defined in ``module_name``'s source, and the names it imports
+    from torchtasks modules (``{module: [name, ...]}``); ``None`` without a source."""
     tree = _parse(module_name)
-    if tree is None or module_name in _seen:
-        return {}
+    if tree is None:
+        return None
     summaries: dict[str, str] = {}
     imported: dict[str, list[str]] = {}
     for node in tree.body:
@@ -169,9 +173,20 @@ def _source_summaries(module_name: str, _seen: frozenset[str] = frozenset()) -> 
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("torchtasks"):
             for alias in node.names:
                 imported.setdefault(node.module or "", []).append(alias.name)
+    return summaries, imported
+
+
+def _source_summaries(module_name: str, _seen: frozenset[str] = frozenset()) -> dict[str, str]:
+    """Summaries of the classes and functions of ``module_name`` (and of the torchtasks names it imports),
+    read from the source without importing it."""
+    found = _defined_and_imported(module_name)
+    if found is None or module_name in _seen:
+        return {}
+    defined, imported = found
+    summaries = dict(defined)
     for source, names in imported.items():
-        found = _source_summaries(source, _seen | {module_name})
-        summaries.update({name: found[name] for name in names if name in found and name not in summaries})
+        found_there = _source_summaries(source, _seen | {module_name})
+        summaries.update({name: found_there[name] for name in names if name in found_there and name not in summaries})
     return summaries
 
 
