@@ -33,12 +33,13 @@ SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":attr:")
 EPILOG = "Details: the module docstring of this script. TorchRL's INFO logs: RL_LOGGING_LEVEL=INFO."
 
 
-def run_example(name: str, cwd: Path, *args: str, timeout: float = 180.0) -> str:
-    """Run ``examples/<name> --quick *args`` from the empty folder ``cwd``; return its stdout (:func:`run_quick`).
+def run_example(name: str, cwd: Path, *args: str, timeout: float = 180.0, fresh: bool = False) -> str:
+    """Run ``examples/<name> --quick *args`` from the empty folder ``cwd``; return its stdout (:func:`run_quick`;
+    ``fresh``: in a fresh interpreter, not a child of the fork server).
 
     Also checks that TorchRL's INFO logs are quiet (the examples set the ``torchrl`` logger to WARNING).
     """
-    result = run_quick(name, cwd, *args, timeout=timeout)
+    result = run_quick(name, cwd, *args, timeout=timeout, fresh=fresh)
     assert_no_torchrl_info(result.stdout + result.stderr)
     return result.stdout
 
@@ -189,7 +190,7 @@ def test_distributed_ray(tmp_path: Path) -> None:
     if importlib.util.find_spec("mujoco") is None or importlib.util.find_spec("gymnasium") is None:
         pytest.skip("needs the mujoco extra (mujoco, gymnasium)")
     # Ray start-up (cluster, then two actors importing torch) takes most of the time on a loaded 2-core machine
-    out = run_example("distributed_ray.py", tmp_path, timeout=300.0)
+    out = run_example("distributed_ray.py", tmp_path, timeout=300.0, fresh=True)  # Ray's client is not forked
     assert "Ray collector: 2 workers x 8 Hopper-v5 envs (BatchedMujocoEnv)" in out
     assert _number(r"^frames collected: (\d+)", out) == 2400
     episodes = _number(r"^episodes ended: (\d+)", out)
