@@ -17,13 +17,17 @@ def golden() -> dict[str, Any]:
     return load_golden()
 
 
+_PROCESS_GARBAGE = {"pending": False}  # whether a test that started processes ran since the last collection
+
+
 @pytest.fixture(autouse=True)
 def _restore_torch_threads(request: pytest.FixtureRequest):
     """Keep torch's global thread count from leaking between tests, and seed torch's global generator per test.
 
     Multi-process collectors and envs change the thread count, also from finalizers that run whenever garbage
-    is collected; dynamo refuses a trace during which it changes. Collect their garbage right after such
-    tests and restore the count after every test.
+    is collected; dynamo refuses a trace during which it changes. Their garbage is collected before the first
+    test that starts no processes after such tests (a full collection takes ~0.3-0.6 s in a test process: once
+    per run of consecutive multi-process tests, not after each), and the count is restored after every test.
 
     The global generator (random actions of ``env.rollout()`` without a policy, a fresh ``nn.Linear``) is
     seeded from the test's id: a test draws the same numbers whichever tests ran before it in its worker
@@ -34,11 +38,16 @@ def _restore_torch_threads(request: pytest.FixtureRequest):
 
     import torch
 
+    starts_processes = request.node.get_closest_marker("multiprocess") is not None
+    if _PROCESS_GARBAGE["pending"] and not starts_processes:
+        threads = torch.get_num_threads()
+        gc.collect()
+        torch.set_num_threads(threads)
+        _PROCESS_GARBAGE["pending"] = False
     torch.manual_seed(zlib.crc32(request.node.nodeid.encode()))
     threads = torch.get_num_threads()
     yield
-    if request.node.get_closest_marker("multiprocess") is not None:
-        gc.collect()
+    _PROCESS_GARBAGE["pending"] |= starts_processes
     torch.set_num_threads(threads)
 
 

@@ -612,10 +612,13 @@ def test_reset_output_of_a_fresh_env_has_every_entry() -> None:
     env.close()
 
 
-@pytest.mark.multiprocess  # the ParallelEnv preset spawns its workers
+@pytest.mark.multiprocess  # the ParallelEnv preset starts worker processes
 @pytest.mark.xdist_group("multiprocess")
-def test_benchmark_script_runs_every_measurement(tmp_path: Any) -> None:
+def test_benchmark_script_runs_every_measurement(tmp_path: Any, fork_start_method) -> None:
     """``benchmarks/batched_mujoco.py --tiny``: every code path with tiny sizes (timings mean nothing).
+
+    The preset's workers are forked here (TorchRL takes the global start method): spawned, as a user's run starts
+    them, each would import torch anew (8 s of the test's 9 s on an idle machine) for no code path of its own.
 
     envpool (and gym, treevalue) live in the benchmark venv only: here their columns say "not installed".
     """
