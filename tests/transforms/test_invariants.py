@@ -85,15 +85,30 @@ def _second_batch(collector) -> TensorDictBase:
     return batch
 
 
-def rollout(name: str) -> TensorDictBase:
+# The in-process data of a feature do not depend on the test (seeded envs, commands and draws, deterministic
+# policies: checked equal under different global seeds), so each test process makes them once per feature and
+# every layout and check gets a copy: 12 rollouts and 12 collections instead of 12 + 84.
+@functools.cache
+def _rollout(name: str) -> TensorDictBase:
     feature = FEATURES[name]
     env = feature.make_env(BATCH, SEED)
     return env.rollout(STEPS, feature.make_policy(), break_when_any_done=False)
 
 
-def collected(name: str) -> TensorDictBase:
+@functools.cache
+def _collected(name: str) -> TensorDictBase:
     feature = FEATURES[name]
     return _second_batch(_collector(functools.partial(feature.make_env, BATCH, SEED), feature.make_policy()))
+
+
+def rollout(name: str) -> TensorDictBase:
+    """``env.rollout`` of the feature's env and policy, ``[B, T]`` (a copy of this process's one rollout)."""
+    return _rollout(name).clone()
+
+
+def collected(name: str) -> TensorDictBase:
+    """The second batch of a Collector over the feature's env, ``[B, T]`` (a copy of this process's one batch)."""
+    return _collected(name).clone()
 
 
 def parallel(name: str) -> TensorDictBase:
