@@ -44,7 +44,7 @@ def _restore_torch_threads(request: pytest.FixtureRequest):
         gc.collect()
         torch.set_num_threads(threads)
         _PROCESS_GARBAGE["pending"] = False
-    torch.manual_seed(zlib.crc32(request.node.nodeid.encode()))
+    torch.manual_seed(zlib.crc32(_ungrouped_id(request.node).encode()))
     threads = torch.get_num_threads()
     yield
     _PROCESS_GARBAGE["pending"] |= starts_processes
@@ -101,8 +101,35 @@ def _uses_ray_cluster(item: pytest.Item | None) -> bool:
     return item is not None and RAY_CLUSTER in getattr(item, "fixturenames", ())
 
 
+_UNGROUPED_ID = pytest.StashKey[str]()
+
+
+def _apply_xdist_groups(items: list[pytest.Item]) -> None:
+    """Make ``--dist loadgroup`` group the tests by their ``xdist_group`` marks again.
+
+    pytest-xdist 3.8 tells its scheduler a test's group by appending ``@<group>`` to the test's id, written to
+    ``item._nodeid``; pytest 9.2 reads the id from ``item._id`` instead, so the suffix is lost and every test is
+    scheduled on its own: no group holds together (pytest-dev/pytest-xdist#1386). This writes the suffixed id where
+    pytest reads it (what pytest-xdist's proposed fix does), and does nothing where pytest already reads it (an
+    older pytest, a fixed pytest-xdist) or without loadgroup (no suffix written).
+    """
+    for item in items:
+        grouped = item.__dict__.get("_nodeid")
+        if isinstance(grouped, str) and grouped != item.nodeid and grouped.startswith(f"{item.nodeid}@"):
+            item.stash[_UNGROUPED_ID] = item.nodeid
+            item._id = type(item._id).parse(grouped)
+
+
+def _ungrouped_id(item: pytest.Item) -> str:
+    """The test's id without the ``@<group>`` suffix of ``--dist loadgroup``."""
+    return item.stash.get(_UNGROUPED_ID, item.nodeid)
+
+
+@pytest.hookimpl(trylast=True)  # after pytest-xdist's own hook, which writes the group suffix
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The tests using :func:`ray_cluster` run one after the other, where the first of them was collected."""
+    """Apply the xdist groups (:func:`_apply_xdist_groups`); the tests using :func:`ray_cluster` run one after the
+    other, where the first of them was collected."""
+    _apply_xdist_groups(items)
     users = [item for item in items if _uses_ray_cluster(item)]
     if len(users) < 2:
         return

@@ -135,6 +135,7 @@ def test_collector_data():
     assert episodes > 8
 
 
+@pytest.mark.xdist_group("inductor")  # with the other Inductor compilations (test_tasks_autodiff_compile.py)
 def test_compiled_transform_equals_eager():
     torch.manual_seed(0)  # the random actions
     eager = make_env(batch=6, seed=6).rollout(20, break_when_any_done=False)

@@ -49,6 +49,10 @@ CASES = {**class_cases(), **predefined_cases()}
 #: representative cases compiled with the default (inductor) backend: a leaf, a wrapper over a
 #: stateful reward, and a nested Sequential/Parallel/Masked/FinalReward tree
 INDUCTOR_CASES = ("desired_state", "final_state_goalless", "sequential")
+#: the xdist group of every test that compiles with Inductor (here, test_shaping.py, test_transform_env.py): the
+#: first Inductor compilation in a test process costs ~7 s more than the next ones (Inductor's imports and C++
+#: toolchain checks), so one worker pays it
+INDUCTOR = pytest.mark.xdist_group("inductor")
 N_ENVS = 6
 REMAINING = torch.tensor([0, 1, 2, 5, 3, 7])
 
@@ -75,7 +79,9 @@ def _rollout_inputs(task, seed: int = 0, steps: int = 2):
 
 
 # ------------------------------------------------------------------------------------ torch.compile
-@pytest.mark.parametrize("name", sorted(CASES))
+@pytest.mark.parametrize(
+    "name", [pytest.param(name, marks=[INDUCTOR] if name in INDUCTOR_CASES else []) for name in sorted(CASES)]
+)
 def test_compiled_transition_matches_eager(name):
     torch._dynamo.reset()
     task = CASES[name]()

@@ -439,6 +439,7 @@ def test_remaining_steps_reach_the_task(
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("inductor")  # with the other Inductor compilations (test_tasks_autodiff_compile.py)
 def test_compile_gives_the_eager_rollout() -> None:
     def run(compile: bool) -> TensorDictBase:
         env = _pendulum_env(PendulumEnv([4], dtype=F64, seed=SEED), MAX_STEPS, compile=compile)
