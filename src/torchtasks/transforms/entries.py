@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 from tensordict.utils import NestedKey, unravel_key
 
 from torchtasks._torchrl import key_parts
-from torchtasks.tasks.transition import Transition
+from torchtasks.tasks.transition import TRANSITION_FIELDS
 from torchtasks.transforms.names import (
     COST_KEY,
     COST_TERMS_KEY,
@@ -66,8 +66,6 @@ KIND_SPECS: dict[str, tuple[str, ...]] = {
     "goal": ("observation",),  # the achieved goal [*B, k], in the state's dtype
 }
 
-#: the fields of the task's transition result (``Task._transition``, a :class:`~torchtasks.tasks.Transition`)
-TRANSITION_FIELDS = Transition._fields
 
 EVERY_STEP: frozenset[str] = frozenset({"step", "offline", "relabel"})
 EVERY_STEP_AND_RESET: frozenset[str] = EVERY_STEP | {"reset"}
