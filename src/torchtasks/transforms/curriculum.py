@@ -76,73 +76,29 @@ class _CountMirror(NamedTuple):
 class Curriculum(CheckedLoad, TargetWriter):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
-    Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
-    ``Compose``, and after a ``RewardSum`` whose episode sums a gated schedule reads). Each key of
-    ``schedules`` names a float buffer of that transform's task, as ``task.named_buffers()`` names
-    it (e.g. ``"wrapped_task.reward.Q"``), or, under the prefix ``"command."``, a sampling-range
-    buffer of the env's :class:`~torchtasks.transforms.GoalCommand`: ``"command.low"`` and
-    ``"command.high"`` when the env has one GoalCommand, ``"command.<goal key>.low"`` (a nested goal
-    key joined by ``"/"``) always; a short name with several GoalCommands is ambiguous. A scheduled
-    GoalCommand must come after the Curriculum (the goal drawn in a step uses that step's range). A
-    misspelt or ambiguous name is a ``ValueError`` listing every schedulable name when the env's
-    specs are built, and so is a value whose shape is neither ``()`` nor the buffer's, a value the
-    buffer's reward refuses (:meth:`~torchtasks.rewards.RewardFunction.check_constant`, e.g. a negative
-    cost weight; checked at every breakpoint and stage), and a
-    scheduled range that leaves the command's ``Box`` (the goal spec) or has ``low > high`` (checked
-    at every breakpoint of constant, linear and staged schedules, where their extremes lie, and for
-    every stage value of a gated schedule against every value the other bound can take).
+    Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same ``Compose``, and after a
+    ``RewardSum`` whose episode sums a gated schedule reads). Each key of ``schedules`` names a float buffer of that
+    transform's task (``task.named_buffers()``'s name, e.g. ``"wrapped_task.reward.Q"``, or a short name:
+    :func:`~torchtasks.transforms.target_names` lists them) or, as ``"command.low"``/``"command.high"``, the range of a
+    :class:`~torchtasks.transforms.GoalCommand` placed after it. A misspelt or ambiguous name, a value of another shape
+    than the buffer's and a value the buffer's owner refuses (a negative cost weight, a range that leaves the goal
+    space) are a ``ValueError`` when the env's specs are built, checked at every breakpoint and stage.
 
-    At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the
-    steps of all envs, not their resets), gated schedules take note of the episodes that ended, and
-    every schedule's value at the new count is written into its buffer (``buffer.copy_(value)``),
-    where the next step's reward reads it. At reset the values of the current count are written too,
-    before the env and the TaskTransform reset (the first episode reads the schedule's first values).
-    Constant, linear and staged schedules are evaluated on the host from the count (a sum of batch
-    sizes); their buffer and entry are written again only when the value changes (the same entry tensor
-    goes into the data meanwhile, never written into afterwards). Under grad mode (a differentiable
-    ``env.rollout``; collectors run under ``no_grad``) a new value goes into a new tensor put in the
-    buffer's place instead, so that the autograd graph of earlier steps keeps the values it was built with.
-    A buffer the task reads only at reset (a desired state, copied into the episode memory) changes
-    each env's task at its next reset; a fact the task derives once at construction (whether its state
-    bounds are all infinite) does not follow a scheduled bound.
-
-    Written entries (observation spec): ``(curriculum_key, "frames")`` (int64 ``[*B, 1]``) and
-    ``(curriculum_key, <target with "." replaced by "/">)`` (the buffer's dtype, ``[*B, *value_shape]``,
-    ``[*B, 1]`` for a scalar value). As observations, the entries at the root of a step are the
-    frame count and the values that step's reward was computed with; offline recomputation
-    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
-    every stored frame with them.
-
-    The frame counter (``frames``) and each gated schedule's stage and moving average are
-    registered buffers: ``state_dict()``/``load_state_dict()`` restore them, also through TorchRL's
-    ``Collector.state_dict()``.
-
-    Several processes: every worker of a ``ParallelEnv`` or of a multi-process collector runs its own
-    copy of the env, and so of the Curriculum, which sees only its worker's steps. With
-    ``workers=n`` (the number of copies that step in lockstep with this one) the counter grows by
-    ``n`` times the batch size per step: the global frame count of the synchronous run, so a
-    frame-driven schedule gives every worker the values a single process stepping all ``n`` batches
-    at once would have at the same frame count (within one step)::
-
-        def make_env():  # one worker's env: B = 64 pendulums
-            return TransformedEnv(PendulumEnv(batch_size=[64]), Compose(
-                StepCounter(200), TaskTransform(swing_up_task()),
-                Curriculum({"success_value": linear(0.0, 100.0, 0, 1_000_000)}, workers=4)))
-
-        env = ParallelEnv(4, make_env)  # 4 x 64 pendulums count as one env of 256
-        collector = MultiSyncCollector([make_env] * 4, policy, frames_per_batch=4 * 64 * 50)  # the same
-
-    A Curriculum outside the workers (``TransformedEnv(ParallelEnv(...), Curriculum(...))``) sees the
-    whole batch: keep ``workers=1`` there. ``MultiAsyncCollector`` workers do not step in lockstep:
-    each count is then ``n`` times its own worker's frames, the global count only while the workers
-    keep pace. A gated schedule stays per worker: each copy gates on the episodes of its own envs, so
-    the workers' stages may differ.
+    At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the steps of all
+    envs, not their resets) and every schedule's value at the new count is written into its buffer, where the next
+    step's reward reads it; at reset the current values are written before the env and the TaskTransform reset. The
+    entries ``(curriculum_key, "frames")`` and ``(curriculum_key, <target with "/" for ".">)`` record the count and
+    the values each step used (offline recomputation reads them). The counter and each gated schedule's stage are
+    registered buffers: ``state_dict()`` restores them, also through TorchRL's ``Collector.state_dict()``. Each worker
+    of a ``ParallelEnv`` or multi-process collector runs its own copy: ``workers=n`` makes it count the frames of the
+    ``n`` copies that step in lockstep. The docs page "Curriculum" has the rules in full (targets, entries, workers,
+    gradients, checkpoints).
 
     Args:
         schedules: ``{target buffer name: schedule}``.
         curriculum_key: where the entries are written.
-        workers: how many copies of this env (processes, workers) step in lockstep with it; the frame
-            counter grows by ``workers`` times the batch size per step. A positive int.
+        workers: how many copies of this env (processes, workers) step in lockstep with it; the frame counter grows
+            by ``workers`` times the batch size per step. A positive int.
 
     Example:
         >>> import torch

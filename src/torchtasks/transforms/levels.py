@@ -77,58 +77,35 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
     """Keep an integer difficulty level per env, moved at that env's episode ends; set per-env values from it.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env and before the
-    :class:`~torchtasks.transforms.GoalCommand` whose range it sets (in the same ``Compose``). At
-    every step, for each env whose episode ended (its ``done`` flag), the level moves by the rule's
-    change, clamped to ``[0, num_levels - 1]``; the other envs keep theirs. The default rule is
-    ``success - failure`` of the step's flags: up one after an episode that ends in success, down one
-    after one that ends in failure, unchanged after a truncation. Resets never change a level.
-
-    ``values`` maps targets to tables with one row per level (``[num_levels, *value_shape]``); after
-    every step, and before every reset (the base env and the TaskTransform read some targets at reset),
-    each env's row, ``table[level]``, is written into the target:
-
-    - ``"command.low"`` / ``"command.high"`` (``"command.<goal key>.low"`` with several commands):
-      the GoalCommand's sampling range, made per env (``[*B, k]``); each row must lie in the
-      command's ``Box`` (its goal spec) and no level's ``low`` may exceed its ``high``;
-    - a float buffer of the task tree, by its ``task.named_buffers()`` name, or of the base env as
-      ``"env.<name>"``: the buffer must already hold one value per env (shape ``[*B, *value_shape]``);
-      a value shared by all envs is a :class:`~torchtasks.transforms.Curriculum`'s job.
-
-    A misspelt target, a table of the wrong shape, a range that leaves the goal space and a target a
-    Curriculum also schedules are ``ValueError``\\ s when the env's specs are built.
-
-    Written entries (observation spec): ``(curriculum_key, "level")``, int64 ``[*B, 1]``: at the root of
-    a step the level the step was played at, under ``"next"`` the level after it (changed at an
-    episode's last step). :func:`~torchtasks.stats.episode_statistics` reports its mean and the
-    fraction of envs at each level. For every task-tree and base-env target, ``(curriculum_key, <target
-    with "." replaced by "/">)``, the target's dtype, ``[*B, *value_shape]`` (``[*B]`` for a scalar
-    value): each env's row, at the root of a step the one the step used, so that offline recomputation
-    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
-    every frame with it. A GoalCommand's range is not written (the goal drawn is in the data).
-
-    State: ``level`` (int64 ``[*B]``, created when the env's specs are built) is a registered buffer;
-    ``state_dict()``/``load_state_dict()`` restore it, also before the specs are built.
+    :class:`~torchtasks.transforms.GoalCommand` whose range it sets (in the same ``Compose``). At every step, for each
+    env whose episode ended (its ``done`` flag), the level moves by the rule's change, clamped to
+    ``[0, num_levels - 1]``; by default ``success - failure`` of the step's flags (up after a success, down after a
+    failure, unchanged after a truncation). Resets never change a level. ``values`` maps targets to tables with one
+    row per level; after every step and before every reset each env's row, ``table[level]``, is written into the
+    target: the GoalCommand's range (``"command.low"``/``"command.high"``, made per env), or a float buffer of the
+    task tree or of the base env (``"env.<name>"``) that holds one value per env. A misspelt target, a table of the
+    wrong shape, a range that leaves the goal space and a target a Curriculum also schedules are a ``ValueError``
+    when the env's specs are built. It writes ``(curriculum_key, "level")`` (int64 ``[*B, 1]``: at the root of a step
+    the level the step was played at) and each env's row of every task-tree and base-env target; ``level`` is a
+    registered buffer (``state_dict()``). The docs page "Curriculum" has the rules in full.
 
     Args:
         num_levels: the number of levels (levels ``0 .. num_levels - 1``).
         values: ``{target: table}``, one row per level.
         initial_level: every env's level at the start.
-        rule: ``rule(tensordict, next_tensordict) -> change`` (integer ``[*B]`` or ``[*B, 1]``), read at every
-            step and applied where the episode ended; ``None``: ``success - failure``.
-        success_key: the success flag of the default rule; ``None``: the TaskTransform's.
-        failure_key: the failure flag of the default rule; ``None``: the TaskTransform's.
+        rule: ``rule(tensordict, next_tensordict) -> change`` (integer ``[*B]`` or ``[*B, 1]``), read at every step
+            and applied where the episode ended; ``None``: ``success - failure``.
+        success_key, failure_key: the flags of the default rule; ``None``: the TaskTransform's.
         curriculum_key: where the ``"level"`` entry is written (a Curriculum's key may be shared).
 
     Example:
         >>> import functools, torch
         >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
-        >>> from torchtasks.transforms import GoalCommand
         >>> from torchtasks.envs import PointMassEnv
-        >>> from torchtasks.transforms import DifficultyLevels
         >>> from torchtasks.rewards import ConstantReward
         >>> from torchtasks.spaces import Box, EnvSpec
         >>> from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-        >>> from torchtasks.transforms import TaskTransform
+        >>> from torchtasks.transforms import DifficultyLevels, GoalCommand, TaskTransform
         >>> spec = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
         >>> near = functools.partial(proximity_succeeded, threshold=0.1)
         >>> reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), near)
@@ -139,8 +116,6 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         ...     StepCounter(20), TaskTransform(MaskedTask(spec, reach, ["x", "y"]), goal_key="goal"), levels,
         ...     GoalCommand(Box([-1.0, -1.0], [1.0, 1.0]), seed=0)))
         >>> data = env.rollout(40, break_when_any_done=False)
-        >>> data["curriculum", "level"].shape
-        torch.Size([4, 40, 1])
         >>> ended = data["next", "done"]  # levels move only at an episode's last step
         >>> moved = data["next", "curriculum", "level"] != data["curriculum", "level"]
         >>> bool((moved <= ended).all())

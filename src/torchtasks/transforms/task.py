@@ -308,89 +308,36 @@ def _check_within_limit(
 class TaskTransform(EnvDerivedTransform):
     """Apply a task to a TorchRL env: task reward, success, failure and termination on every step.
 
-    In each step the transform reads ``s_t`` and ``a_t`` from the root tensordict, ``s_{t+1}`` from
-    ``"next"`` and the task memory from ``memory_key``. The step reward is evaluated on
-    ``s_{t+1}`` (``reward_on="next"``, the Gymnasium convention) or ``s_t`` (``reward_on="state"``,
-    Pyrado's order); success, failure and the final reward on ``s_{t+1}``. The final reward is
-    paid once, in the step where the episode ends (success, failure, the env's own termination
-    or truncation). The reward written to ``"reward"`` replaces the env's reward and is cast to
-    the reward spec's dtype. ``terminated`` and ``done`` are OR-ed with success and failure;
-    ``truncated`` is left untouched.
-
-    The remaining steps passed to the task are ``max_steps - step_count`` when a
-    ``StepCounter(max_steps)`` precedes this transform or ``max_steps`` is given (0 without a limit,
-    as in Pyrado). A task that reads them (``task.uses_remaining_steps``) in an env that counts steps
-    with a limit the transform cannot see (e.g. StepCounters inside the workers of a batched env) is
-    an error, not "no limit"; offline, such a task needs ``max_steps`` for data holding
-    ``("next", "step_count")``. In an env with no limit in sight it gets 0 and a ``UserWarning`` at
-    set-up (once per env). A ``RewardSum`` that runs before this transform (in its Compose or in a
-    TransformedEnv it wraps) and sums an entry it overwrites (:attr:`reward_key`, :attr:`term_keys`,
-    :attr:`cost_keys`) is refused with a ``ValueError``: put ``RewardSum`` after it.
-
-    Every time the env's specs are built the transform sets itself up for the env it is in now
-    (state and action sizes, dtype, time limit, transform order): a transform moved, cloned or
-    deep-copied into another env follows that env.
-
-    When the specs are first built, the task is moved to the dtype of the state entry
-    (``task.to(dtype)``, in place), so constants are cast once and not at every step; build a
-    separate task object if you need the original precision elsewhere.
-
-    Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
-    ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it; none for
-    a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`), and,
-    with ``log_terms``, the reward breakdown (reward spec, so a following ``RewardSum()`` reports
-    per-episode sums): ``(terms_key, "step")`` and ``(terms_key, "final")`` when some task of the tree
-    pays a final reward (:attr:`~torchtasks.tasks.Task.pays_final_reward`; otherwise the step reward is
-    the reward and the final reward is always 0, so neither is written), then one entry per named term
-    of a compound, product or locomotion reward. :attr:`entries` lists them all, with when each is written.
+    Each step reads ``s_t`` and ``a_t`` from the root, ``s_{t+1}`` from ``"next"`` and the task memory from
+    ``memory_key``, and evaluates the task once: the step reward on ``s_{t+1}`` (``reward_on="next"``, Gymnasium's
+    convention) or on ``s_t`` (``"state"``, Pyrado's order), success, failure and the final reward on ``s_{t+1}``, the
+    final reward paid once, where the episode ends. The reward replaces the env's (cast to the reward spec's dtype);
+    ``terminated`` and ``done`` are OR-ed with success and failure, ``truncated`` is left alone. The remaining steps
+    are ``max_steps - step_count`` of a preceding ``StepCounter`` (0 without a limit). Whenever the env's specs are
+    built the transform sets itself up for the env it is in (sizes, dtype, time limit, transform order) and casts the
+    task to the state's dtype, in place. :attr:`entries` lists what it writes and when; the docs page "TorchRL
+    integration" gives the rules in full (specs, order, time limits, offline use).
 
     Args:
         task: the task to apply.
         state_key: the key (or keys, concatenated on the last dim) holding the task's state.
         action_key: the action key.
         reward_on: ``"next"`` or ``"state"``: which state the step reward is evaluated on.
-        memory_key, success_key, failure_key, terms_key: output keys. The success flag is written only for a
-            tree that can succeed, the failure flag only for one that can fail (``task.facts.can_succeed``,
-            ``task.facts.can_fail``; e.g. a :class:`~torchtasks.tasks.GoallessTask` writes no success flag).
-        log_terms: write the reward breakdown.
-        max_steps: time limit for the remaining steps; by default read from a preceding StepCounter.
-            Needed offline, and when the env's StepCounters are out of the transform's sight. ``math.inf``
-            says the env has no limit on purpose (remaining steps 0, as Pyrado's ``max_steps=inf``): a
-            time-dependent task is then not warned about, and a preceding StepCounter with a limit is an error.
-        reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (e.g. a goal
-            sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
+        memory_key, success_key, failure_key, terms_key: output keys (the success flag only for a tree that can
+            succeed, the failure flag only for one that can fail: ``task.facts``).
+        log_terms: write the reward breakdown, ``(terms_key, <term>)`` per named term, for a ``RewardSum`` after it.
+        max_steps: the time limit of the remaining steps (default: a preceding StepCounter's; ``math.inf``: none,
+            on purpose); needed offline and when the env's StepCounters are out of the transform's sight.
+        reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (picklable for workers).
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
-        goal_key: read the goal of step ``t`` from this root entry (``[*B, k]``: the goal the policy
-            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.transforms.GoalCommand`) and
-            pass it to the task (``Task.transition(..., goal=...)``); offline, a relabelled goal there
-            re-judges reward, success and the episode end.
-        achieved_goal_key: write the achieved goal (the entries of the state the goal is compared
-            with) of ``s_{t+1}`` under ``"next"`` (and of the initial state at reset).
-        goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has
-            several.
-        ended_by_key: where a tree that names its end conditions (:attr:`Task.termination_names
-            <torchtasks.tasks.Task.termination_names>`, e.g. ``"out_of_bounds"`` and ``"unhealthy"``)
-            writes one flag per condition, ``(ended_by_key, name)`` (bool, the shape of ``done``), set
-            in the step where that condition holds (and so ends the episode); with ``log_terms``. A
-            tree with at most one condition of each kind writes none (``success`` and ``failure`` say it).
-        cost_key, cost_terms_key: where a tree with costs (:class:`~torchtasks.tasks.ConstrainedTask`)
-            writes them under ``"next"``: all costs as ``cost_key`` (``[*B, k]``, in
-            :attr:`cost_names` order) and each one as ``(cost_terms_key, name)`` (``[*B, 1]``, for a
-            ``RewardSum`` over :attr:`cost_keys` and for :func:`~torchtasks.stats.episode_statistics`);
-            both are reward-spec entries, so they are not carried to the next step's root. A tree
-            without costs writes neither.
-        vector_reward_key, groups_key: where a tree with reward groups (:class:`~torchtasks.tasks.RewardGroupsTask`)
-            writes them under ``"next"``: all groups as ``vector_reward_key`` (``[*B, k]``, in
-            :attr:`group_names` order: a vector reward for one critic per group, TorchRL's ``LineariseRewards`` or
-            ``RewardSum``) and each one as ``(groups_key, name)`` (``[*B, 1]``); reward-spec entries in the
-            tree's :attr:`~torchtasks.tasks.Task.group_dtype` (the reward's dtype when it is ``None``). The
-            scalar reward stays at ``reward_key``. A tree without groups writes neither.
-        curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
-            values of task buffers that a :class:`~torchtasks.transforms.Curriculum` or
-            :class:`~torchtasks.transforms.DifficultyLevels` set at each step, when this transform is not in their env
-            (e.g. a replay buffer's transform): every entry under it that names a float buffer of the task
-            (``"/"`` for ``"."``) is read. In their env the transform reads their entries and refuses data without
-            them. ``None``: look for none (outside such an env, the task's buffers as they are now).
+        goal_key: the root entry holding the goal the policy saw at step ``t`` (e.g. a
+            :class:`~torchtasks.transforms.GoalCommand`'s), passed to the task as ``goal=``.
+        achieved_goal_key: where to write the achieved goal of ``s_{t+1}`` (and of the initial state at reset).
+        goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has several.
+        ended_by_key: where a tree that names its end conditions writes one flag per condition (with ``log_terms``).
+        cost_key, cost_terms_key: where a tree with costs writes them: ``[*B, k]``, and ``[*B, 1]`` each.
+        vector_reward_key, groups_key: where a tree with reward groups writes them: ``[*B, k]``, and ``[*B, 1]`` each.
+        curriculum_key: offline, the entries holding the values a Curriculum or DifficultyLevels set per step.
 
     Example:
         >>> import torch
