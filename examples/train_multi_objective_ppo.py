@@ -534,7 +534,7 @@ def main() -> None:
         metavar="W",
         help="weight vectors, one run each, one weight per objective of the env "
         + default_text(
-            f"the env's scalarisation weights, those after the first times {factors}: "
+            f"the scalarisation weights of the env, those after the first times {factors}: "
             + " ".join(map(shown_weights, sweep((1.0, 0.1), SWEEP_FACTORS)))
             + f" for {ENV_ID}",
             "times " + " and ".join(f"{factor:g}" for factor in QUICK_FACTORS) + " with --quick",
