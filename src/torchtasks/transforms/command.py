@@ -423,6 +423,8 @@ class GoalCommand(CheckedLoad, SeededTransform):
         goals = torch.where(resample.unsqueeze(-1), new_goals, goals)
         if self.timer_range is not None:
             timers = torch.where(resample, self._sample_timers(batch, goals.device), timers)
+        else:  # never counted down: a copy, so that the entry under "next" is not the root's tensor
+            timers = timers.clone()
         next_tensordict.set(self.goal_key, goals)
         next_tensordict.set(self.timer_key, timers)
         return next_tensordict
