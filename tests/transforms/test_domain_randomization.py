@@ -249,23 +249,29 @@ def test_an_unbatched_env_is_randomized():
     assert masses.shape == (7,) and masses[0] != masses[3]  # redrawn at the reset after 3 steps
 
 
-def test_set_seed_starts_the_draws_again():
-    """A Collector resets its env when built, before collector.set_seed: the seed still decides every draw."""
-
-    def first_batch() -> torch.Tensor:
-        env = _resumable(DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.5)], when="startup"))
-        collector = Collector(
-            env, pendulum_policy(), frames_per_batch=BATCH * 3, total_frames=-1, auto_register_policy_transforms=False
-        )
-        collector.set_seed(5)
-        batch = next(iter(collector))["next", "domain", "mass"]
-        collector.shutdown()
-        return batch
-
-    torch.manual_seed(1)
-    first = first_batch()
-    torch.manual_seed(2)  # another global stream before the seed: the same draws
-    assert torch.equal(first_batch(), first)
+@pytest.mark.parametrize("mode", list(MODES))
+def test_a_refused_draw_changes_nothing(mode: str):
+    """A draw the env refuses (a value outside the field) leaves the transform, its generator and the env as they
+    were: the run then goes on as a twin's that never tried it."""
+    env, twin = _resumable(MODES[mode]()), _resumable(MODES[mode]())
+    for run in (env, twin):
+        run.set_seed(3)
+        run.rollout(4, pendulum_policy(), break_when_any_done=False)
+        run.set_seed(4)  # every mode draws at the next reset
+    randomization = env.transform[2]
+    before = _saved(env.transform.state_dict())
+    physics = env.base_env.domain_values(["mass"])["mass"]
+    randomization.params["mass"].mean.fill_(-5.0)  # every value drawn now leaves the field (mass > 0)
+    with pytest.raises(ValueError, match=r"'mass' \(the rod's mass \(kg\)\) must be in \(0.0, inf\)"):
+        env.reset()
+    randomization.params["mass"].mean.fill_(1.0)
+    after = env.transform.state_dict()
+    for key, value in before.items():
+        if isinstance(value, torch.Tensor):
+            assert torch.equal(value, after[key]), key
+    assert torch.equal(before["transforms.2._extra_state"]["generator_state"], randomization.generator.get_state())
+    assert torch.equal(env.base_env.domain_values(["mass"])["mass"], physics)
+    assert torch.equal(env.reset()["domain", "mass"], twin.reset()["domain", "mass"])
 
 
 def test_a_load_of_values_outside_the_field_is_refused():

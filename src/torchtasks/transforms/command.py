@@ -162,7 +162,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator with ``seed`` (created if it had none).
 
-        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`).
+        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`). The
+        goals and timers of the running episodes are in the env's data and go on: the seed decides the draws from
+        then on (a run repeats from its first frame when it is reset after the seed).
         """
         self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
 
