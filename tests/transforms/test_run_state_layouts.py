@@ -203,7 +203,13 @@ def test_no_entry_shares_storage_with_another_frames():
         probe = env.transform[-1]
         env.rollout(STEPS, feature.make_policy(), break_when_any_done=False)
         _no_shared_storage(probe, name, "rollout")
-        collector = Collector(env, feature.make_policy(), frames_per_batch=BATCH * STEPS, total_frames=BATCH * STEPS)
+        collector = Collector(
+            env,
+            feature.make_policy(),
+            frames_per_batch=BATCH * STEPS,
+            total_frames=BATCH * STEPS,
+            auto_register_policy_transforms=False,
+        )
         for _ in collector:
             pass
         collector.shutdown()
@@ -239,9 +245,9 @@ GRID = {
 }
 
 
-def _grid_env(shard: tuple[int, int] | None, batch: int = 5, when: str = "reset") -> TransformedEnv:
+def _grid_env(shard: tuple[int, int] | None, batch: int = 5) -> TransformedEnv:
     params = [UniformDomainParam(name, mean=1.0, halfspan=0.5) for name in GRID]
-    randomization = DomainRandomization(params, when=when, cycle=GRID, shard=shard)
+    randomization = DomainRandomization(params, cycle=GRID, shard=shard)
     return TransformedEnv(PendulumEnv(batch_size=[batch], seed=0), Compose(StepCounter(3), randomization))
 
 
@@ -257,13 +263,13 @@ def test_shards_of_a_grid_cover_every_point_once_per_pass():
         env = SerialEnv(workers, [functools.partial(_grid_env, (k, workers), batch) for k in range(workers)])
         resets = torch.stack([env.reset()["domain"] for _ in range(8)])  # [reset, worker, env]
         env.close()
-        first_pass = []
+        grid, first_pass = _in_order(GRID), []
         for k in range(workers):
             taken = _in_order(resets[:, k])
-            size = len(range(k, len(taken_grid := _in_order(GRID)), workers))
+            size = len(range(k, len(grid), workers))  # the rows k, k + workers, ... of the grid
             first_pass += taken[:size]
             assert taken == (taken[:size] * len(taken))[: len(taken)], f"{workers} workers: shard {k} not in turn"
-        assert sorted(first_pass) == sorted(taken_grid), f"{workers} workers"
+        assert sorted(first_pass) == sorted(grid), f"{workers} workers"
 
 
 def test_a_checkpoint_of_another_shard_is_refused_and_changes_nothing():
