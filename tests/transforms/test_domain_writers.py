@@ -36,6 +36,7 @@ from torchtasks.transforms import (
     gated,
     linear,
     staged,
+    target_names,
 )
 
 BATCH = 4
@@ -219,6 +220,14 @@ def test_every_writer_in_every_mode_on_every_kind_of_distribution_is_honoured_or
         expected = f"{who} sets {re.escape(repr(kind.target))} of a DomainRandomization with {re.escape(words)}"
         with pytest.raises(ValueError, match=expected + ".* never drawn.*when='reset' or when='interval'"):
             env.observation_spec  # noqa: B018 (the specs are built here)
+
+
+def test_target_names_lists_no_writer_for_a_distribution_never_drawn_again(bases: dict):
+    for mode, (_, words) in MODES.items():
+        env = _env(bases, "uniform", mode, "linear")
+        env.transform.pop()  # the table of what a writer could set, before one is added
+        (row,) = [row for row in target_names(env) if row.name == "domain.mass.halfspan"]
+        assert row.writers == (() if words else ("Curriculum", "DifficultyLevels")), mode
 
 
 def test_levels_on_a_cycle_are_refused_not_crashed_at_the_first_reset():

@@ -38,7 +38,7 @@ class _Draw(NamedTuple):
 
     #: every env's values by field (the new ones where the envs needed values)
     values: dict[str, torch.Tensor]
-    #: with a cycle, the stored domains by field (drawn now at the first draw); ``None`` without a cycle
+    #: the stored domains by field drawn by this draw (a cycle's first); ``None``: none drawn
     domains: dict[str, torch.Tensor] | None
     #: with a cycle, the index of the next stored domain after this draw (a 0-d int64 tensor); ``None`` without
     next_domain: torch.Tensor | None
@@ -79,8 +79,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     Scheduling: the params' distribution parameters are targets of a
     :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` placed
     after this transform (TorchRL runs the pre-reset hooks, where the draws are, last to first), named
-    ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``); every value (and combination of
-    values) a schedule or level table can write is checked against the field's range when the specs are built.
+    ``"domain.<field>.<parameter>"``, when it draws again and again (:meth:`unwritable_reason`); every combination
+    of values the env's writers can write is checked against the field's range when the specs are built.
 
     Args:
         params: the domain parameters, one per field (a name twice, or two params writing the same model values,
@@ -351,16 +351,16 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         if self.cycle_size is None:
             new = {name: self._sample(param, batch) for name, param in self.params.items()}
         else:
-            if bool(self.domains_drawn):
-                domains = {name: self.domains._buffers[name] for name in self.names}
-            else:  # the first draw of the run: the stored set (a host fact, once)
+            stored = {name: self.domains._buffers[name] for name in self.names}
+            if not bool(self.domains_drawn):  # the first draw of the run: the stored set (a host fact, once)
                 domains = {name: param.sample(self.cycle_size, self.generator) for name, param in self.params.items()}
+                stored = domains
             flat = need.reshape(-1)
             rank = torch.cumsum(flat.to(torch.int64), 0) - 1
             index = (self.next_domain + rank).remainder(self.cycle_size)
             next_domain = (self.next_domain + flat.sum()).remainder(self.cycle_size)
             new = {
-                name: domains[name].to(need.device)[index].reshape(batch + param.value_shape)
+                name: stored[name].to(need.device)[index].reshape(batch + param.value_shape)
                 for name, param in self.params.items()
             }
         values = {}
@@ -393,10 +393,10 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         for name, value in draw.values.items():
             self.drawn._buffers[name] = value
         if draw.domains is not None:
-            if not bool(self.domains_drawn):
-                for name, values in draw.domains.items():
-                    self.domains._buffers[name].copy_(values)
-                self.domains_drawn.fill_(True)
+            for name, values in draw.domains.items():
+                self.domains._buffers[name].copy_(values)
+            self.domains_drawn.fill_(True)
+        if draw.next_domain is not None:
             self.next_domain.copy_(draw.next_domain)
         buffers = self._buffers  # written directly: nn.Module.__setattr__ costs more than the ops at every reset
         buffers["started"] = buffers["started"] | need

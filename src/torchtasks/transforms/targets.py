@@ -561,7 +561,8 @@ def target_names(env: TransformedEnv) -> TargetTable:
     - ``"command"``: a GoalCommand's sampling range, both writers, which must come before the GoalCommand (insert the
       writer before it rather than appending it);
     - ``"env"``: a float buffer of the base env, DifficultyLevels only and only one with a value per env;
-    - ``"domain"``: a DomainRandomization's distribution parameter, both writers, which must come after it.
+    - ``"domain"``: a DomainRandomization's distribution parameter, both writers, which must come after it; none
+      for a randomization that never draws written values (``when="startup"``, a ``cycle``).
 
     Both writers take a row's ``alias`` or its full ``name``: the alias is the shortest dotted suffix of two parts
     or more that ends no other task buffer's name (a GoalCommand's range: ``"command.low"`` with one command);
@@ -601,6 +602,9 @@ def target_names(env: TransformedEnv) -> TargetTable:
             qualified = next(full for full, other in choices.named.items() if other is candidate and full != name)
             aliases[qualified] = name
     batch = tuple(env.batch_size)
+    undrawn = [  # the distributions of randomizations that never draw written values (the writers refuse them)
+        t.params for t in transforms if isinstance(t, DomainRandomization) and t.unwritable_reason() is not None
+    ]
     rows = []
     for name, candidate in choices.named.items():
         if name in aliases.values() and name not in aliases:  # a short name, listed with its full name
@@ -611,6 +615,7 @@ def target_names(env: TransformedEnv) -> TargetTable:
         writers = {
             TASK: (_CURRICULUM, _LEVELS) if per_env else (_CURRICULUM,),
             ENV: (_LEVELS,) if per_env else (),
+            DOMAIN: () if any(candidate.root is params for params in undrawn) else (_CURRICULUM, _LEVELS),
         }.get(candidate.source, (_CURRICULUM, _LEVELS))
         rows.append(
             TargetRow(aliases.get(name, name), name, candidate.source, value.shape, writers, _short_value(value))
