@@ -18,7 +18,7 @@ from torchrl.envs.transforms import RewardSum, StepCounter, Transform, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
-from torchtasks._memory import td_get, td_set
+from torchtasks._memory import td_get, td_set, unshared
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import where_memory
@@ -1193,6 +1193,8 @@ class TaskTransform(EnvDerivedTransform):
         shape = done.shape
         for key, read, item, write_as in self._writes[occasion, has_terminated]:  # the table's rows, precomputed
             value = next_state if read is None else read(outputs)
+            if write_as is _as_is:  # the memory: never a tensor of the root (the given memory, the goal) under "next"
+                value = unshared(value, memory, state, action)
             if item is not None:
                 value = value[item]
             td_set(next_tensordict, key, write_as(value, shape, reward_dtype))
