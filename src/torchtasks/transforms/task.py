@@ -350,7 +350,7 @@ class TaskTransform(EnvDerivedTransform):
         ...     EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.001]), indices=[0], threshold=0.1)
         >>> transforms = Compose(StepCounter(50), TaskTransform(task), RewardSum())
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), transforms)
-        >>> rollout = env.rollout(10)
+        >>> rollout = env.rollout(10, break_when_any_done=False)  # a success would end the rollout early
         >>> rollout["next", "reward"].shape, rollout["next", "success"].dtype
         (torch.Size([4, 10, 1]), torch.bool)
     """
