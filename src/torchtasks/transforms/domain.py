@@ -477,6 +477,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         env = container_env(self)
         if env is None or not isinstance(getattr(env, "base_env", None), DomainEnv):
             return
+        if self.started.numel() == 0 and env.batch_size.numel() != 0:
+            return  # no env's values held (a non-strict load without them, before the env built its specs)
         if self.started.shape != env.batch_size:
             raise ValueError(
                 f"DomainRandomization.load_state_dict: the checkpoint holds the values of a batch "
