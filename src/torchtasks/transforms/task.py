@@ -18,7 +18,7 @@ from torchrl.envs.transforms import RewardSum, StepCounter, Transform, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
-from torchtasks._memory import td_get, td_set
+from torchtasks._memory import hollow_paths, td_get, td_set, with_hollow, without_hollow
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import where_memory
@@ -217,6 +217,12 @@ def _as_is(value: Any, shape: torch.Size, dtype: torch.dtype) -> Any:
     return value
 
 
+def _as_memory(hollow: tuple, memory: TensorDictBase, shape: torch.Size, dtype: torch.dtype) -> TensorDictBase:
+    """The memory without the empty sub-memories of memory-less sub-tasks (the specs have none: batched envs refuse
+    empty specs); :meth:`TaskTransform._read_memory` puts them back."""
+    return without_hollow(memory, hollow)
+
+
 def _as_stacked(names: tuple[str, ...], values: Mapping[str, torch.Tensor], shape: torch.Size, dtype: torch.dtype):
     """The named values ``[*B]`` stacked on a last dim in ``names`` order (``[*B, k]``), in the reward's dtype."""
     return torch.stack([values[name] for name in names], -1).to(dtype)
@@ -337,7 +343,8 @@ class TaskTransform(EnvDerivedTransform):
 
     Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
     ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it; none for
-    a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`), and,
+    a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`, and no empty
+    sub-memory of a memory-less sub-task: batched envs refuse empty specs), and,
     with ``log_terms``, the reward breakdown (reward spec, so a following ``RewardSum()`` reports
     per-episode sums): ``(terms_key, "step")`` and ``(terms_key, "final")`` when some task of the tree
     pays a final reward (:attr:`~torchtasks.tasks.Task.pays_final_reward`; otherwise the step reward is
@@ -508,8 +515,11 @@ class TaskTransform(EnvDerivedTransform):
         self.termination_names = entries.names("ended_by_key")
         self._ended_by_keys = entries.keys(argument="ended_by_key")
         # a task tree without memory tensors (e.g. GoallessTask) registers and writes no memory entry: batched
-        # envs refuse empty specs; its (empty) memory is built in the step
+        # envs refuse empty specs; its (empty) memory is built in the step. Likewise the empty sub-memories of
+        # memory-less sub-tasks (a FinalRewardTask's "wrapped" around a GoallessTask) are neither registered nor
+        # written, and are put back when the memory is read
         self._has_memory = bool(entries.select(kinds=("memory",)))
+        self._hollow = hollow_paths(task.memory_layout) if self._has_memory else ()
         self._uses_remaining = task.uses_remaining_steps
         self._check_key_collisions()
         memory_keys = entries.keys(kinds=("memory",))
@@ -537,6 +547,8 @@ class TaskTransform(EnvDerivedTransform):
         write_as["group"] = functools.partial(_as_group, group_dtype)
         write_as["groups"] = functools.partial(_as_vector, entries.names("groups_key"), group_dtype)
         write_as["goal"] = None if self._goal_slot is None else functools.partial(_as_achieved, self._goal_slot)
+        if self._hollow:
+            write_as["memory"] = functools.partial(_as_memory, self._hollow)
 
         def plan(row: Entry) -> tuple[Any, ...]:
             read = None if row.source is None else transition_field(row.source)
@@ -874,7 +886,7 @@ class TaskTransform(EnvDerivedTransform):
 
     def _memory_spec(self, batch: torch.Size, dtype: torch.dtype, device: torch.device | None) -> Composite:
         init_state = torch.zeros((*batch, self.task.state_size), dtype=dtype, device=device)
-        memory = self.task._reset(init_state, self._overrides(init_state))
+        memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
         spec = make_composite_from_td(memory, unsqueeze_null_shapes=False)
         return spec.to(device) if device is not None else spec
 
@@ -1226,6 +1238,8 @@ class TaskTransform(EnvDerivedTransform):
             memory = td_get(tensordict, self.memory_key)
             if memory is None:
                 self._missing_memory(tensordict, offline)
+            if self._hollow:  # the empty sub-memories of memory-less sub-tasks, which the data do not hold
+                memory = with_hollow(memory, self._hollow)
         else:
             memory = self._empty_memory(state)
         if self.goal_key is not None:
@@ -1260,7 +1274,7 @@ class TaskTransform(EnvDerivedTransform):
         needs_state = self._has_memory or self.achieved_goal_key is not None
         init_state = self._read_state(tensordict_reset) if needs_state else None
         if self._has_memory:
-            memory = self.task._reset(init_state, self._overrides(init_state))
+            memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
             reset_mask = None if tensordict is None else tensordict.get("_reset", None)
             old = None if tensordict is None else tensordict.get(self.memory_key, None)
             if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
