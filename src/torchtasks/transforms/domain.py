@@ -52,8 +52,9 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     order), as Pyrado's ``DomainRandWrapperBuffer``; ``cycle={name: values [K, *value_shape]}`` gives the
     set. Without ``cycle`` every draw is fresh (Pyrado's ``DomainRandWrapperLive``).
 
-    Entries: every env's current values, float64 ``[*B, *value_shape]`` under ``(entry_key, name)``, at
-    reset and at every step (observation spec; collectors keep them, a privileged critic can read them,
+    Entries: every env's current values, float64 ``[*B, *value_shape]`` (``[*B, 1]`` for a scalar field, as
+    TorchRL's ``"reward"``) under ``(entry_key, name)``, at reset and at every step (observation spec; collectors
+    keep them, a privileged critic concatenates them with the observation,
     :func:`~torchtasks.stats.episode_statistics` averages them over finished episodes). Under ``"next"`` they
     are the values the step ran with.
 
@@ -90,8 +91,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), randomization)
         >>> masses = env.reset()["domain", "mass"]
         >>> masses.shape, bool(((masses >= 0.5) & (masses <= 1.5)).all())
-        (torch.Size([4]), True)
-        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses)
+        (torch.Size([4, 1]), True)
+        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses[:, 0])
         True
     """
 
@@ -297,7 +298,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         batch, device = observation_spec.shape, observation_spec.device
         self._make_state(batch, device)
         for key, field in zip(self.__dict__["_keys"], self._resolve(), strict=True):
-            observation_spec[key] = Unbounded(shape=(*batch, *field.value_shape), dtype=torch.float64, device=device)
+            shape = (*batch, *entry_shape(field.value_shape))
+            observation_spec[key] = Unbounded(shape=shape, dtype=torch.float64, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ drawing
@@ -365,8 +367,14 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return tensordict
 
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write every env's current values under ``entry_key``."""
-        values = {name: self.drawn._buffers[name].clone() for name in self.names}
+        """Write every env's current values under ``entry_key`` (a scalar field's ``[*B, 1]``, as TorchRL's reward)."""
+        scalars = self.__dict__.get("_scalars")
+        if scalars is None:
+            scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
+        values = {}
+        for name in self.names:
+            value = self.drawn._buffers[name]
+            values[name] = (value.unsqueeze(-1) if name in scalars else value).clone()
         prefix = key_parts(self.entry_key)
         batch = tensordict.batch_size
         node = TensorDict._new_unsafe(values, batch_size=batch, device=tensordict.device)
@@ -500,3 +508,9 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         every = f", every={self.every}" if self.every is not None else ""
         cycle = f", cycle={self.cycle_size}" if self.cycle_size is not None else ""
         return f"{type(self).__name__}({list(self.params.values())}, when={self.when!r}{every}{cycle})"
+
+
+def entry_shape(value_shape: torch.Size) -> torch.Size:
+    """The trailing shape of a field's entry: its value shape, ``[1]`` for a scalar (TorchRL's per-env scalars, such as
+    ``"reward"``, are ``[*B, 1]``: they concatenate with observations into a network's input)."""
+    return value_shape if len(value_shape) else torch.Size([1])
