@@ -4,8 +4,9 @@ A memory-less task (a goalless task with a stateless reward, a condition, an opt
 wrapper keeps its latch beside it (``{"paid", "wrapped": {}}``), a composite its flags. TorchRL's batched envs
 refuse an empty Composite in the specs, and its ``RemoveEmptySpecs`` puts empty nodes back by replacing their parent
 (the latch with it): the env data hold the memory without its empty sub-memories. For every such tree
-(:func:`task_trees.around_memoryless_cases`) the batched env passes ``check_env_specs`` and each of its workers
-rolls out what the env alone rolls out, also with ``RemoveEmptySpecs`` appended.
+(:func:`task_trees.around_memoryless_cases`) the batched env passes ``check_env_specs``, each of its workers
+rolls out what the env alone rolls out (also with ``RemoveEmptySpecs`` appended), and a TaskTransform recomputing
+the collected transitions offline reads their memory back.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import functools
 from collections.abc import Callable
 
 import pytest
+import torch
 from torchrl.envs import Compose, ParallelEnv, RewardSum, SerialEnv, StepCounter, TransformedEnv
 from torchrl.envs.transforms import RemoveEmptySpecs
 from torchrl.envs.utils import check_env_specs
@@ -27,11 +29,12 @@ from torchtasks.transforms import TaskTransform
 
 CASES = around_memoryless_cases()
 BATCH = 3
-STEPS = 6  # episodes of at most 3 steps: resets of some envs while others run
+MAX_STEPS = 3
+STEPS = 6  # episodes of at most MAX_STEPS steps: resets of some envs while others run
 
 
 def _env(build: Callable[[], Task], remove_empty: bool = False) -> TransformedEnv:
-    transforms = [StepCounter(3), TaskTransform(build()), RewardSum()]
+    transforms = [StepCounter(MAX_STEPS), TaskTransform(build()), RewardSum()]
     return TransformedEnv(
         PointMassEnv(batch_size=[BATCH], seed=0, max_force=2.0),
         Compose(*transforms, *([RemoveEmptySpecs()] if remove_empty else [])),
@@ -47,6 +50,10 @@ def _check_batched(batched, build: Callable[[], Task]) -> None:
     data = batched.rollout(STEPS, policy, break_when_any_done=False)
     for worker in range(data.shape[0]):
         assert equal_batches(data[worker], expected) == [], f"worker {worker}"
+    recomputed = TaskTransform(build(), max_steps=MAX_STEPS)(data.clone())  # offline: the stored memory read back
+    for key in data["next"].keys(True, True):
+        # (a state-dependent final reward may round an ulp apart offline: a float32 matter, not the memory's)
+        torch.testing.assert_close(recomputed["next", key], data["next", key], rtol=0.0, atol=1e-6, msg=str(key))
     check_env_specs(batched, seed=0)
 
 

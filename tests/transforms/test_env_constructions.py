@@ -11,11 +11,14 @@ three constructions collects the same batches with the same seed, and a checkpoi
 
 from __future__ import annotations
 
+import copy
 import functools
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from typing import Any
 
 import pytest
+import torch
 from torchrl.collectors import Collector
 from torchrl.envs import EnvCreator, ParallelEnv, SerialEnv
 
@@ -81,6 +84,37 @@ def _run(batched: Callable[[Make], object], factory: Callable, policy) -> None:
 def test_serial_envs_of_every_construction_run_and_resume_alike(name: str):
     feature = FEATURES[name]
     _run(functools.partial(SerialEnv, WORKERS), feature.make_env, feature.make_policy())
+
+
+def _same(first: Any, second: Any) -> bool:
+    """Equal state dicts: the same keys, tensors equal bit for bit, nested dicts alike."""
+    if isinstance(first, Mapping):
+        return (
+            isinstance(second, Mapping)
+            and first.keys() == second.keys()
+            and all(_same(first[key], second[key]) for key in first)
+        )
+    if isinstance(first, torch.Tensor):
+        return isinstance(second, torch.Tensor) and torch.equal(first, second)
+    return first == second
+
+
+def test_a_partial_load_keeps_the_checks_of_what_it_holds():
+    """EnvCreator's state (no tensors) loads only without strict; an entry of another configuration is refused."""
+    make = functools.partial(FEATURES["domain"].make_env, BATCH, SEED)
+    partial = EnvCreator(make).state_dict()  # what an EnvCreator loads into every env it makes
+    assert not any(isinstance(value, torch.Tensor) for value in partial.values())
+    env = make()
+    env.reset()
+    before = copy.deepcopy(env.state_dict())
+    with pytest.raises(ValueError, match=r"DomainRandomization\.load_state_dict: the saved distribution"):
+        env.load_state_dict(partial)  # strict: a partial checkpoint is refused
+    key = next(key for key, value in partial.items() if isinstance(value, Mapping) and value.get("when") == "reset")
+    other = {**partial, key: {**partial[key], "when": "startup"}}
+    with pytest.raises(ValueError, match="when: saved 'startup', here 'reset'"):
+        env.load_state_dict(other, strict=False)
+    assert _same(env.state_dict(), before)
+    env.load_state_dict(partial, strict=False)  # accepted: the configuration is this one
 
 
 @pytest.mark.multiprocess
