@@ -375,7 +375,8 @@ def test_two_written_parameters_are_checked_together():
     with pytest.raises(ValueError, match=r"Curriculum: the schedules of .* together .* can write -0\.\d+ into 'mass'"):
         env(Curriculum(schedules)).reset()
     tables = {"domain.mass.mean": [1.0, 0.5], "domain.mass.halfspan": [0.0, 0.9]}
-    with pytest.raises(ValueError, match=r"DifficultyLevels: the level tables can write .* together .* into 'mass'"):
+    level = r"DifficultyLevels: level 1 of 'domain\.mass\.mean' and 'domain\.mass\.halfspan' can write"
+    with pytest.raises(ValueError, match=level + r" .* together .* into 'mass'"):
         env(DifficultyLevels(2, tables)).reset()
     env(Curriculum({"domain.mass.mean": linear(1.0, 0.5, 0, 100)})).reset()  # alone: accepted
     env(Curriculum({"domain.mass.halfspan": linear(0.0, 0.9, 0, 100)})).reset()

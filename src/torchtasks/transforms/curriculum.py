@@ -37,11 +37,13 @@ from torchtasks.transforms.schedules import (
 )
 from torchtasks.transforms.targets import (
     TASK,
+    DomainWrites,
     Target,
     TargetWriter,
-    check_domain_combinations,
+    check_domain_writes,
     check_in_goal_space,
     check_low_not_above_high,
+    check_one_owner,
     command_ranges,
     resolve_targets,
 )
@@ -297,13 +299,20 @@ class Curriculum(CheckedLoad, TargetWriter):
     def _resolve(self) -> list[Target]:
         """Resolve the targets in the env (names, shapes, every value a schedule can write), cached until it changes."""
         schedules = list(self.schedules.values())
-        targets = resolve_targets(self, self.targets, [schedule.value_shape for schedule in schedules]).targets
+        placement, targets = resolve_targets(self, self.targets, [schedule.value_shape for schedule in schedules])
         for target, schedule in zip(targets, schedules, strict=True):  # as the reward's constructor would check them
-            target.check_values(possible_values(schedule, target.value), f"Curriculum: the schedule of {target.name!r}")
+            if target.source != DOMAIN:  # a distribution's values: with its other writers' (check_domain_writes)
+                label = f"Curriculum: the schedule of {target.name!r}"
+                target.check_values(possible_values(schedule, target.value), label)
         self._check_ranges(targets, schedules)
-        self._check_domain_combinations(targets, schedules)
-        self.__dict__["_resolved"] = targets
         self._forget_written()
+        self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
+        try:
+            check_one_owner(self, targets, placement)
+            check_domain_writes(self, placement)
+        except ValueError:
+            self._forget_setup()
+            raise
         return targets
 
     def _check_ranges(self, targets: list[Target], schedules: list[Schedule]) -> None:
@@ -339,37 +348,57 @@ class Curriculum(CheckedLoad, TargetWriter):
                 )
                 check_low_not_above_high([(lows.amax(0), highs.amin(0))], [gated])
 
-    def _check_domain_combinations(self, targets: list[Target], schedules: list[Schedule]) -> None:
-        """Refuse scheduled parameters of one domain distribution that the distribution refuses together: frame-driven
-        schedules at every breakpoint of any of them (where the extremes of a linear combination lie), gated ones at
-        every combination of their stages and the others' breakpoint values."""
-        domain = [i for i, target in enumerate(targets) if target.source == DOMAIN]
-        if len(domain) < 2:
-            return
-        rows: list[torch.Tensor | None] = [None] * len(targets)
-        frame_driven = [i for i in domain if not isinstance(schedules[i], GatedSchedule)]
+    def domain_writes(self) -> list[DomainWrites]:
+        """The rows of values the schedules can write into each domain distribution among the targets: the
+        frame-driven schedules together at every breakpoint of any of them (and, where a clipping bound moves with
+        the rest between two breakpoints, the mixed corners of that segment; see
+        :func:`~torchtasks.transforms.targets.check_domain_writes`), with every stage of every gated one."""
+        targets = self.written_targets()
+        schedules = list(self.schedules.values())
+        groups: dict[int, list[int]] = {}
+        for i, target in enumerate(targets):
+            if target.source == DOMAIN:
+                groups.setdefault(id(target.module), []).append(i)
+        return [self._domain_rows(targets, schedules, indices) for indices in groups.values()]
+
+    @staticmethod
+    def _domain_rows(targets: list[Target], schedules: list[Schedule], indices: list[int]) -> DomainWrites:
+        """The :class:`DomainWrites` of the schedules of ``indices`` (targets of one distribution)."""
+        param = targets[indices[0]].module
+        frame_driven = [i for i in indices if not isinstance(schedules[i], GatedSchedule)]
+        gates = [i for i in indices if isinstance(schedules[i], GatedSchedule)]
         counts = sorted(set().union(*(breakpoint_frames(schedules[i]) for i in frame_driven)))
-        per_target = {
-            i: possible_values(schedules[i], targets[i].value)
-            if isinstance(schedules[i], GatedSchedule)
-            else torch.stack([value_at(schedules[i], count) for count in counts])
-            for i in domain
+        # one row of the frame-driven schedules: (label, {target index: count whose value it takes})
+        moments = [(f"at frame {count}", dict.fromkeys(frame_driven, count)) for count in counts] or [("", {})]
+        parts = {}  # the frame-driven targets by the part of the clipped range they move: the two bounds, the rest
+        for i in frame_driven:
+            parts.setdefault(targets[i].buffer if targets[i].buffer in ("clip_lo", "clip_up") else "", []).append(i)
+        if len(parts) > 1:  # a clipping bound moving with the rest: the mixed corners of each segment with inner frames
+            for a, b in itertools.pairwise(counts):
+                if b - a < 2:
+                    continue
+                for ends in itertools.product((a, b), repeat=len(parts)):
+                    if len(set(ends)) > 1:
+                        at = {i: end for part, end in zip(parts.values(), ends, strict=True) for i in part}
+                        moments.append((f"between frames {a} and {b} (mixed)", at))
+        stages = [range(schedules[i].values.shape[0]) for i in gates]
+        labels, rows = [], {i: [] for i in indices}
+        for (moment, at), picked in itertools.product(moments, itertools.product(*stages)):
+            for i, count in at.items():
+                rows[i].append(value_at(schedules[i], count))
+            for i, stage in zip(gates, picked, strict=True):
+                rows[i].append(schedules[i].values[stage].detach().to("cpu", torch.float64))
+            gated_at = [
+                f"at stage {stage}" if len(indices) == 1 else f"{targets[i].name!r} at its stage {stage}"
+                for i, stage in zip(gates, picked, strict=True)
+            ]
+            labels.append(", ".join(part for part in (moment, *gated_at) if part))
+        names = ", ".join(repr(targets[i].name) for i in indices)
+        head = f"the schedule{'s' if len(indices) > 1 else ''} of {names}"
+        values = {
+            targets[i].buffer: torch.stack([row.expand(targets[i].value_shape) for row in rows[i]]) for i in indices
         }
-        # frame-driven schedules move together (one row per count); a gated one may be at any stage at any count
-        combos = [list(range(len(per_target[i]))) for i in domain if i not in frame_driven]
-        shared = list(range(len(counts))) if frame_driven else [0]
-        picks = list(itertools.product(shared, *combos))
-        for i in domain:
-            values = per_target[i]
-            if i in frame_driven:
-                chosen = values[[pick[0] for pick in picks]]
-            else:
-                slot = 1 + [j for j in domain if j not in frame_driven].index(i)
-                chosen = values[[pick[slot] for pick in picks]]
-            row = targets[i].value_shape
-            rows[i] = chosen.reshape(len(picks), -1).expand(len(picks), row.numel()).reshape(len(picks), *row)
-        names = ", ".join(repr(targets[i].name) for i in domain)
-        check_domain_combinations(targets, rows, f"Curriculum: the schedules of {names}")
+        return DomainWrites(param, "Curriculum", values, tuple(f"{head} {label}" for label in labels))
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by

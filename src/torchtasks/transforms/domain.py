@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -31,6 +31,17 @@ __all__ = ["DomainRandomization"]
 
 #: the moments a DomainRandomization draws
 WHEN = ("startup", "reset", "interval")
+
+
+class _Draw(NamedTuple):
+    """A draw before the env took it (:meth:`DomainRandomization._draw`)."""
+
+    #: every env's values by field (the new ones where the envs needed values)
+    values: dict[str, torch.Tensor]
+    #: the stored domains by field drawn by this draw (a cycle's first); ``None``: none drawn
+    domains: dict[str, torch.Tensor] | None
+    #: with a cycle, the index of the next stored domain after this draw (a 0-d int64 tensor); ``None`` without
+    next_domain: torch.Tensor | None
 
 
 class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
@@ -69,8 +80,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     Scheduling: the params' distribution parameters are targets of a
     :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` placed
     after this transform (TorchRL runs the pre-reset hooks, where the draws are, last to first), named
-    ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``); every value (and combination of
-    values) a schedule or level table can write is checked against the field's range when the specs are built.
+    ``"domain.<field>.<parameter>"``, when it draws again and again (:meth:`unwritable_reason`); every combination
+    of values the env's writers can write is checked against the field's range when the specs are built.
 
     Args:
         params: the domain parameters, one per field (a name twice, or two params writing the same model values,
@@ -240,6 +251,33 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         field's range); cached until the env changes. A writer of the params' buffers calls it before its checks."""
         return self._resolve()
 
+    def unwritable_reason(self) -> str | None:
+        """Why values written into the params' distributions would never be drawn; ``None`` if every draw follows them.
+
+        Only ``when="reset"`` or ``"interval"`` without ``cycle`` draw from the distributions again and again:
+        ``when="startup"`` draws once per env, a drawn ``cycle=K`` once for the run, a given ``cycle`` never. A
+        :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` refuses to set
+        a distribution parameter of this transform when this says why.
+
+        Example:
+            >>> from torchtasks.domain import UniformDomainParam
+            >>> params = [UniformDomainParam("mass", mean=1.0, halfspan=0.5)]
+            >>> DomainRandomization(params).unwritable_reason() is None
+            True
+            >>> DomainRandomization(params, when="startup").unwritable_reason()
+            "when='startup', which draws each env's values once, at its first reset"
+        """
+        if self.cycle_size is not None and self._given_domains:
+            return f"cycle={{...}} ({self.cycle_size} stored domains given), which never draws from its distributions"
+        if self.cycle_size is not None:
+            return (
+                f"cycle={self.cycle_size}, which draws its {self.cycle_size} stored domains once, at the first draw, "
+                "and then gives them in turn"
+            )
+        if self.when == "startup":
+            return "when='startup', which draws each env's values once, at its first reset"
+        return None
+
     def _resolve(self) -> list[DomainField]:
         """The base env's fields of the params (checked: names, overlaps, shapes, ranges), cached until it changes."""
         fields = self.__dict__.get("_fields")
@@ -303,46 +341,65 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return observation_spec
 
     # ------------------------------------------------------------------ drawing
-    def _draw(self, need: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _draw(self, need: torch.Tensor) -> _Draw:
         """New values for the envs of ``need`` (bool ``[*B]``), the others' kept: one draw of every env per call.
 
         Fresh draws sample every env (the generator's use does not depend on which envs need values); a cycle
-        gives the envs of ``need`` the next stored domains in index order.
+        gives the envs of ``need`` the next stored domains in index order. Nothing of the transform is written here:
+        :meth:`_apply_draw` keeps the draw once the env has taken the values.
         """
         batch = need.shape
+        domains = next_domain = None
         if self.cycle_size is None:
             new = {name: self._sample(param, batch) for name, param in self.params.items()}
         else:
-            if not bool(self.domains_drawn):  # the first draw of the run: fill the stored set (a host fact, once)
-                for name, param in self.params.items():
-                    self.domains._buffers[name].copy_(param.sample(self.cycle_size, self.generator))
-                self.domains_drawn.fill_(True)
+            stored = {name: self.domains._buffers[name] for name in self.names}
+            if not bool(self.domains_drawn):  # the first draw of the run: the stored set (a host fact, once)
+                domains = {name: param.sample(self.cycle_size, self.generator) for name, param in self.params.items()}
+                stored = domains
             flat = need.reshape(-1)
             rank = torch.cumsum(flat.to(torch.int64), 0) - 1
             index = (self.next_domain + rank).remainder(self.cycle_size)
-            self.next_domain.copy_((self.next_domain + flat.sum()).remainder(self.cycle_size))
+            next_domain = (self.next_domain + flat.sum()).remainder(self.cycle_size)
             new = {
-                name: self.domains._buffers[name].to(need.device)[index].reshape(batch + param.value_shape)
+                name: stored[name].to(need.device)[index].reshape(batch + param.value_shape)
                 for name, param in self.params.items()
             }
-        drawn = {}
+        values = {}
         for name, param in self.params.items():
             old = self.drawn._buffers[name]
             mask = need.reshape(batch + (1,) * len(param.value_shape))
-            drawn[name] = torch.where(mask, new[name].to(old.device), old)
-            self.drawn._buffers[name] = drawn[name]
-        return drawn
+            values[name] = torch.where(mask, new[name].to(old.device), old)
+        return _Draw(values, domains, next_domain)
 
     def _sample(self, param: DomainParam, batch: torch.Size) -> torch.Tensor:
         return param.sample(batch.numel(), self.generator).reshape(batch + param.value_shape)
 
     def _apply_draw(self, need: torch.Tensor) -> None:
         """Draw for the envs of ``need`` and give the values to the base env (nothing when no env needs values: one
-        host read, which the base env's write on the host needs anyway)."""
+        host read, which the base env's write on the host needs anyway). A draw the env refuses changes nothing: the
+        drawn values, the stored set and its index, the counters and the generator's place stay as they were."""
         if not bool(need.any()):
             return
-        drawn = self._draw(need)
-        self._base_env().set_domain(drawn, need)
+        generator = self.generator
+        before = torch.get_rng_state() if generator is None else generator.get_state()
+        try:
+            draw = self._draw(need)
+            self._base_env().set_domain(draw.values, need)
+        except Exception:
+            if generator is None:
+                torch.set_rng_state(before)
+            else:
+                generator.set_state(before)
+            raise
+        for name, value in draw.values.items():
+            self.drawn._buffers[name] = value
+        if draw.domains is not None:
+            for name, values in draw.domains.items():
+                self.domains._buffers[name].copy_(values)
+            self.domains_drawn.fill_(True)
+        if draw.next_domain is not None:
+            self.next_domain.copy_(draw.next_domain)
         buffers = self._buffers  # written directly: nn.Module.__setattr__ costs more than the ops at every reset
         buffers["started"] = buffers["started"] | need
         if self.when == "interval":

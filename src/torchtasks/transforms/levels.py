@@ -29,12 +29,13 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
-from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, entry_name, respelt_entries
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, DOMAIN, FRAMES, LEVEL, entry_name, respelt_entries
 from torchtasks.transforms.targets import (
     TASK,
+    DomainWrites,
     Target,
     TargetWriter,
-    check_domain_combinations,
+    check_domain_writes,
     check_in_goal_space,
     check_low_not_above_high,
     check_one_owner,
@@ -288,14 +289,14 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         rows = [self._table(i).shape[1:] for i in range(len(self.targets))]
         targets = resolve_targets(self, self.targets, rows, batch=batch, rows=self.num_levels, env_fields=True).targets
         for i, target in enumerate(targets):  # every level's row, as the reward's constructor would check the value
-            levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
-            target.check_values(self._table(i), levels)
+            if target.source != DOMAIN:  # a distribution's values: with its other writers' (check_domain_writes)
+                levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
+                target.check_values(self._table(i), levels)
         self._check_ranges(targets)
-        tables = [self._table(i) for i in range(len(targets))]  # row k of every table: level k's values, together
-        check_domain_combinations(targets, tables, "DifficultyLevels: the level tables")
         self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
         try:
             check_one_owner(self, targets, placement, " (schedule the level tables' rows instead)")
+            check_domain_writes(self, placement)
         except ValueError:
             self._forget_setup()
             raise
@@ -318,6 +319,22 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
             where = f"of the GoalCommand writing {command.goal_key!r}"
             levels = [f"DifficultyLevels: level {level} {where}" for level in range(len(low))]
             check_low_not_above_high(zip(low, high, strict=True), levels)
+
+    def domain_writes(self) -> list[DomainWrites]:
+        """The rows of values the level tables write into each domain distribution among the targets: level ``k`` of
+        every table of one distribution together, each level for any env."""
+        targets = self.written_targets()
+        groups: dict[int, list[int]] = {}
+        for i, target in enumerate(targets):
+            if target.source == DOMAIN:
+                groups.setdefault(id(target.module), []).append(i)
+        writes = []
+        for indices in groups.values():
+            names = " and ".join(repr(targets[i].name) for i in indices)
+            labels = tuple(f"level {level} of {names}" for level in range(self.num_levels))
+            values = {targets[i].buffer: self._table(i) for i in indices}
+            writes.append(DomainWrites(targets[indices[0]].module, "DifficultyLevels", values, labels))
+        return writes
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task-tree targets, each with the entry recording every env's value of the step (one row of its
