@@ -59,7 +59,7 @@ def _run(batched: Callable[[Make], object], factory: Callable, policy) -> None:
             # seeded before its first reset (which the Collector makes): an EnvCreator gives every env it makes the
             # generators of its first env, reset and stepped once; the seed decides them all
             env.set_seed(SEED)
-            frames = WORKERS * BATCH * STEPS
+            frames = env.batch_size.numel() * STEPS
             collectors[name] = Collector(
                 env, policy, frames_per_batch=frames, total_frames=-1, auto_register_policy_transforms=False
             )
@@ -121,6 +121,8 @@ def test_a_partial_load_keeps_the_checks_of_what_it_holds():
 @pytest.mark.xdist_group("multiprocess")
 def test_parallel_envs_of_every_construction_run_and_resume_alike(fork_start_method):
     # without shared buffers: TorchRL 0.14.1's ParallelEnv.load_state_dict leaves stale done flags with them (see
-    # torchtasks.transforms.checkpoint); the workers build, seed, step and load their envs as with them
-    parallel = functools.partial(ParallelEnv, WORKERS, use_buffers=False)
+    # torchtasks.transforms.checkpoint); the workers build, seed, step and load their envs as with them. One worker
+    # each: a worker process builds its env from the construction as any other does (the SerialEnv cases run two
+    # workers with their consecutive seeds), and every process costs seconds here
+    parallel = functools.partial(ParallelEnv, 1, use_buffers=False)
     _run(parallel, feature_envs.every_run_state, feature_envs.pendulum_policy())
