@@ -144,6 +144,38 @@ def domain_levels(batch: int, seed: int) -> TransformedEnv:
     return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, levels)
 
 
+#: a DomainRandomization per pendulum field, each of its own mode; the two sets hold every moment of a draw with fresh
+#: draws, a drawn stored set and a given one (the seeding and layout tests: tests/transforms/test_domain_layouts.py)
+DOMAIN_MODES: dict[str, dict[str, dict]] = {
+    "fresh": {
+        "mass": {"when": "reset"},
+        "length": {"when": "interval", "every": 3},
+        "gravity": {"when": "startup", "cycle": 4},
+    },
+    "stored": {
+        "mass": {"when": "reset", "cycle": 3},
+        "length": {"when": "startup"},
+        "gravity": {"when": "interval", "every": 2, "cycle": {"gravity": torch.arange(8.0, 13.0, dtype=torch.float64)}},
+    },
+}
+
+
+def domain_modes(batch: int, seed: int | None, modes: str = "fresh") -> TransformedEnv:
+    """Per-env pendulum physics, each field drawn in the mode ``DOMAIN_MODES[modes]`` gives it, beside goals drawn by
+    a GoalCommand on a timer; with ``seed=None`` nothing is seeded (torch's global generator until ``set_seed``)."""
+    params = {
+        "mass": UniformDomainParam("mass", mean=1.0, halfspan=0.5),
+        "length": NormalDomainParam("length", mean=1.0, std=0.2, clip_lo=0.5),
+        "gravity": UniformDomainParam("gravity", mean=10.0, halfspan=2.0),
+    }
+    randomizations = [
+        DomainRandomization([params[name]], seed=seed, **kwargs) for name, kwargs in DOMAIN_MODES[modes].items()
+    ]
+    command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), resample_steps=(2, 4), seed=seed)
+    task = TaskTransform(swing_up_task(success_threshold=0.6), goal_key="goal")
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, *randomizations, command)
+
+
 def _fast(state: torch.Tensor) -> torch.Tensor:
     return (state[..., 1].abs() > 1.0).to(state.dtype)
 

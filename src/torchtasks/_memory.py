@@ -22,6 +22,7 @@ __all__ = [
     "read",
     "td_get",
     "td_set",
+    "unshared",
     "with_hollow",
     "without_hollow",
 ]
@@ -75,6 +76,52 @@ def td_set(tensordict: TensorDictBase, key: str | tuple[str, ...], value: torch.
             tensordict._set_tuple(key, value, inplace=False, validated=True)
         return
     tensordict.set(key, value)
+
+
+def _storages(node: TensorDictBase, into: set[int]) -> set[int]:
+    """Add the storage addresses of the tensors of ``node`` (nested) to ``into``; return it."""
+    for value in node._tensordict.values() if type(node) is TensorDict else node.values():
+        if isinstance(value, torch.Tensor):
+            into.add(value.untyped_storage().data_ptr())
+        elif isinstance(value, TensorDictBase):
+            _storages(value, into)
+    return into
+
+
+def _unshared(node: TensorDictBase, taken: set[int]) -> TensorDictBase:
+    entries = copy_entries(node)
+    changed = False
+    for key, value in entries.items():
+        if isinstance(value, torch.Tensor):
+            if value.numel() and value.untyped_storage().data_ptr() in taken:
+                entries[key], changed = value.clone(), True
+        elif isinstance(value, TensorDictBase):
+            fresh = _unshared(value, taken)
+            if fresh is not value:
+                entries[key], changed = fresh, True
+    if not changed:
+        return node
+    if type(node) is TensorDict:
+        return TensorDict._new_unsafe(entries, batch_size=node.batch_size, device=node.device)
+    return TensorDict(entries, batch_size=node.batch_size, device=node.device)
+
+
+def unshared(output: TensorDictBase, *inputs: torch.Tensor | TensorDictBase) -> TensorDictBase:
+    """``output`` with every tensor that shares storage with a tensor of ``inputs`` replaced by a copy.
+
+    A task's step may return a memory tensor it was given (a desired state kept for the episode, the goal, the
+    state): written as it is under ``"next"``, the entry would share its storage with the root entry it came from,
+    and TorchRL's shared buffers (a ``ParallelEnv`` worker copies the step's output into the root in place) or any
+    in-place write would change one frame's data through the other. ``output`` is returned as it is (the same
+    object) when nothing is shared; no argument is modified. One storage address per tensor: no data is read.
+    """
+    taken: set[int] = set()
+    for value in inputs:
+        if isinstance(value, torch.Tensor):
+            taken.add(value.untyped_storage().data_ptr())
+        else:
+            _storages(value, taken)
+    return _unshared(output, taken)
 
 
 # ------------------------------------------------------------------ memory in env data

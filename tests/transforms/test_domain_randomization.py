@@ -250,25 +250,6 @@ def test_an_unbatched_env_is_randomized():
     assert masses.shape == (7, 1) and masses[0] != masses[3]  # redrawn at the reset after 3 steps
 
 
-def test_set_seed_starts_the_draws_again():
-    """A Collector resets its env when built, before collector.set_seed: the seed still decides every draw."""
-
-    def first_batch() -> torch.Tensor:
-        env = _resumable(DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.5)], when="startup"))
-        collector = Collector(
-            env, pendulum_policy(), frames_per_batch=BATCH * 3, total_frames=-1, auto_register_policy_transforms=False
-        )
-        collector.set_seed(5)
-        batch = next(iter(collector))["next", "domain", "mass"]
-        collector.shutdown()
-        return batch
-
-    torch.manual_seed(1)
-    first = first_batch()
-    torch.manual_seed(2)  # another global stream before the seed: the same draws
-    assert torch.equal(first_batch(), first)
-
-
 def test_a_load_of_values_outside_the_field_is_refused():
     source = _env(_mass())
     source.reset()

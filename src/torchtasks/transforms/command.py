@@ -162,7 +162,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator with ``seed`` (created if it had none).
 
-        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`).
+        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`). The
+        goals and timers of the running episodes are in the env's data and go on: the seed decides the draws from
+        then on (a run repeats from its first frame when it is reset after the seed).
         """
         self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
 
@@ -423,6 +425,8 @@ class GoalCommand(CheckedLoad, SeededTransform):
         goals = torch.where(resample.unsqueeze(-1), new_goals, goals)
         if self.timer_range is not None:
             timers = torch.where(resample, self._sample_timers(batch, goals.device), timers)
+        else:  # never counted down: a copy, so that the entry under "next" is not the root's tensor
+            timers = timers.clone()
         next_tensordict.set(self.goal_key, goals)
         next_tensordict.set(self.timer_key, timers)
         return next_tensordict

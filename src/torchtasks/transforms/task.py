@@ -18,7 +18,7 @@ from torchrl.envs.transforms import RewardSum, StepCounter, Transform, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
-from torchtasks._memory import hollow_paths, td_get, td_set, with_hollow, without_hollow
+from torchtasks._memory import hollow_paths, td_get, td_set, unshared, with_hollow, without_hollow
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import where_memory
@@ -215,12 +215,6 @@ def _as_flag(value: torch.Tensor, shape: torch.Size, dtype: torch.dtype) -> torc
 def _as_is(value: Any, shape: torch.Size, dtype: torch.dtype) -> Any:
     """The value as the task returned it (the memory)."""
     return value
-
-
-def _as_memory(hollow: tuple, memory: TensorDictBase, shape: torch.Size, dtype: torch.dtype) -> TensorDictBase:
-    """The memory without the empty sub-memories of memory-less sub-tasks (the specs have none: batched envs refuse
-    empty specs); :meth:`TaskTransform._read_memory` puts them back."""
-    return without_hollow(memory, hollow)
 
 
 def _as_stacked(names: tuple[str, ...], values: Mapping[str, torch.Tensor], shape: torch.Size, dtype: torch.dtype):
@@ -547,8 +541,6 @@ class TaskTransform(EnvDerivedTransform):
         write_as["group"] = functools.partial(_as_group, group_dtype)
         write_as["groups"] = functools.partial(_as_vector, entries.names("groups_key"), group_dtype)
         write_as["goal"] = None if self._goal_slot is None else functools.partial(_as_achieved, self._goal_slot)
-        if self._hollow:
-            write_as["memory"] = functools.partial(_as_memory, self._hollow)
 
         def plan(row: Entry) -> tuple[Any, ...]:
             read = None if row.source is None else transition_field(row.source)
@@ -1260,6 +1252,9 @@ class TaskTransform(EnvDerivedTransform):
         shape = done.shape
         for key, read, item, write_as in self._writes[occasion, has_terminated]:  # the table's rows, precomputed
             value = next_state if read is None else read(outputs)
+            if write_as is _as_is:  # the memory: never a tensor of the root (the given memory, the goal) under "next",
+                # nor the empty sub-memories of memory-less sub-tasks (the specs have none: batched envs refuse them)
+                value = unshared(without_hollow(value, self._hollow), memory, state, action)
             if item is not None:
                 value = value[item]
             td_set(next_tensordict, key, write_as(value, shape, reward_dtype))
