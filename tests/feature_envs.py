@@ -230,6 +230,22 @@ def groups_scheduled(batch: int, seed: int) -> TransformedEnv:
     return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum)
 
 
+def every_run_state(batch: int, seed: int) -> TransformedEnv:
+    """Every stateful transform in one env (for the layouts that build few envs, e.g. worker processes): per-env
+    physics redrawn every 4 steps, the mass range and the reward groups' coefficients ramped by a Curriculum, goals
+    redrawn on a timer in ranges set by each env's level, and the base env's state."""
+    task = TaskTransform(_grouped_swing_up(None), goal_key="goal")
+    randomization = DomainRandomization(_pendulum_params(), when="interval", every=4, seed=seed)
+    curriculum = Curriculum({**GROUP_RAMPS, "domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
+    tables = {
+        "command.low": [[-0.1, -0.5], [-0.3, -1.0], [-0.5, -2.0]],
+        "command.high": [[0.1, 0.5], [0.3, 1.0], [0.5, 2.0]],
+    }
+    command = GoalCommand(Box([-0.5, -2.0], [0.5, 2.0]), resample_steps=(3, 5), seed=seed)
+    env = PendulumEnv(batch_size=[batch], seed=seed)
+    return _finish(env, task, randomization, curriculum, DifficultyLevels(3, tables), command)
+
+
 class _Torque(torch.nn.Module):
     """A torque against the angle, with a per-env gain: some pendulums reach the top, some do not."""
 

@@ -9,11 +9,23 @@ computed with the right shapes. For a plain ``TensorDict`` these helpers skip th
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-__all__ = ["copy_entries", "make_memory", "read", "td_get", "td_set", "unshared"]
+__all__ = [
+    "copy_entries",
+    "has_leaves",
+    "hollow_paths",
+    "make_memory",
+    "read",
+    "td_get",
+    "td_set",
+    "unshared",
+    "with_hollow",
+    "without_hollow",
+]
 
 
 def read(memory: TensorDictBase, key: str) -> torch.Tensor | TensorDictBase:
@@ -110,3 +122,65 @@ def unshared(output: TensorDictBase, *inputs: torch.Tensor | TensorDictBase) -> 
         else:
             _storages(value, taken)
     return _unshared(output, taken)
+
+
+# ------------------------------------------------------------------ memory in env data
+# A memory-less sub-task (a GoallessTask with a stateless reward, a condition) has an empty sub-memory. TorchRL's
+# batched envs refuse an empty Composite in the specs, and its RemoveEmptySpecs puts empty nodes back with
+# TensorDict.create_nested, which replaces their parent (and so the latch beside it): the env data hold the memory
+# without its empty sub-memories, and the transform puts them back before the task reads the memory.
+def hollow_paths(layout: Any, path: tuple[str, ...] = ()) -> tuple[tuple[tuple[str, ...], Any], ...]:
+    """``(path, layout)`` of the outermost sub-memories of a memory ``layout`` (a ``MemoryLayout``) without tensors."""
+    found: list[tuple[tuple[str, ...], Any]] = []
+    for key in sorted(layout.keys):
+        sub = layout.nested.get(key)
+        if sub is None:
+            continue
+        if has_leaves(sub):
+            found.extend(hollow_paths(sub, (*path, key)))
+        else:
+            found.append(((*path, key), sub))
+    return tuple(found)
+
+
+def has_leaves(layout: Any) -> bool:
+    """Whether a memory layout holds any tensor (a memory of only empty sub-memories holds none)."""
+    return any(key not in layout.nested or has_leaves(layout.nested[key]) for key in layout.keys)
+
+
+def without_hollow(memory: TensorDictBase, hollow: tuple[tuple[tuple[str, ...], Any], ...]) -> TensorDictBase:
+    """``memory`` without the sub-memories at the ``hollow`` paths (:func:`hollow_paths`); the same object if none."""
+    for path, _ in hollow:
+        memory = _edit(memory, path, None)
+    return memory
+
+
+def with_hollow(memory: TensorDictBase, hollow: tuple[tuple[tuple[str, ...], Any], ...]) -> TensorDictBase:
+    """``memory`` with an empty sub-memory of the right layout at each ``hollow`` path where it has none."""
+    for path, layout in hollow:
+        memory = _edit(memory, path, layout)
+    return memory
+
+
+def _edit(memory: TensorDictBase, path: tuple[str, ...], layout: Any) -> TensorDictBase:
+    """``memory`` without the node at ``path`` (``layout`` None) or with an empty one of ``layout`` where it has none.
+
+    The nodes on the way are new TensorDicts; nothing is written into ``memory``.
+    """
+    entries = copy_entries(memory)
+    key = path[0]
+    if len(path) > 1:
+        entries[key] = _edit(entries[key], path[1:], layout)
+    elif layout is None:
+        if key not in entries:
+            return memory
+        del entries[key]
+    elif key in entries:
+        return memory
+    else:
+        entries[key] = _empty(layout, memory.batch_size)
+    return make_memory(entries, memory.batch_size)
+
+
+def _empty(layout: Any, batch_size: torch.Size) -> TensorDict:
+    return make_memory({key: _empty(layout.nested[key], batch_size) for key in layout.keys}, batch_size)

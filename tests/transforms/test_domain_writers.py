@@ -184,17 +184,22 @@ def _distance(values: torch.Tensor, nominal: torch.Tensor) -> torch.Tensor:
     return (values - nominal).abs().reshape(*values.shape[: values.dim() - nominal.dim()], -1).amax(-1)
 
 
+def _entry(values: torch.Tensor, kind: Kind) -> torch.Tensor:
+    """The env's values ``[*B, *value_shape]`` as the data hold them: a scalar field's ``[*B, 1]``."""
+    return values.unsqueeze(-1) if kind.nominal.dim() == 0 else values
+
+
 def _check_honoured(env: TransformedEnv, kind: Kind, writer: str, case: str) -> None:
     """The env's values are nominal while the written spread is 0 and spread once the writer widens it, always inside
     the widest distribution's range; the data report them and the written value."""
     reset = env.reset()
     first = env.base_env.domain_values([kind.field])[kind.field]
-    assert torch.equal(reset["domain", kind.field], first), case
+    assert torch.equal(reset["domain", kind.field], _entry(first, kind)), case
     if WRITERS[writer][1]:
         assert (_distance(first, kind.nominal) <= NARROW).all(), case
     data = env.rollout(4 * EPISODE, break_when_any_done=False, auto_reset=False, tensordict=reset)
     drawn = data["next", "domain", kind.field]
-    assert torch.equal(drawn[:, -1], env.base_env.domain_values([kind.field])[kind.field]), case
+    assert torch.equal(drawn[:, -1], _entry(env.base_env.domain_values([kind.field])[kind.field], kind)), case
     assert (_distance(drawn, kind.nominal) > WIDE).any(), case
     low, high = kind.param(kind.wide).support()
     assert ((drawn >= low) & (drawn <= high)).all(), case

@@ -209,7 +209,7 @@ class Curriculum(CheckedLoad, TargetWriter):
                 saved.setdefault(entry, {})[name] = value
         own = {entry: dict(schedule.state_dict()) for entry, schedule in self.schedules.items()}
         missing, unknown = sorted(set(own) - set(saved)), sorted(set(saved) - set(own))
-        if missing or unknown:  # also with strict=False: torch does not tell a module which load it is in
+        if missing or unknown:  # a non-strict load of a partial state dict has ours in place of the missing ones
             raise ValueError(
                 "Curriculum.load_state_dict: the checkpoint schedules other targets than this Curriculum: saved "
                 f"{sorted(saved)}, here {sorted(own)} (entry names: the targets with '/' for '.'; a checkpoint is "

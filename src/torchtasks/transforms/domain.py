@@ -57,8 +57,9 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     gives the set, and ``shard=(k, n)`` keeps its rows ``k, k + n, ...``: ``n`` workers together take every
     domain once per pass. Without ``cycle`` every draw is fresh (Pyrado's ``DomainRandWrapperLive``).
 
-    Entries: every env's current values, float64 ``[*B, *value_shape]`` under ``(entry_key, name)``, at reset
-    and at every step; under ``"next"`` the values the step ran with.
+    Entries: every env's current values, float64 ``[*B, *value_shape]`` (``[*B, 1]`` for a scalar field, as
+    TorchRL's ``"reward"``: a privileged critic concatenates them with the observation) under ``(entry_key, name)``,
+    at reset and at every step; under ``"next"`` the values the step ran with.
 
     Run state (``state_dict``): the drawn values, the interval counters, the stored domains and the generator;
     a checkpoint of other params, ``when``, ``every``, ``cycle`` or ``shard`` is refused. ``env.set_seed(s)``
@@ -87,9 +88,9 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         >>> randomization = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.5)], seed=0)
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), randomization)
         >>> masses = env.reset()["domain", "mass"]
-        >>> bool(((masses >= 0.5) & (masses <= 1.5)).all())
-        True
-        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses)
+        >>> masses.shape, bool(((masses >= 0.5) & (masses <= 1.5)).all())
+        (torch.Size([4, 1]), True)
+        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses[:, 0])
         True
     """
 
@@ -214,7 +215,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             ...     PendulumEnv(batch_size=[3]), DomainRandomization([UniformDomainParam("mass", 1.0, 0.5)]))
             >>> running = env.reset()["domain", "mass"]
             >>> _ = env.set_seed(5)
-            >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], running)  # the episodes go on as they were
+            >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], running[:, 0])  # the episodes go on
             True
             >>> first = env.reset()["domain", "mass"]  # the first draw of the seed
             >>> _ = env.set_seed(5)
@@ -354,7 +355,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         batch, device = observation_spec.shape, observation_spec.device
         self._make_state(batch, device)
         for key, field in zip(self.__dict__["_keys"], self._resolve(), strict=True):
-            observation_spec[key] = Unbounded(shape=(*batch, *field.value_shape), dtype=torch.float64, device=device)
+            shape = (*batch, *entry_shape(field.value_shape))
+            observation_spec[key] = Unbounded(shape=shape, dtype=torch.float64, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ drawing
@@ -441,8 +443,14 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return tensordict
 
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write every env's current values under ``entry_key``."""
-        values = {name: self.drawn._buffers[name].clone() for name in self.names}
+        """Write every env's current values under ``entry_key`` (a scalar field's ``[*B, 1]``, as TorchRL's reward)."""
+        scalars = self.__dict__.get("_scalars")
+        if scalars is None:
+            scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
+        values = {}
+        for name in self.names:
+            value = self.drawn._buffers[name]
+            values[name] = (value.unsqueeze(-1) if name in scalars else value).clone()
         prefix = key_parts(self.entry_key)
         batch = tensordict.batch_size
         node = TensorDict._new_unsafe(values, batch_size=batch, device=tensordict.device)
@@ -555,6 +563,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         env = container_env(self)
         if env is None or not isinstance(getattr(env, "base_env", None), DomainEnv):
             return
+        if self.started.numel() == 0 and env.batch_size.numel() != 0:
+            return  # no env's values held (a non-strict load without them, before the env built its specs)
         if self.started.shape != env.batch_size:
             raise ValueError(
                 f"DomainRandomization.load_state_dict: the checkpoint holds the values of a batch "
@@ -603,3 +613,9 @@ def _check_shard(shard: object, cycle: object) -> tuple[int, int] | None:
             f"got cycle={cycle!r} (a set drawn with cycle=K is drawn by each worker from its own stream)"
         )
     return index, count
+
+
+def entry_shape(value_shape: torch.Size) -> torch.Size:
+    """The trailing shape of a field's entry: its value shape, ``[1]`` for a scalar (TorchRL's per-env scalars, such as
+    ``"reward"``, are ``[*B, 1]``: they concatenate with observations into a network's input)."""
+    return value_shape if len(value_shape) else torch.Size([1])

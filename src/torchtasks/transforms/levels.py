@@ -210,7 +210,7 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         head = prefix + "tables."
         saved = {key[len(head) :]: value for key, value in state_dict.items() if key.startswith(head)}
         own = dict(self.tables.named_buffers())
-        if set(saved) != set(own):  # also with strict=False: torch does not tell a module which load it is in
+        if set(saved) != set(own):  # a non-strict load of a partial state dict has ours in place of the missing
             raise ValueError(
                 "DifficultyLevels.load_state_dict: the checkpoint sets other targets than this DifficultyLevels: "
                 f"saved {sorted(saved)}, here {sorted(own)} (the targets with '/' for '.'; loaded by target, "

@@ -18,7 +18,7 @@ from torchrl.envs.transforms import RewardSum, StepCounter, Transform, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
-from torchtasks._memory import td_get, td_set, unshared
+from torchtasks._memory import hollow_paths, td_get, td_set, unshared, with_hollow, without_hollow
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import where_memory
@@ -455,8 +455,11 @@ class TaskTransform(EnvDerivedTransform):
         self.termination_names = entries.names("ended_by_key")
         self._ended_by_keys = entries.keys(argument="ended_by_key")
         # a task tree without memory tensors (e.g. GoallessTask) registers and writes no memory entry: batched
-        # envs refuse empty specs; its (empty) memory is built in the step
+        # envs refuse empty specs; its (empty) memory is built in the step. Likewise the empty sub-memories of
+        # memory-less sub-tasks (a FinalRewardTask's "wrapped" around a GoallessTask) are neither registered nor
+        # written, and are put back when the memory is read
         self._has_memory = bool(entries.select(kinds=("memory",)))
+        self._hollow = hollow_paths(task.memory_layout) if self._has_memory else ()
         self._uses_remaining = task.uses_remaining_steps
         self._check_key_collisions()
         memory_keys = entries.keys(kinds=("memory",))
@@ -821,7 +824,7 @@ class TaskTransform(EnvDerivedTransform):
 
     def _memory_spec(self, batch: torch.Size, dtype: torch.dtype, device: torch.device | None) -> Composite:
         init_state = torch.zeros((*batch, self.task.state_size), dtype=dtype, device=device)
-        memory = self.task._reset(init_state, self._overrides(init_state))
+        memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
         spec = make_composite_from_td(memory, unsqueeze_null_shapes=False)
         return spec.to(device) if device is not None else spec
 
@@ -1173,6 +1176,8 @@ class TaskTransform(EnvDerivedTransform):
             memory = td_get(tensordict, self.memory_key)
             if memory is None:
                 self._missing_memory(tensordict, offline)
+            if self._hollow:  # the empty sub-memories of memory-less sub-tasks, which the data do not hold
+                memory = with_hollow(memory, self._hollow)
         else:
             memory = self._empty_memory(state)
         if self.goal_key is not None:
@@ -1193,8 +1198,9 @@ class TaskTransform(EnvDerivedTransform):
         shape = done.shape
         for key, read, item, write_as in self._writes[occasion, has_terminated]:  # the table's rows, precomputed
             value = next_state if read is None else read(outputs)
-            if write_as is _as_is:  # the memory: never a tensor of the root (the given memory, the goal) under "next"
-                value = unshared(value, memory, state, action)
+            if write_as is _as_is:  # the memory: never a tensor of the root (the given memory, the goal) under "next",
+                # nor the empty sub-memories of memory-less sub-tasks (the specs have none: batched envs refuse them)
+                value = unshared(without_hollow(value, self._hollow), memory, state, action)
             if item is not None:
                 value = value[item]
             td_set(next_tensordict, key, write_as(value, shape, reward_dtype))
@@ -1209,7 +1215,7 @@ class TaskTransform(EnvDerivedTransform):
         needs_state = self._has_memory or self.achieved_goal_key is not None
         init_state = self._read_state(tensordict_reset) if needs_state else None
         if self._has_memory:
-            memory = self.task._reset(init_state, self._overrides(init_state))
+            memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
             reset_mask = None if tensordict is None else tensordict.get("_reset", None)
             old = None if tensordict is None else tensordict.get(self.memory_key, None)
             if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
