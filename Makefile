@@ -14,12 +14,15 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -c constraints.txt torch==2.13.0
 	$(BIN)/pip install --quiet -c constraints.txt -e ".[dev,mujoco,ray]"
-	# test-only reference: dm_control's reward utilities (numpy only; the rest of dm_control needs an older mujoco)
-	$(BIN)/pip install --quiet --no-deps dm-control==1.0.50
 	# test-only reference: MO-Gymnasium's MuJoCo v5 envs, which the multi-objective presets reproduce bit for bit
 	# (tests/envs/test_multi_objective.py, `torchtasks check mo-...`), with its requirements pygame and scipy
 	# pinned. Not a dependency of torchtasks (not in pyproject.toml): the package never imports it.
 	$(BIN)/pip install --quiet -c constraints.txt mo-gymnasium pygame scipy
+	# test-only reference: dm_control's reward utilities (numpy only; the rest of dm_control needs an older mujoco),
+	# installed without its requirements and last: an install after it would check dm-control's unmet requirements
+	# and print pip's dependency-conflict report ("dm-control 1.0.50 requires absl-py ..."), which reads as a
+	# failed set-up; an install with --no-deps checks nothing.
+	$(BIN)/pip install --quiet --no-deps dm-control==1.0.50
 	touch $(STAMP)
 
 setup: $(STAMP)

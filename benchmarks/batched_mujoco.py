@@ -66,6 +66,7 @@ import json
 import math
 import os
 import platform
+import shlex
 import statistics
 import sys
 import time
@@ -597,7 +598,8 @@ def main(argv: list[str] | None = None) -> int:
         "preset_frames": preset_frames,
         "load_average_before": load_before,
         "load_average_after": load_after,
-        "time": time.strftime("%Y-%m-%d %H:%M:%S"),
+        "time": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "command": shlex.join(["python", "benchmarks/batched_mujoco.py", *(sys.argv[1:] if argv is None else argv)]),
     }
     (args.output / "results.json").write_text(
         json.dumps({"meta": meta, "presets": presets, "rows": rows}, indent=2) + "\n"
@@ -606,8 +608,9 @@ def main(argv: list[str] | None = None) -> int:
     floors = "\n".join([FLOORS_HEADER, *(_format_floors(row) for row in rows)])
     versions = ", ".join(f"{name} {found or 'not installed'}" for name, found in meta["versions"].items())
     (args.output / "results.md").write_text(
-        f"frames/s ({num_threads} threads, one torch thread in the collectors, medians of {repeats} repeats, "
-        f"load average {load_before[0]:.2f} → {load_after[0]:.2f}, {meta['time']}; {versions})\n\n"
+        f"frames/s ({num_threads} threads, one torch thread in the collectors, medians of {repeats} repeats; "
+        f"{meta['time']}, 1-minute load average {load_before[0]:.2f} before, {load_after[0]:.2f} after; "
+        f"`{meta['command']}`; {versions})\n\n"
         f"{table}\n\n{legend(num_threads, preset_envs)}\n\n"
         f"The floors' three measurements (the fastest is the floor):\n\n{floors}\n"
     )

@@ -39,8 +39,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shlex
 import statistics
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -159,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads of the env")
     parser.add_argument("--output", type=Path, default=Path("runs/pipeline_costs"))
     args = parser.parse_args(argv)
+    command = shlex.join(["python", "benchmarks/pipeline_costs.py", *(sys.argv[1:] if argv is None else argv)])
+    started = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     rows: list[dict[str, Any]] = []
     load_before = os.getloadavg()
     for spec in args.cases:
@@ -199,10 +203,11 @@ def main(argv: list[str] | None = None) -> int:
             + f"; domain cost {100 * domain_cost:.1f}%; groups cost {100 * groups_cost:.1f}%",
             flush=True,
         )
+    load_after = os.getloadavg()
     lines = [
-        f"ms per step (in brackets: frames/s ÷ the physics floor's frames/s; medians of {args.repeats} repeats, "
-        f"{args.threads} MuJoCo threads, one torch thread, load average {load_before[0]:.2f} -> "
-        f"{os.getloadavg()[0]:.2f})",
+        f"ms per step (in brackets: frames/s ÷ the physics floor's frames/s of the same repeat; medians of "
+        f"{args.repeats} repeats, {args.threads} MuJoCo threads, one torch thread; {started}, 1-minute load average "
+        f"{load_before[0]:.2f} before, {load_after[0]:.2f} after; `{command}`)",
         "",
         "| case | " + " | ".join(VARIANTS) + " | domain cost | groups cost |",
         "|---|" + "---|" * (len(VARIANTS) + 2),
@@ -215,7 +220,16 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(f"| {row['env_id']} × {row['num_envs']} | " + " | ".join(cells) + " |")
     args.output.mkdir(parents=True, exist_ok=True)
     (args.output / "results.md").write_text("\n".join(lines) + "\n")
-    meta = {"threads": args.threads, "repeats": args.repeats, "steps": args.steps, "torch": torch.__version__}
+    meta = {
+        "threads": args.threads,
+        "repeats": args.repeats,
+        "steps": args.steps,
+        "torch": torch.__version__,
+        "command": command,
+        "time": started,
+        "load_average_before": load_before,
+        "load_average_after": load_after,
+    }
     (args.output / "results.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1) + "\n")
     print("\n".join(lines))
     print(f"results in {args.output}")

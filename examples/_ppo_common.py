@@ -97,7 +97,7 @@ class PendulumFeatures(nn.Module):
 
 #: ``--help`` text of the PPO config fields the MuJoCo PPO examples share (each is a flag: ``--num-envs``)
 PPO_CONFIG_HELP = {
-    "num_envs": "HalfCheetahs stepped as one batch",
+    "num_envs": "envs stepped as one batch",
     "rollout_steps": "steps per env and batch",
     "total_frames": "frames to train for, rounded up to whole batches",
     "epochs": "PPO passes over each batch",

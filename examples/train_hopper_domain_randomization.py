@@ -133,7 +133,7 @@ def evaluate_grid(actor: nn.Module, config: LocomotionPPOConfig, vecnorm: VecNor
     steps = 0
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         data = env.reset()
-        drawn = {name: data["domain", name].clone() for name in FIELDS}
+        drawn = {name: data["domain", name][:, 0].clone() for name in FIELDS}  # scalar fields: [N, 1] entries
         for name in FIELDS:  # env i must run grid point i // episodes
             if not torch.equal(drawn[name], domains[name]):
                 raise RuntimeError(f"the grid env drew {name} {drawn[name].tolist()}, not {domains[name].tolist()}")
@@ -147,7 +147,7 @@ def evaluate_grid(actor: nn.Module, config: LocomotionPPOConfig, vecnorm: VecNor
             data = next_data
     env.close()
     for name in FIELDS:  # drawn at startup only: the resets after the first episodes kept every env's model
-        if not torch.equal(data["domain", name], domains[name]):
+        if not torch.equal(data["domain", name][:, 0], domains[name]):
             raise RuntimeError(f"the grid env's {name} changed during the evaluation: {data['domain', name].tolist()}")
     per_point = score.reshape(len(GRID) ** 2, episodes)
     mean = per_point.mean(-1)

@@ -34,10 +34,16 @@ Outputs in ``--output`` (default ``runs/train_multi_objective_ppo``): ``mo_ppo_w
 ``front.png`` (objective 0 against objective 1, a labelled point per weight vector and seed; needs matplotlib).
 A table of the front is printed at the end.
 
-Run: ``python examples/train_multi_objective_ppo.py [--weights 1,0.05 1,0.1 1,0.5 1,2] [--seeds 0]
-[--total-frames N] [--quick] [--plot-only]`` (runs one after the other; ``--quick``: a few seconds per weight
-vector, every code path, for the tests; ``--plot-only``: rebuild the front from the JSONs in ``--output``).
-Measured results: ``docs/reward_groups.md``.
+The sweep: by default the env's scalarisation weights (``MultiObjectiveRecord.weights``, those under which
+MO-Gymnasium's ``LinearReward`` gives Gymnasium's reward) with every weight after the first times 0.5, 1, 5 and
+20 (1 and 20 with ``--quick``): ``1,0.05 1,0.1 1,0.5 1,2`` for ``mo-halfcheetah-v5``, ``1,0,0.0005 ...`` for
+``mo-hopper-v5``. A weight vector needs one weight per objective of the env; a wrong count is refused with a
+one-line error before anything runs.
+
+Run: ``python examples/train_multi_objective_ppo.py [--env-id mo-halfcheetah-v5] [--weights 1,0.05 1,0.1]
+[--seeds 0] [--total-frames N] [--quick] [--plot-only]`` (runs one after the other; ``--quick``: a few seconds
+per weight vector, every code path, for the tests; ``--plot-only``: rebuild the front from the JSONs in
+``--output``). Measured results: ``docs/reward_groups.md``.
 """
 
 from __future__ import annotations
@@ -80,8 +86,10 @@ from torchtasks.stats import episode_statistics
 from torchtasks.transforms import TaskTransform
 
 ENV_ID = "mo-halfcheetah-v5"
-#: the default sweep; [1, 0.1] is Gymnasium's HalfCheetah scalarisation (forward + 0.1 · (−Σa²))
-DEFAULT_WEIGHTS = ((1.0, 0.05), (1.0, 0.1), (1.0, 0.5), (1.0, 2.0))
+#: the default sweep (:func:`sweep`): the env's scalarisation weights, every weight after the first times each
+#: factor; for mo-halfcheetah-v5, whose weights [1, 0.1] give Gymnasium's reward (forward + 0.1 · (−Σa²)):
+#: 1,0.05 1,0.1 1,0.5 1,2
+SWEEP_FACTORS = (0.5, 1.0, 5.0, 20.0)
 DEFAULT_OUTPUT = Path("runs/train_multi_objective_ppo")
 FRONT_JSON = "front.json"
 FRONT_PNG = "front.png"
@@ -122,7 +130,7 @@ QUICK = MultiObjectivePPOConfig(
     eval_envs=2,
     eval_steps=250,
 )
-QUICK_WEIGHTS = ((1.0, 0.1), (1.0, 2.0))
+QUICK_FACTORS = (1.0, 20.0)
 
 
 def weight_vector(text: str) -> tuple[float, ...]:
@@ -139,6 +147,42 @@ def weight_vector(text: str) -> tuple[float, ...]:
     if not all(math.isfinite(weight) for weight in weights) or not any(weights):
         raise argparse.ArgumentTypeError(f"a weight vector needs finite weights, not all zero, got {text!r}")
     return weights
+
+
+def sweep(weights: Sequence[float], factors: Sequence[float]) -> tuple[tuple[float, ...], ...]:
+    """The weight vectors of a sweep: ``weights`` with every weight after the first times each factor, in order,
+    repeats dropped (an env whose weights after the first are all 0 gets one vector).
+
+    Example: ``sweep((1.0, 0.1), (0.5, 1.0, 5.0, 20.0))`` is ``((1.0, 0.05), (1.0, 0.1), (1.0, 0.5), (1.0, 2.0))``.
+    """
+    vectors = (tuple([weights[0], *(weight * factor for weight in weights[1:])]) for factor in factors)
+    return tuple(dict.fromkeys(vectors))
+
+
+def weight_sweep(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, env_id: str
+) -> tuple[tuple[float, ...], ...]:
+    """The weight vectors to train for ``env_id``: ``--weights``, or the sweep of the env's record (:func:`sweep`).
+
+    Checked against the env's record before anything runs: an unknown env id or a weight vector whose length is
+    not the env's number of objectives ends the program with a one-line error (``parser.error``: exit status 2).
+    """
+    from torchtasks.envs.multi_objective import multi_objective_record
+
+    try:
+        record = multi_objective_record(env_id)
+    except ValueError as error:
+        parser.error(f"--env-id: {error}")
+    names = record.objective_names
+    for weights in args.weights or ():
+        if len(weights) != len(names):
+            parser.error(
+                f"--weights: {env_id} has {len(names)} objectives ({', '.join(names)}), so a weight vector needs "
+                f"{len(names)} weights; got {shown_weights(weights)}"
+            )
+    if args.weights:
+        return tuple(args.weights)
+    return sweep(record.weights, QUICK_FACTORS if args.quick else SWEEP_FACTORS)
 
 
 def shown_weights(weights: Sequence[float]) -> str:
@@ -482,14 +526,18 @@ def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     add_output_argument(parser, DEFAULT_OUTPUT, "directory of the outputs")
+    factors = ", ".join(f"{factor:g}" for factor in SWEEP_FACTORS)
     parser.add_argument(
         "--weights",
         type=weight_vector,
         nargs="+",
         metavar="W",
-        help="weight vectors, one run each "
+        help="weight vectors, one run each, one weight per objective of the env "
         + default_text(
-            " ".join(map(shown_weights, DEFAULT_WEIGHTS)), " ".join(map(shown_weights, QUICK_WEIGHTS)) + " with --quick"
+            f"the scalarisation weights of the env, those after the first times {factors}: "
+            + " ".join(map(shown_weights, sweep((1.0, 0.1), SWEEP_FACTORS)))
+            + f" for {ENV_ID}",
+            "times " + " and ".join(f"{factor:g}" for factor in QUICK_FACTORS) + " with --quick",
         ),
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds, trained one after the other")
@@ -498,13 +546,13 @@ def main() -> None:
     parser.add_argument("--env-id", metavar="ID", help=f"the multi-objective preset {default_text(defaults.env_id)}")
     config_arguments(parser, defaults, CONFIG_HELP, FLAGS)
     args = parser.parse_args()
-    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
-    torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     config = QUICK if args.quick else defaults
     overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
     config = replace(config, **overrides)
-    sweep = args.weights or (QUICK_WEIGHTS if args.quick else DEFAULT_WEIGHTS)
-    for weights in () if args.plot_only else sweep:
+    vectors = weight_sweep(parser, args, config.env_id)  # refused here, before anything is written or built
+    args.output = output_folder(parser, args, DEFAULT_OUTPUT)
+    torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
+    for weights in () if args.plot_only else vectors:
         for seed in args.seeds:
             record = train(config, weights, seed)
             json_path = args.output / file_name(weights, seed)

@@ -144,6 +144,38 @@ def domain_levels(batch: int, seed: int) -> TransformedEnv:
     return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, levels)
 
 
+#: a DomainRandomization per pendulum field, each of its own mode; the two sets hold every moment of a draw with fresh
+#: draws, a drawn stored set and a given one (the seeding and layout tests: tests/transforms/test_domain_layouts.py)
+DOMAIN_MODES: dict[str, dict[str, dict]] = {
+    "fresh": {
+        "mass": {"when": "reset"},
+        "length": {"when": "interval", "every": 3},
+        "gravity": {"when": "startup", "cycle": 4},
+    },
+    "stored": {
+        "mass": {"when": "reset", "cycle": 3},
+        "length": {"when": "startup"},
+        "gravity": {"when": "interval", "every": 2, "cycle": {"gravity": torch.arange(8.0, 13.0, dtype=torch.float64)}},
+    },
+}
+
+
+def domain_modes(batch: int, seed: int | None, modes: str = "fresh") -> TransformedEnv:
+    """Per-env pendulum physics, each field drawn in the mode ``DOMAIN_MODES[modes]`` gives it, beside goals drawn by
+    a GoalCommand on a timer; with ``seed=None`` nothing is seeded (torch's global generator until ``set_seed``)."""
+    params = {
+        "mass": UniformDomainParam("mass", mean=1.0, halfspan=0.5),
+        "length": NormalDomainParam("length", mean=1.0, std=0.2, clip_lo=0.5),
+        "gravity": UniformDomainParam("gravity", mean=10.0, halfspan=2.0),
+    }
+    randomizations = [
+        DomainRandomization([params[name]], seed=seed, **kwargs) for name, kwargs in DOMAIN_MODES[modes].items()
+    ]
+    command = GoalCommand(Box([-0.5, -0.5], [0.5, 0.5]), resample_steps=(2, 4), seed=seed)
+    task = TaskTransform(swing_up_task(success_threshold=0.6), goal_key="goal")
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, *randomizations, command)
+
+
 def _fast(state: torch.Tensor) -> torch.Tensor:
     return (state[..., 1].abs() > 1.0).to(state.dtype)
 
@@ -196,6 +228,22 @@ def groups_scheduled(batch: int, seed: int) -> TransformedEnv:
     curriculum = Curriculum(GROUP_RAMPS)
     task = TaskTransform(_grouped_swing_up(None))
     return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, curriculum)
+
+
+def every_run_state(batch: int, seed: int) -> TransformedEnv:
+    """Every stateful transform in one env (for the layouts that build few envs, e.g. worker processes): per-env
+    physics redrawn every 4 steps, the mass range and the reward groups' coefficients ramped by a Curriculum, goals
+    redrawn on a timer in ranges set by each env's level, and the base env's state."""
+    task = TaskTransform(_grouped_swing_up(None), goal_key="goal")
+    randomization = DomainRandomization(_pendulum_params(), when="interval", every=4, seed=seed)
+    curriculum = Curriculum({**GROUP_RAMPS, "domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
+    tables = {
+        "command.low": [[-0.1, -0.5], [-0.3, -1.0], [-0.5, -2.0]],
+        "command.high": [[0.1, 0.5], [0.3, 1.0], [0.5, 2.0]],
+    }
+    command = GoalCommand(Box([-0.5, -2.0], [0.5, 2.0]), resample_steps=(3, 5), seed=seed)
+    env = PendulumEnv(batch_size=[batch], seed=seed)
+    return _finish(env, task, randomization, curriculum, DifficultyLevels(3, tables), command)
 
 
 class _Torque(torch.nn.Module):

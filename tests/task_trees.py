@@ -40,6 +40,7 @@ from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
     BestStateFinalRewardTask,
     ConditionTask,
+    ConstrainedTask,
     DesiredSpaceTask,
     DesiredStateTask,
     FinalRewardMode,
@@ -51,6 +52,7 @@ from torchtasks.tasks import (
     ParallelTasks,
     PotentialShapingTask,
     RadiallySymmetricDesiredStateTask,
+    RewardGroupsTask,
     SequentialTasks,
     Task,
     proximity_succeeded,
@@ -66,6 +68,7 @@ __all__ = [
     "DriveData",
     "DriveResult",
     "all_task_cases",
+    "around_memoryless_cases",
     "assert_memory_equal",
     "assert_same",
     "class_cases",
@@ -505,6 +508,58 @@ def _shaped_cases() -> dict[str, Callable[[], Task]]:
 def all_task_cases() -> dict[str, Callable[[], Task]]:
     """:func:`class_cases` and three :class:`PotentialShapingTask` cases around them."""
     return {**class_cases(), **_shaped_cases()}
+
+
+def memoryless_leaves() -> dict[str, Callable[[], Task]]:
+    """Builders of the leaves whose memory holds no tensor: the class cases without memory and a goalless task with
+    a stateless reward."""
+    cases = class_cases()
+    leaves = {name: cases[name] for name in ("desired_space", "optimization", "condition_success", "condition_failure")}
+    leaves["goalless_constant"] = lambda: GoallessTask(full_spec(), ConstantReward(0.5))
+    return leaves
+
+
+def around_memoryless_cases() -> dict[str, Callable[[], Task]]:
+    """Builders of every wrapper and composite of the tasks package around each memory-less leaf
+    (:func:`memoryless_leaves`), and of one tree nesting them: memories with empty sub-memories (a latch beside the
+    empty memory of the task it wraps, a composite's flags beside its sub-tasks'). The wrappers whose memory is the
+    wrapped task's (a mask, a constraint, reward groups: no memory at all around a memory-less task) wrap one leaf."""
+    leaves = memoryless_leaves()
+    spec = full_spec()
+    sub = _sub_spec(spec, [2, 0], [1])
+
+    def other() -> Task:
+        return leaves["goalless_constant"]()
+
+    around: dict[str, Callable[[Task], Task]] = {
+        "final": lambda task: FinalRewardTask(task, FinalRewardMode(state_dependent=True), 4.0),
+        "best": lambda task: BestStateFinalRewardTask(task, 2.0),
+        "shaping": lambda task: PotentialShapingTask(task, shaping_potential, 0.9),
+        "sequential": lambda task: SequentialTasks([task, other()], hold_reward_when_done=True),
+        "parallel": lambda task: ParallelTasks([task, other()], hold_reward_when_done=True),
+    }
+    cases = {
+        f"{kind}({leaf})": functools.partial(lambda wrap, build: wrap(build()), wrap, build)
+        for kind, wrap in around.items()
+        for leaf, build in leaves.items()
+    }
+    cases["constrained(condition_success)"] = lambda: ConstrainedTask(
+        leaves["condition_success"](), {"effort": QuadraticErrorReward([0.0] * 4, [0.25, 0.25])}
+    )
+    cases["groups(goalless_constant)"] = lambda: RewardGroupsTask(other(), {"all": {"step": 1.0}})
+    cases["masked(optimization)"] = lambda: MaskedTask(
+        spec, OptimizationTask(sub, StateFunctionReward(_WeightedSquares(torch.tensor([1.0, 0.5])))), ["c", "a"], ["v"]
+    )
+    cases["nested"] = lambda: FinalRewardTask(
+        SequentialTasks(
+            [
+                BestStateFinalRewardTask(leaves["condition_success"](), 2.0),
+                ParallelTasks([leaves["desired_space"](), PotentialShapingTask(other(), shaping_potential, 0.5)]),
+            ]
+        ),
+        FinalRewardMode(time_dependent=True),
+    )
+    return cases
 
 
 #: the cases of :func:`all_task_cases` whose tree cannot succeed, read off the builders above: a leaf without a success

@@ -5,11 +5,19 @@ checkpoint of another configuration (targets listed in another order, a wider go
 a constructor refuses) loads without a word. A module that mixes in :class:`CheckedLoad` runs its
 ``_check_loaded()`` once the module and its children are loaded; if the check raises, the state from
 before the load is put back and the error propagates, so a refused load changes nothing.
+
+A non-strict load (``load_state_dict(..., strict=False)``) of a partial state dict loads the entries it holds and
+leaves the others as they are: TorchRL's ``EnvCreator`` (which ``ParallelEnv`` wraps a lambda in) loads every new
+env with the state dict of a first env from which it dropped the tensors. The checks see the module's own entries in
+place of the missing ones, so an entry that is there passes the checks it would pass in a whole checkpoint; a strict
+load of a partial state dict is refused before anything is written.
 """
 
 from __future__ import annotations
 
 import copy
+import sys
+from collections.abc import Mapping
 from typing import Any
 
 from torch import nn
@@ -39,8 +47,9 @@ class CheckedLoad(nn.Module):
 
     def _load_from_state_dict(self, state_dict: Any, prefix: str, *args: Any, **kwargs: Any) -> None:
         if not self.__dict__.get(_RESTORING, False):
-            self._check_saved(state_dict, prefix)
-            self.__dict__[_BEFORE] = copy.deepcopy(self.state_dict())
+            before = self.state_dict()
+            self._check_saved(state_dict if _strict_load() else _completed(state_dict, prefix, before), prefix)
+            self.__dict__[_BEFORE] = copy.deepcopy(before)
             if _after_load not in self._load_state_dict_post_hooks.values():
                 self.register_load_state_dict_post_hook(_after_load)
         self._prepare_load(state_dict, prefix)
@@ -61,3 +70,26 @@ def _after_load(module: nn.Module, incompatible_keys: Any) -> None:
         finally:
             module.__dict__[_RESTORING] = False
         raise
+
+
+def _strict_load() -> bool:
+    """Whether the running ``load_state_dict`` is strict (its ``strict`` argument; ``True`` outside one).
+
+    Torch passes ``strict=True`` to every module's ``_load_from_state_dict`` whatever the caller asked, and applies
+    ``strict`` only to the key lists at the end of the load: the argument is read from the innermost
+    ``nn.Module.load_state_dict`` call on the stack (a load is rare: a resume or a new env, never a step).
+    """
+    code = nn.Module.load_state_dict.__code__
+    frame = sys._getframe(1)
+    while frame is not None:
+        if frame.f_code is code:
+            return bool(frame.f_locals.get("strict", True))
+        frame = frame.f_back
+    return True
+
+
+def _completed(state_dict: Mapping[str, Any], prefix: str, own: Mapping[str, Any]) -> dict[str, Any]:
+    """``state_dict`` with the module's own entries (``own``, its ``state_dict()``) in place of the missing ones."""
+    completed = {prefix + key: value for key, value in own.items()}
+    completed.update(state_dict)
+    return completed

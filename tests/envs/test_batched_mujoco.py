@@ -21,6 +21,7 @@ in float64: with a float32 action Gymnasium computes its control cost in float32
 from __future__ import annotations
 
 import math
+import re
 import subprocess
 import sys
 import warnings
@@ -649,6 +650,8 @@ def test_benchmark_script_runs_every_measurement(tmp_path: Any, fork_start_metho
     assert rows[1]["preset_median"] is None
     table = (tmp_path / "results.md").read_text()
     assert table.count("| Hopper-v5 | 2 |") == 1
+    assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC, 1-minute load average [\d.]+ before, [\d.]+ after", table)
+    assert f"`python benchmarks/batched_mujoco.py --tiny --output {tmp_path}`" in table, table
     if module.peer_status("envpool_raw") is not None:
         assert "not installed (envpool)" in table
 
@@ -675,4 +678,9 @@ def test_pipeline_costs_script_runs(tmp_path: Any) -> None:
     assert row["env_id"] == "Hopper-v5" and row["num_envs"] == 2
     assert set(row["frames_per_second"]) == set(module.VARIANTS)
     assert all(value > 0 for value in row["frames_per_second"].values())
-    assert "| Hopper-v5 × 2 |" in (tmp_path / "results.md").read_text()
+    table = (tmp_path / "results.md").read_text()
+    assert "| Hopper-v5 × 2 |" in table
+    # the table says when, under which load and with which command it was measured (the docs include it as is)
+    command = "python benchmarks/pipeline_costs.py " + " ".join([*arguments, "--output", str(tmp_path)])
+    assert re.search(r"\d{4}-\d\d-\d\d \d\d:\d\d UTC, 1-minute load average [\d.]+ before, [\d.]+ after", table), table
+    assert f"`{command}`" in table, table

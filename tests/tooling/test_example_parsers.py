@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import logging
 import re
 import runpy
@@ -116,3 +117,96 @@ def test_an_output_that_cannot_be_created_is_refused_before_the_run(
     assert exit_info.value.code == 2
     lines = capsys.readouterr().err.splitlines()
     assert lines[-1].startswith(f"{parser.prog}: error: --output: cannot create '/proc/nope': "), lines
+
+
+# ------------------------------------------------------------------ train_multi_objective_ppo.py: the weight vectors
+MO_SCRIPT = "train_multi_objective_ppo.py"
+
+
+@pytest.fixture(scope="module")
+def mo_example():
+    """``examples/train_multi_objective_ppo.py`` as a module (it imports MuJoCo's presets)."""
+    pytest.importorskip("mujoco")
+    name = Path(MO_SCRIPT).stem
+    sys.path.insert(0, str(EXAMPLES))
+    try:
+        spec = importlib.util.spec_from_file_location(name, EXAMPLES / MO_SCRIPT)
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # dataclasses resolve the module of the config class by name
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(EXAMPLES))
+    return module
+
+
+def test_the_mo_default_weights_follow_the_env(mo_example, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without ``--weights`` every MO env gets weight vectors of its own length: its record's scalarisation weights
+    with the weights after the first scaled (the documented sweep for ``mo-halfcheetah-v5``)."""
+    from torchtasks.envs.multi_objective import MULTI_OBJECTIVE_ENV_IDS, multi_objective_record
+
+    parser = build_parser(MO_SCRIPT, monkeypatch)
+    halfcheetah = mo_example.weight_sweep(parser, parser.parse_args([]), "mo-halfcheetah-v5")
+    assert halfcheetah == ((1.0, 0.05), (1.0, 0.1), (1.0, 0.5), (1.0, 2.0))
+    quick = mo_example.weight_sweep(parser, parser.parse_args(["--quick"]), "mo-halfcheetah-v5")
+    assert quick == ((1.0, 0.1), (1.0, 2.0))
+    for env_id in MULTI_OBJECTIVE_ENV_IDS:
+        record = multi_objective_record(env_id)
+        for argv in ([], ["--quick"]):
+            vectors = mo_example.weight_sweep(parser, parser.parse_args(argv), env_id)
+            assert vectors and all(len(vector) == len(record.objective_names) for vector in vectors), (env_id, vectors)
+            assert record.weights in vectors, (env_id, vectors)  # the scalarisation that gives Gymnasium's reward
+            assert len(set(vectors)) == len(vectors), (env_id, vectors)
+
+
+def test_a_wrong_mo_weight_count_is_one_line(mo_example, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """For every MO env, a weight vector of another length than its objectives, and an unknown env id, end the
+    program with one line (exit status 2) naming the env, its objectives and what was given."""
+    from torchtasks.envs.multi_objective import MULTI_OBJECTIVE_ENV_IDS, multi_objective_record
+
+    parser = build_parser(MO_SCRIPT, monkeypatch)
+    for env_id in MULTI_OBJECTIVE_ENV_IDS:
+        names = multi_objective_record(env_id).objective_names
+        for count in (len(names) - 1, len(names) + 1):
+            given = ",".join(["1"] * count)
+            args = parser.parse_args(["--weights", ",".join(["1"] * len(names)), given])  # the second is wrong
+            with pytest.raises(SystemExit) as exit_info:
+                mo_example.weight_sweep(parser, args, env_id)
+            assert exit_info.value.code == 2
+            lines = capsys.readouterr().err.splitlines()
+            assert lines[-1] == (
+                f"{parser.prog}: error: --weights: {env_id} has {len(names)} objectives ({', '.join(names)}), "
+                f"so a weight vector needs {len(names)} weights; got {given}"
+            ), lines
+    with pytest.raises(SystemExit) as exit_info:
+        mo_example.weight_sweep(parser, parser.parse_args([]), "mo-hoper-v5")
+    assert exit_info.value.code == 2
+    last = capsys.readouterr().err.splitlines()[-1]
+    assert last.startswith(f"{parser.prog}: error: --env-id: unknown MO-Gymnasium env 'mo-hoper-v5'; did you mean"), (
+        last
+    )
+
+
+def test_the_mo_example_refuses_a_wrong_count_before_any_work(
+    monkeypatch: pytest.MonkeyPatch, capsys, tmp_path: Path
+) -> None:
+    """``--env-id mo-hopper-v5`` with a two-entry weight vector (Hopper has three objectives): the run ends at the
+    argument check, with one error line and no traceback: no env built, no output folder made."""
+    pytest.importorskip("mujoco")
+    import torchtasks.envs.multi_objective as multi_objective
+
+    def no_env(*args: object, **kwargs: object) -> None:
+        raise AssertionError("an env was built before the weights were checked")
+
+    monkeypatch.setattr(multi_objective, "multi_objective_env", no_env)
+    output = tmp_path / "out"
+    argv = [str(EXAMPLES / MO_SCRIPT), "--env-id", "mo-hopper-v5", "--weights", "1,0.1", "--output", str(output)]
+    monkeypatch.syspath_prepend(str(EXAMPLES))
+    monkeypatch.setattr(sys, "argv", argv)
+    torchrl_logger = logging.getLogger("torchrl")
+    monkeypatch.setattr(torchrl_logger, "level", torchrl_logger.level)  # the script quiets TorchRL's logger
+    with pytest.raises(SystemExit) as exit_info:
+        runpy.run_path(str(EXAMPLES / MO_SCRIPT), run_name="__main__")
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and err.splitlines()[-1].endswith("so a weight vector needs 3 weights; got 1,0.1")
+    assert not output.exists()

@@ -422,10 +422,10 @@ def _other_goal_command(batch: int, seed: int):
 
 
 def _other_domain(batch: int, seed: int):
-    """The domain feature drawing once per env instead of at every reset."""
+    """The domain feature drawing every 4 steps instead of at every reset."""
     task = TaskTransform(swing_up_task(success_threshold=0.6))
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
-    randomization = DomainRandomization(feature_envs._pendulum_params(), when="startup", seed=seed)
+    randomization = DomainRandomization(feature_envs._pendulum_params(), when="interval", every=4, seed=seed)
     return feature_envs._finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, curriculum)
 
 
@@ -451,7 +451,7 @@ def _other_group_sources(batch: int, seed: int):
 OTHER_CONFIGURATIONS = {
     "groups": (_other_groups, r"other reward groups: saved .*, here \{.*'energy': \['effort', 'speed'\]\}"),
     "groups_scheduled": (_other_group_sources, r"other reward groups: saved \{'tracking': \['track', 'final'\]"),
-    "domain": (_other_domain, "when: saved 'reset', here 'startup'"),
+    "domain": (_other_domain, "when: saved 'reset', here 'interval'"),
     "curriculum": (_other_curriculum, "'success_value' is staged here, but the checkpoint holds a linear"),
     "levels": (_other_levels, r"shape \[2, 2\] here"),
     "goal_command": (_other_goal_command, "must lie in this command's goal space"),

@@ -110,6 +110,22 @@ class DomainParam(CheckedLoad, nn.Module):
         """The value shape given by the first parameter (converted by the subclass)."""
         return first.shape
 
+    def parameter_shape(self, name: str) -> torch.Size:
+        """The shape of one env's value of the distribution buffer ``name``: the value shape, a covariance's ``[d, d]``.
+
+        Example:
+            >>> import torch
+            >>> param = MultivariateNormalDomainParam("gravity", [0.0, 0.0, -9.81], torch.eye(3) * 0.01)
+            >>> param.parameter_shape("mean"), param.parameter_shape("cov")
+            (torch.Size([3]), torch.Size([3, 3]))
+        """
+        if name not in self.distribution_fields:
+            raise ValueError(
+                f"{type(self).__name__}.parameter_shape: {name!r} is no distribution buffer; the buffers are "
+                f"{list(self.distribution_fields)}"
+            )
+        return self._param_shape(name)
+
     def _param_shape(self, name: str) -> torch.Size:
         """The shape of one env's value of the buffer ``name`` (the value shape; a covariance's ``[d, d]``)."""
         return self._value_shape
@@ -314,11 +330,12 @@ which it refuses: halfspan must be >= 0, got -0.5
         """
         self.check_written_values({buffer: value}, label)
 
-    def check_written_values(self, values: Mapping[str, torch.Tensor], label: str) -> None:
+    def check_written_values(self, values: Mapping[str, torch.Tensor], label: str, *, as_rows: bool = False) -> None:
         """Refuse values that writers put into several buffers TOGETHER (a schedule of the mean and one of the halfspan,
         two level tables) that the parameter refuses: each value as in :meth:`check_written_value`, and values given
         as rows ``[n, *row]`` are taken together row by row (row ``k`` of every buffer is one combination), with the
-        unwritten buffers' current values.
+        unwritten buffers' current values. ``as_rows=True``: every value is rows ``[n, *row]``, each checked against
+        every env, also where ``[n, *row]`` is the shape of a per-env buffer (``n`` equal to the number of envs).
 
         Example:
             >>> import torch
@@ -352,12 +369,12 @@ which it refuses: halfspan must be >= 0, got -0.5
             own = self._buffers[buffer]
             row = self._param_shape(buffer)
             written = value.detach().to(dtype=FLOAT64, device=own.device)
-            if value.shape not in (own.shape, row):
-                if value.shape[1:] != row:
+            if as_rows or value.shape not in (own.shape, row):
+                if value.dim() == 0 or value.shape[1:] != row:
+                    shapes = "" if as_rows else f"the buffer's shape {list(own.shape)}, one env's shape {list(row)} or "
                     raise ValueError(
-                        f"{label}: the value written into {self!r}'s {buffer} must have the buffer's shape "
-                        f"{list(own.shape)}, one env's shape {list(row)} or rows [n{''.join(f', {n}' for n in row)}], "
-                        f"got {list(value.shape)}"
+                        f"{label}: the value written into {self!r}'s {buffer} must have {shapes}"
+                        f"rows [n{''.join(f', {n}' for n in row)}], got {list(value.shape)}"
                     )
                 rows.add(value.shape[0])
                 lead = _lead(own.shape, row)

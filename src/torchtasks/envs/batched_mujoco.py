@@ -118,96 +118,32 @@ def _default_threads() -> int:
 class BatchedMujocoEnv(EnvBase):
     """Step ``num_envs`` Gymnasium MuJoCo v5 locomotion envs in one process with native threads.
 
-    One ``mujoco.MjModel``, built by Gymnasium for ``env_id`` and ``gym_kwargs`` (``xml_file``,
-    ``frame_skip`` and every keyword that changes the dynamics or the observation), and one
-    ``mujoco.batch.Batch`` of ``num_envs`` simulations of it (``env.batch``; its bound ``qpos``,
-    ``qvel``, ``time`` rows are the envs' states). A step sets ``ctrl = action`` (as Gymnasium: not
-    clipped; MuJoCo clamps it to ``ctrlrange``), advances every env by ``frame_skip`` calls of
-    ``mj_step`` in one ``Batch.step`` call on ``num_threads`` threads (and runs
-    ``mj_rnePostConstraint`` for Ant and Humanoid, as Gymnasium does), and computes Gymnasium v5's
-    observation for all envs from the bound arrays. With the same states and actions, the
-    observation equals Gymnasium's bit for bit.
-
-    Entries (float64, ``[num_envs, size]``):
-
-    - ``"observation"``: Gymnasium's observation for these keywords (e.g. without the x position
-      by default, Hopper's and Walker2d's velocities clipped to ±10, Ant's clipped contact forces).
-    - the task state of :func:`~torchtasks.envs.locomotion.locomotion_state_layout` (or the
-      entries ``task_state_keys`` names), a subset of ``"x_velocity"``, ``"y_velocity"`` (Swimmer, Ant,
-      Humanoid), ``"qpos"``, ``"qvel"`` (unclipped) and ``"cfrc_ext"`` (all bodies, flattened).
-      ``"x_velocity"`` and ``"y_velocity"`` are Gymnasium's ``info`` entries: ``qpos[0]``
-      (HalfCheetah, Hopper, Walker2d; Swimmer ``qpos[0:2]``), Ant's main-body ``xpos[:2]`` or
-      Humanoid's centre of mass (from ``xipos``; these two lag ``qpos`` by one substep, like
-      Gymnasium's) finite-differenced over the step exactly as Gymnasium does; 0 after a reset.
-
-    The env pays no reward (``"reward"`` is 0, float64) and ends no episode by itself: put a
-    :class:`~torchtasks.transforms.TaskTransform` of
-    :func:`~torchtasks.envs.locomotion.locomotion_task` on it (with ``StepCounter(1000)`` for
-    Gymnasium's time limit), or use ``gymnasium_env(env_id, num_envs=N)``, which does. The one
-    exception is a broken step: an env whose action has a non-finite entry is not simulated, and an
-    env whose state diverges (MuJoCo then resets it to ``qpos0`` by itself; it is detected from the
-    simulation time running back, the divergence warnings and non-finite states) is not continued;
-    both end with ``terminated = done = True`` and a ``RuntimeWarning``, and the next reset starts a
-    fresh episode. Gymnasium would continue silently from MuJoCo's reset state.
-
-    What a broken step writes, so that one broken env cannot poison a training batch: ``"broken"``
-    (bool ``[num_envs, 1]``, in the observation spec, so collectors keep it) is True for that env
-    only (and False at every reset); its reward is 0; its ``"x_velocity"`` is 0; its observation
-    and state entries are finite (the state before the step for a skipped action, MuJoCo's
-    ``qpos0`` reset for a diverged state; a non-finite state is reset to ``qpos0`` here, as MuJoCo
-    does). A task on the env still reads the policy's non-finite action (a control cost of NaN):
-    put :class:`ZeroBrokenStepReward` after the ``TaskTransform`` and before ``RewardSum`` (as
-    ``gymnasium_env`` does) to pay 0 for the broken step in the reward and every term. Filter
-    ``("next", "broken")`` out of statistics that should count only real episodes.
-
-    ``copy.deepcopy(env)`` and ``pickle`` give an independent env in the same state (MuJoCo states
-    with the solver's warm start, warning counters, generators, episode clocks) with its own batch:
-    stepped with the same actions, it continues the same trajectories bit for bit. After
-    ``env.close()`` (which releases the batch's threads) stepping or resetting raises a ``RuntimeError``.
-
-    Resets draw Gymnasium v5's initial state distribution of ``env_id`` (``init_qpos`` plus uniform
-    noise of half-width ``reset_noise_scale``, ``init_qvel`` plus uniform or, for HalfCheetah and
-    Ant, normal noise), from one numpy generator per env (``np_random``, spawned from
-    ``numpy.random.SeedSequence(seed)``), and do what Gymnasium's ``reset`` does to the ``MjData``
-    (``mj_resetData``, then ``qpos``/``qvel``, then ``mj_forward``), as one ``Batch.reset`` and one
-    ``Batch.forward`` call over the reset envs. Partial resets (TorchRL's ``"_reset"`` mask) reset only
-    the masked envs.
-
-    Checkpoints: ``env.state_dict()`` holds, under ``"_extra_state"``, the ``num_envs`` reset
-    generators (each numpy ``bit_generator.state``) and the running episodes: every env's
-    ``mjSTATE_INTEGRATION`` state (with the solver's warm start), its MuJoCo warning counters, the
-    episode clocks and last forward positions (what the velocities are finite-differenced from) and
-    the gathered arrays (the observation of envs a partial reset leaves alone is read from them), as
-    float64/int64 tensors. After ``load_state_dict`` every env draws the initial states that the
-    saved one would have drawn next and a step continues the saved episodes, bit for bit (the
-    collector's carried data, the last observation, is :func:`torchtasks.checkpoint.collector_state`'s).
-    A load is refused (``ValueError`` naming both sides) unless the env has the same ``env_id``,
-    ``num_envs``, ``frame_skip`` and MuJoCo model (a digest of its compiled binary). TorchRL's
-    ``Collector.state_dict()`` and ``TransformedEnv.state_dict()`` save the transforms of a
-    ``TransformedEnv``, not its base env: put a :class:`~torchtasks.transforms.BaseEnvState` in it.
-
-    Per-env physics: the env is a :class:`~torchtasks.domain.DomainEnv`. :meth:`domain_fields` lists the values it
-    can give each env (a named body's mass, its inertia following; a geom's sliding friction; a joint's damping and
-    armature; an actuator's gear; each kind also as a factor on every object's value; gravity), :meth:`set_domain`
-    writes them into the envs of a mask, from their next step or reset on (a running episode continues from its
-    state), and :meth:`domain_values` reads them. The values persist until set again; checkpoints, copies and
-    pickles keep them. The trajectories equal those of per-env ``MjModel`` copies set to the same values, bit for
-    bit; an env never given values runs exactly as before (no model field is made per-env).
+    One ``mujoco.MjModel`` (Gymnasium's, for ``env_id`` and ``gym_kwargs``) and one ``mujoco.batch.Batch`` of
+    ``num_envs`` simulations of it (``env.batch``). A step sets ``ctrl = action`` (not clipped, as Gymnasium),
+    advances every env by ``frame_skip`` substeps in one ``Batch.step`` call on ``num_threads`` threads and computes
+    Gymnasium v5's observation for all envs: equal to Gymnasium's bit for bit on the same states. It writes
+    ``"observation"`` and the task state (``"x_velocity"``, ``"qpos"``, ... of
+    :func:`~torchtasks.envs.locomotion.locomotion_state_layout`), float64 ``[num_envs, size]``. It pays no reward and
+    ends no episode (put the locomotion task's :class:`~torchtasks.transforms.TaskTransform` on it, or use
+    ``gymnasium_env(env_id, num_envs=N)``), except a broken step (a non-finite action, a diverged state): that env
+    ends, with ``"broken"`` set, a finite state and a ``RuntimeWarning`` (:class:`ZeroBrokenStepReward` pays 0 for
+    it). Resets draw Gymnasium's initial states from one generator per env, for the masked envs only.
+    ``state_dict()`` holds the generators and the running episodes: a load continues them bit for bit (in a
+    ``TransformedEnv``, a :class:`~torchtasks.transforms.BaseEnvState` saves it with the transforms); copies and
+    pickles are independent envs in the same state. As a :class:`~torchtasks.domain.DomainEnv` it gives each env its
+    own physics (:meth:`set_domain`). Details: the docs page "The batched MuJoCo env".
 
     Args:
         env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
         num_envs: number of environments.
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
-        device: device of the output tensors (the simulation runs on the CPU); ``env.to(device)``
-            moves them.
-        num_threads: threads that step the envs (the calling thread included); default: the CPUs
-            this process may use, at most ``num_envs``.
-        task_state_keys: the task-state entries to write, in order (default: the env record's
-            ``state_keys``, what :func:`~torchtasks.envs.locomotion.locomotion_task` reads; the safety
-            presets add ``"y_velocity"`` for Ant and Humanoid).
-        **gym_kwargs: the env's Gymnasium keyword arguments (validated as by
-            :func:`~torchtasks.envs.locomotion.locomotion_task`, e.g. ``reset_noise_scale`` must be a
-            finite, non-negative number). Rendering is not supported.
+        device: device of the output tensors (the simulation runs on the CPU); ``env.to(device)`` moves them.
+        num_threads: threads that step the envs (the calling thread included); default: the CPUs this process may
+            use, at most ``num_envs``.
+        task_state_keys: the task-state entries to write, in order (default: the env record's ``state_keys``, what
+            :func:`~torchtasks.envs.locomotion.locomotion_task` reads).
+        **gym_kwargs: the env's Gymnasium keyword arguments, validated as by
+            :func:`~torchtasks.envs.locomotion.locomotion_task`. Rendering is not supported.
 
     Example:
         >>> from torchtasks.envs import BatchedMujocoEnv
@@ -215,18 +151,13 @@ class BatchedMujocoEnv(EnvBase):
         >>> rollout = env.rollout(3)
         >>> rollout["next", "observation"].shape, rollout["next", "qpos"].dtype
         (torch.Size([2, 3, 11]), torch.float64)
-        >>> fresh = BatchedMujocoEnv("Hopper-v5", num_envs=2)
-        >>> fresh.load_state_dict(env.state_dict())
-        <All keys matched successfully>
-        >>> bool((fresh.reset()["qpos"] == env.reset()["qpos"]).all())
-        True
         >>> nominal, heavy = (BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0) for _ in range(2))
         >>> heavy.set_domain({"body_mass_scale": torch.tensor([1.0, 1.5], dtype=torch.float64)})  # env 1: 1.5 x
         >>> still = lambda td: td.set("action", torch.zeros(2, 3))
         >>> same = nominal.rollout(20, still)["next", "qpos"] == heavy.rollout(20, still)["next", "qpos"]
         >>> bool(same[0].all()), bool(same[1].all())
         (True, False)
-        >>> for e in (env, fresh, nominal, heavy): e.close()
+        >>> for e in (env, nominal, heavy): e.close()
     """
 
     batch_locked = True

@@ -148,8 +148,13 @@ def _labels(layout: Mapping[str, int]) -> list[str]:
     return labels
 
 
-def _starts(layout: Mapping[str, int]) -> dict[str, int]:
-    """Where each entry of a task state ``{key: size}`` starts."""
+def state_starts(layout: Mapping[str, int]) -> dict[str, int]:
+    """Where each entry of a task state ``{key: size}`` starts (for the presets of this package; not in ``__all__``).
+
+    Example:
+        >>> state_starts({"qpos": 9, "x_velocity": 1})
+        {'qpos': 0, 'x_velocity': 9}
+    """
     starts: dict[str, int] = {}
     position = 0
     for key, size in layout.items():
@@ -162,7 +167,7 @@ def _terms(
     record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, keys: tuple[str, ...]
 ) -> dict[str, RewardFunction]:
     """The named reward terms of the env on the task state of ``keys`` (order: forward, ctrl, contact, survive)."""
-    starts = _starts(record.state_layout(facts, keys))
+    starts = state_starts(record.state_layout(facts, keys))
     # Gymnasium's forward_reward_weight * x_velocity, with x_velocity as Gymnasium computes it
     terms: dict[str, RewardFunction] = {
         "forward": VelocityReward(config["forward_reward_weight"], index=starts["x_velocity"]),
@@ -175,9 +180,12 @@ def _terms(
     return terms
 
 
-def _build_task(
+def build_locomotion_task(
     record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, keys: tuple[str, ...] | None = None
 ) -> GoallessTask:
+    """The locomotion task of ``record`` for the checked keywords ``config`` on the task state ``keys`` (default: the
+    record's), with its named terms: what :func:`locomotion_task` returns, for the presets of this package (the
+    multi-objective presets build their groups on it; not in ``__all__``)."""
     keys = record.state_keys if keys is None else keys
     layout = record.state_layout(facts, keys)
     state_space = Box.unbounded(sum(layout.values()), labels=_labels(layout))
@@ -190,7 +198,7 @@ def _velocity_cost(record: LocomotionEnvRecord, facts: ModelFacts) -> AboveThres
     safety = record.safety_velocity
     if safety is None:
         raise ValueError(f"{record.env_id} has no Safety-Gymnasium velocity constraint")
-    starts = _starts(record.state_layout(facts, record.safety_state_keys))
+    starts = state_starts(record.state_layout(facts, record.safety_state_keys))
     if safety.planar:  # sqrt(x_velocity² + y_velocity²) > threshold
         return AboveThresholdIndicator(safety.threshold, index=[starts[key] for key in safety.velocity_keys], norm=True)
     return AboveThresholdIndicator(safety.threshold, index=starts[safety.velocity_keys[0]])  # signed x_velocity
@@ -199,7 +207,7 @@ def _velocity_cost(record: LocomotionEnvRecord, facts: ModelFacts) -> AboveThres
 def _build_safety_task(
     record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, cost_limit: float | None
 ) -> ConstrainedTask:
-    task = _build_task(record, config, facts, record.safety_state_keys)
+    task = build_locomotion_task(record, config, facts, record.safety_state_keys)
     return ConstrainedTask(task, {SAFETY_COST_NAME: Constraint(_velocity_cost(record, facts), limit=cost_limit)})
 
 
@@ -268,7 +276,7 @@ def locomotion_task(env_id: str, **gym_kwargs: Any) -> GoallessTask:
         (tensor([3.], dtype=torch.float64), tensor([False]))
     """
     config = gymnasium_config(env_id, gym_kwargs)
-    return _build_task(locomotion_record(env_id), config, ModelFacts.make(env_id, gym_kwargs))
+    return build_locomotion_task(locomotion_record(env_id), config, ModelFacts.make(env_id, gym_kwargs))
 
 
 def locomotion_state_layout(env_id: str, **gym_kwargs: Any) -> dict[str, int]:
@@ -526,10 +534,10 @@ def gymnasium_env(
     config = gymnasium_config(env_id, gym_kwargs)
 
     def build_task(facts: ModelFacts) -> Task:
-        return _build_task(record, config, facts)
+        return build_locomotion_task(record, config, facts)
 
     keys = record.state_keys
-    return _preset_env(
+    return preset_env(
         record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
     )
 
@@ -634,7 +642,7 @@ def safety_velocity_env(
         return _build_safety_task(record, config, facts, cost_limit)
 
     keys = record.safety_state_keys
-    return _preset_env(
+    return preset_env(
         record, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
     )
 
@@ -657,7 +665,7 @@ def _check_cost_limit(cost_limit: object) -> float | None:
     return check_weight(cost_limit, "cost_limit")
 
 
-def _preset_env(
+def preset_env(
     record: LocomotionEnvRecord,
     config: Mapping[str, Any],
     gym_kwargs: Mapping[str, Any],
@@ -670,7 +678,11 @@ def _preset_env(
     build_task: Callable[[ModelFacts], Task],
     observation_dtype: torch.dtype = torch.float64,
 ) -> TransformedEnv:
-    """The preset stack on the task state ``keys`` for the task ``build_task(facts)`` (of the one env made here)."""
+    """The preset stack on the task state ``keys`` for the task ``build_task(facts)`` (of the one env made here).
+
+    The one builder of :func:`gymnasium_env`, :func:`safety_velocity_env` and the multi-objective presets
+    (:mod:`torchtasks.envs.multi_objective`); not in ``__all__``.
+    """
     env_id = record.env_id
     num_envs = check_positive_int(num_envs, "num_envs")
     cast = _observation_cast(observation_dtype)

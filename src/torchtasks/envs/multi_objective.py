@@ -64,7 +64,7 @@ except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.multi_objective (the MO-Gymnasium presets)", _error) from _error
 
 from torchtasks.envs.gymnasium_v5 import LocomotionEnvRecord, ModelFacts, gymnasium_config, locomotion_record
-from torchtasks.envs.locomotion import _build_task, _preset_env, _starts
+from torchtasks.envs.locomotion import build_locomotion_task, preset_env, state_starts
 
 __all__ = [
     "MULTI_OBJECTIVE_ENVS",
@@ -369,9 +369,9 @@ def _build_multi_objective_task(
     record: MultiObjectiveRecord, config: Mapping[str, Any], facts: ModelFacts, groups: Mapping[str, Any]
 ) -> RewardGroupsTask:
     base = record.base
-    starts = _starts(base.state_layout(facts, record.state_keys))
+    starts = state_starts(base.state_layout(facts, record.state_keys))
     extras = {name: term.build(facts, starts) for name, term in record.extras.items()}
-    task = _build_task(base, config, facts, record.state_keys)
+    task = build_locomotion_task(base, config, facts, record.state_keys)
     return RewardGroupsTask(task, groups, terms=extras, dtype=VECTOR_REWARD_DTYPE)
 
 
@@ -463,6 +463,6 @@ def multi_objective_env(
         return _build_multi_objective_task(record, config, facts, groups)
 
     keys, base = record.state_keys, record.base
-    return _preset_env(
+    return preset_env(
         base, config, gym_kwargs, num_envs, seed, device, backend, num_threads, keys, build_task, observation_dtype
     )

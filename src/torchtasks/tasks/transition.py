@@ -7,7 +7,7 @@ from typing import NamedTuple
 import torch
 from tensordict import TensorDictBase
 
-__all__ = ["FINAL_SOURCE", "STEP_SOURCE", "TaskFacts", "Transition"]
+__all__ = ["FINAL_SOURCE", "STEP_SOURCE", "TRANSITION_FIELDS", "TaskFacts", "Transition"]
 
 #: the names under which a reward group (:class:`~torchtasks.tasks.RewardGroupsTask`) reads the tree's step reward
 #: and final reward beside its named terms (the names the reward breakdown writes them under, too)
@@ -60,6 +60,10 @@ class Transition(NamedTuple):
     costs: dict[str, torch.Tensor]
     ended_by: dict[str, torch.Tensor]
     groups: dict[str, torch.Tensor]
+
+
+#: the names of :class:`Transition`'s fields, in order: what a reader of one field by name may ask for
+TRANSITION_FIELDS: tuple[str, ...] = Transition._fields
 
 
 class TaskFacts(NamedTuple):

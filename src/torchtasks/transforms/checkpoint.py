@@ -62,29 +62,17 @@ _WORKER = re.compile(r"worker\d+")
 class BaseEnvState(Transform):
     """Carry the base env's ``state_dict()`` in the transforms' state, so collector checkpoints restore the base env.
 
-    A transform that does nothing to the data (its step, reset and inverse return their input
-    untouched: it costs a few Python calls per step). Its ``state_dict()`` holds, under
-    ``"_extra_state"``, the ``state_dict()`` of the ``base_env`` of the ``TransformedEnv`` it sits in
-    (and the base env's class name); ``load_state_dict`` loads it into that base env (``strict``, as
-    ``nn.Module.load_state_dict``). Put it last in the ``Compose`` (anywhere works; last keeps the
-    indices of the other transforms' state entries as they were); on a preset that returns a finished
-    ``TransformedEnv``, ``env.append_transform(BaseEnvState())``. With a ``TransformedEnv`` nested in
-    another (``auto_unwrap=False``), put it in the outermost env: TorchRL's ``Collector.state_dict()``
-    saves that env's transforms only. Its base env is then the inner ``TransformedEnv``, whose
-    ``state_dict()`` is the inner transforms'; unless the inner env holds a ``BaseEnvState`` of its
-    own, the state of the env below it is saved too (under ``"_inner_base_env"``), down to the
-    innermost base env.
-
-    After a load, the env expects to be reset or to be stepped from data restored with the checkpoint
-    (:func:`load_collector_state` restores a collector's): if its first step after
-    ``load_state_dict`` comes before any full reset and not from :func:`load_collector_state`, it
-    warns once (a ``UserWarning``): a collector stepped on from the data it held before the load
-    (``collector.load_state_dict`` without ``collector.reset()``) mixes those episodes with the
-    loaded state. (In ``ParallelEnv`` and multi-process collector workers TorchRL silences warnings
-    unless ``torchrl.filter_warnings_subprocess = False``.)
-
-    Loading or saving it outside a ``TransformedEnv`` (e.g. a ``Compose`` not yet in an env) raises a
-    ``ValueError``: the state belongs to an env, so load it once the env is built.
+    A transform that does nothing to the data (its step, reset and inverse return their input untouched: a few
+    Python calls per step). Its ``state_dict()`` holds, under ``"_extra_state"``, the ``state_dict()`` of the
+    ``base_env`` of the ``TransformedEnv`` it sits in (and the base env's class name); ``load_state_dict`` loads it
+    into that base env (``strict``, as ``nn.Module.load_state_dict``). Put it last in the ``Compose`` (anywhere works;
+    last keeps the other transforms' state entries where they were); on a preset that returns a finished
+    ``TransformedEnv``, ``env.append_transform(BaseEnvState())``. With a ``TransformedEnv`` nested in another, put it in
+    the outermost env: the states of the envs below are saved too (under ``"_inner_base_env"``), down to the innermost
+    base env. After a load, the env expects to be reset or to be stepped from data restored with the checkpoint
+    (:func:`load_collector_state` restores a collector's): a first step from anything else warns once
+    (``UserWarning``). Loading or saving it outside a ``TransformedEnv`` raises a ``ValueError``. The docs page
+    "TorchRL integration" (checkpoints and resume) has the recipe.
 
     Example:
         >>> import io, torch

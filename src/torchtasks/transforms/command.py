@@ -32,49 +32,21 @@ Sampler = Callable[[torch.Size, torch.Generator | None], torch.Tensor]
 class GoalCommand(CheckedLoad, SeededTransform):
     """Sample per-env goals into the observation; resample at reset, on a per-env timer, or after a success.
 
-    The goal lives under ``goal_key`` (observation AND state spec, so ``ParallelEnv``, ``SerialEnv``,
-    batched envs, every collector and ``env.rollout`` carry it). Goals are drawn uniformly from a
-    :class:`~torchtasks.spaces.Box` (finite bounds) or by a callable ``sampler(shape, generator) ->
-    goals``. They are drawn anew:
+    The goal lives under ``goal_key`` (observation AND state spec, so batched envs, collectors and ``env.rollout``
+    carry it). Goals are drawn uniformly from a :class:`~torchtasks.spaces.Box` (finite bounds; from its range
+    buffers ``low`` and ``high``, which a :class:`~torchtasks.transforms.Curriculum` or
+    :class:`~torchtasks.transforms.DifficultyLevels` can set as ``"command.low"``/``"command.high"``, per env after
+    :meth:`use_per_env_range`) or by a callable ``sampler(shape, generator) -> goals``, anew at each env's reset, every
+    ``resample_steps`` steps (or after a per-env number of steps drawn from ``(low, high)``) and, with
+    ``resample_on_success``, right after a success (the command then comes after the
+    :class:`~torchtasks.transforms.TaskTransform`). The goal written in step ``t`` is the one the policy sees when it
+    chooses ``a_{t+1}``, and the one a ``TaskTransform(task, goal_key=...)`` judges the transition ``t+1`` with.
 
-    - at reset, for the envs being reset only;
-    - with ``resample_steps=n`` every ``n`` steps, or with ``(low, high)`` after a number of steps
-      drawn uniformly from ``[low, high]`` per env and per goal (the steps left are the state entry
-      ``(goal_key)_steps_left``);
-    - with ``resample_on_success=True``, right after a step whose ``success`` flag is set (then the
-      command must come after the :class:`~torchtasks.transforms.TaskTransform` that writes it).
-
-    The goal written in step ``t`` is the one the policy sees when it chooses ``a_{t+1}``, and the
-    one a ``TaskTransform(task, goal_key=...)`` judges the transition ``t+1`` with.
-
-    Randomness: a command built with ``seed=None`` draws from ``torch``'s global generator (seeded by
-    ``torch.manual_seed``) until it is seeded; ``seed=k`` gives it its own generator from the start.
-    ``env.set_seed(s)`` on the ``TransformedEnv`` it sits in (and so ``SerialEnv``/``ParallelEnv``/
-    ``Collector``/``MultiSyncCollector.set_seed``, which seed each worker env with its own seed) seeds the
-    base env as TorchRL does and then gives the command its own generator, seeded with a seed derived
-    from ``s`` and the command's place in the env (:mod:`torchtasks.transforms.seeding`): from then on workers draw
-    different streams, two commands of one env too, and the same ``s`` gives the same goals, whatever
-    ``seed=`` was. :meth:`set_seed` seeds the generator with exactly the seed given.
-
-    Sampling range: with a ``Box`` the goals are drawn from the registered float64 buffers ``low`` and
-    ``high`` (shape ``[k]``, first the Box's bounds), so ``.to()``, ``state_dict()`` and a
-    :class:`~torchtasks.transforms.Curriculum` (targets ``"command.low"`` / ``"command.high"``) reach
-    them; the Box itself stays the bounds of the goal spec, the widest range a schedule may reach.
-    :meth:`use_per_env_range` makes them ``[*B, k]``, one range per env of the batch ``B`` (env ``i``
-    draws from row ``i``). A sampler has no such buffers.
-
-    Checkpoints: ``state_dict()`` holds the command's generator under ``"_extra_state"`` (whether
-    it has its own generator, its seed and its state) and the range buffers, so ``load_state_dict``
-    makes the command draw the goals and timers that the saved one would have drawn next, bit for bit
-    (a saved range of shape ``[k]`` or ``[*B, k]`` loads into either: the buffers take the saved
-    shape). It is part of ``TransformedEnv.state_dict()`` and so of TorchRL's
-    ``Collector.state_dict()``, which saves the transforms of a ``TransformedEnv`` but not its base
-    env: put a :class:`~torchtasks.transforms.BaseEnvState` last in the ``Compose``, or save
-    ``env.base_env.state_dict()`` too, as in the example. A command without its own generator draws
-    from ``torch``'s global one, which is not its state: it has nothing to restore (seed the env, or
-    save ``torch.get_rng_state()`` yourself), and loading such a state drops the generator of the
-    command it is loaded into. The goals and timers of the running episodes are not saved: TorchRL
-    starts fresh trajectories after loading a collector.
+    Randomness: ``seed=k`` gives the command its own generator; ``seed=None`` draws from torch's global generator
+    until ``env.set_seed(s)`` gives it one seeded from ``s`` and its place in the env (workers draw different streams,
+    the same ``s`` the same goals). ``state_dict()`` holds the generator and the range buffers: a load draws the goals
+    and timers the saved command would have drawn next (the running episodes' goals are not saved). The docs page
+    "Goal-conditioned tasks" has the details (timers, seeds, checkpoints, relabelling).
 
     Args:
         space: the goal space (a ``Box`` of ``k`` finite entries) or a sampler.
@@ -102,22 +74,6 @@ class GoalCommand(CheckedLoad, SeededTransform):
         >>> rollout = env.rollout(12, break_when_any_done=False)  # (a reached goal ends an episode)
         >>> rollout["goal"].shape
         torch.Size([4, 12, 2])
-
-        A checkpoint of the transforms (what ``Collector.state_dict()`` saves) and of the base env:
-
-        >>> checkpoint = {"transforms": env.state_dict(), "base_env": env.base_env.state_dict()}
-        >>> checkpoint["transforms"]["transforms.2._extra_state"]["seed"]
-        0
-        >>> fresh = TransformedEnv(PendulumEnv(batch_size=[4]), Compose(
-        ...     StepCounter(50),
-        ...     TaskTransform(task, goal_key="goal"),
-        ...     GoalCommand(Box([-1.0, -0.5], [1.0, 0.5]), resample_steps=(5, 10))))
-        >>> fresh.load_state_dict(checkpoint["transforms"])
-        >>> fresh.base_env.load_state_dict(checkpoint["base_env"])
-        <All keys matched successfully>
-        >>> a, b = env.reset(), fresh.reset()
-        >>> torch.equal(a["goal"], b["goal"]), torch.equal(a["observation"], b["observation"])
-        (True, True)
     """
 
     def __init__(
@@ -162,7 +118,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
     def set_seed(self, seed: int) -> None:
         """Seed the command's own generator with ``seed`` (created if it had none).
 
-        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`).
+        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (see :mod:`torchtasks.transforms.seeding`). The
+        goals and timers of the running episodes are in the env's data and go on: the seed decides the draws from
+        then on (a run repeats from its first frame when it is reset after the seed).
         """
         self.generator = torch.Generator().manual_seed(check_int(seed, "GoalCommand.set_seed: seed"))
 
@@ -423,6 +381,8 @@ class GoalCommand(CheckedLoad, SeededTransform):
         goals = torch.where(resample.unsqueeze(-1), new_goals, goals)
         if self.timer_range is not None:
             timers = torch.where(resample, self._sample_timers(batch, goals.device), timers)
+        else:  # never counted down: a copy, so that the entry under "next" is not the root's tensor
+            timers = timers.clone()
         next_tensordict.set(self.goal_key, goals)
         next_tensordict.set(self.timer_key, timers)
         return next_tensordict

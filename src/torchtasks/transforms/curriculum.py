@@ -37,11 +37,13 @@ from torchtasks.transforms.schedules import (
 )
 from torchtasks.transforms.targets import (
     TASK,
+    DomainWrites,
     Target,
     TargetWriter,
-    check_domain_combinations,
+    check_domain_writes,
     check_in_goal_space,
     check_low_not_above_high,
+    check_one_owner,
     command_ranges,
     resolve_targets,
 )
@@ -76,73 +78,29 @@ class _CountMirror(NamedTuple):
 class Curriculum(CheckedLoad, TargetWriter):
     """Set float buffers of the env's task tree from schedules that follow the frames collected.
 
-    Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same
-    ``Compose``, and after a ``RewardSum`` whose episode sums a gated schedule reads). Each key of
-    ``schedules`` names a float buffer of that transform's task, as ``task.named_buffers()`` names
-    it (e.g. ``"wrapped_task.reward.Q"``), or, under the prefix ``"command."``, a sampling-range
-    buffer of the env's :class:`~torchtasks.transforms.GoalCommand`: ``"command.low"`` and
-    ``"command.high"`` when the env has one GoalCommand, ``"command.<goal key>.low"`` (a nested goal
-    key joined by ``"/"``) always; a short name with several GoalCommands is ambiguous. A scheduled
-    GoalCommand must come after the Curriculum (the goal drawn in a step uses that step's range). A
-    misspelt or ambiguous name is a ``ValueError`` listing every schedulable name when the env's
-    specs are built, and so is a value whose shape is neither ``()`` nor the buffer's, a value the
-    buffer's reward refuses (:meth:`~torchtasks.rewards.RewardFunction.check_constant`, e.g. a negative
-    cost weight; checked at every breakpoint and stage), and a
-    scheduled range that leaves the command's ``Box`` (the goal spec) or has ``low > high`` (checked
-    at every breakpoint of constant, linear and staged schedules, where their extremes lie, and for
-    every stage value of a gated schedule against every value the other bound can take).
+    Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env (in the same ``Compose``, and after a
+    ``RewardSum`` whose episode sums a gated schedule reads). Each key of ``schedules`` names a float buffer of that
+    transform's task (``task.named_buffers()``'s name, e.g. ``"wrapped_task.reward.Q"``, or a short name:
+    :func:`~torchtasks.transforms.target_names` lists them) or, as ``"command.low"``/``"command.high"``, the range of a
+    :class:`~torchtasks.transforms.GoalCommand` placed after it. A misspelt or ambiguous name, a value of another shape
+    than the buffer's and a value the buffer's owner refuses (a negative cost weight, a range that leaves the goal
+    space) are a ``ValueError`` when the env's specs are built, checked at every breakpoint and stage.
 
-    At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the
-    steps of all envs, not their resets), gated schedules take note of the episodes that ended, and
-    every schedule's value at the new count is written into its buffer (``buffer.copy_(value)``),
-    where the next step's reward reads it. At reset the values of the current count are written too,
-    before the env and the TaskTransform reset (the first episode reads the schedule's first values).
-    Constant, linear and staged schedules are evaluated on the host from the count (a sum of batch
-    sizes); their buffer and entry are written again only when the value changes (the same entry tensor
-    goes into the data meanwhile, never written into afterwards). Under grad mode (a differentiable
-    ``env.rollout``; collectors run under ``no_grad``) a new value goes into a new tensor put in the
-    buffer's place instead, so that the autograd graph of earlier steps keeps the values it was built with.
-    A buffer the task reads only at reset (a desired state, copied into the episode memory) changes
-    each env's task at its next reset; a fact the task derives once at construction (whether its state
-    bounds are all infinite) does not follow a scheduled bound.
-
-    Written entries (observation spec): ``(curriculum_key, "frames")`` (int64 ``[*B, 1]``) and
-    ``(curriculum_key, <target with "." replaced by "/">)`` (the buffer's dtype, ``[*B, *value_shape]``,
-    ``[*B, 1]`` for a scalar value). As observations, the entries at the root of a step are the
-    frame count and the values that step's reward was computed with; offline recomputation
-    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
-    every stored frame with them.
-
-    The frame counter (``frames``) and each gated schedule's stage and moving average are
-    registered buffers: ``state_dict()``/``load_state_dict()`` restore them, also through TorchRL's
-    ``Collector.state_dict()``.
-
-    Several processes: every worker of a ``ParallelEnv`` or of a multi-process collector runs its own
-    copy of the env, and so of the Curriculum, which sees only its worker's steps. With
-    ``workers=n`` (the number of copies that step in lockstep with this one) the counter grows by
-    ``n`` times the batch size per step: the global frame count of the synchronous run, so a
-    frame-driven schedule gives every worker the values a single process stepping all ``n`` batches
-    at once would have at the same frame count (within one step)::
-
-        def make_env():  # one worker's env: B = 64 pendulums
-            return TransformedEnv(PendulumEnv(batch_size=[64]), Compose(
-                StepCounter(200), TaskTransform(swing_up_task()),
-                Curriculum({"success_value": linear(0.0, 100.0, 0, 1_000_000)}, workers=4)))
-
-        env = ParallelEnv(4, make_env)  # 4 x 64 pendulums count as one env of 256
-        collector = MultiSyncCollector([make_env] * 4, policy, frames_per_batch=4 * 64 * 50)  # the same
-
-    A Curriculum outside the workers (``TransformedEnv(ParallelEnv(...), Curriculum(...))``) sees the
-    whole batch: keep ``workers=1`` there. ``MultiAsyncCollector`` workers do not step in lockstep:
-    each count is then ``n`` times its own worker's frames, the global count only while the workers
-    keep pace. A gated schedule stays per worker: each copy gates on the episodes of its own envs, so
-    the workers' stages may differ.
+    At every step the frame counter grows by ``workers`` times the env's batch size (frames follow the steps of all
+    envs, not their resets) and every schedule's value at the new count is written into its buffer, where the next
+    step's reward reads it; at reset the current values are written before the env and the TaskTransform reset. The
+    entries ``(curriculum_key, "frames")`` and ``(curriculum_key, <target with "/" for ".">)`` record the count and
+    the values each step used (offline recomputation reads them). The counter and each gated schedule's stage are
+    registered buffers: ``state_dict()`` restores them, also through TorchRL's ``Collector.state_dict()``. Each worker
+    of a ``ParallelEnv`` or multi-process collector runs its own copy: ``workers=n`` makes it count the frames of the
+    ``n`` copies that step in lockstep. The docs page "Curriculum" has the rules in full (targets, entries, workers,
+    gradients, checkpoints).
 
     Args:
         schedules: ``{target buffer name: schedule}``.
         curriculum_key: where the entries are written.
-        workers: how many copies of this env (processes, workers) step in lockstep with it; the frame
-            counter grows by ``workers`` times the batch size per step. A positive int.
+        workers: how many copies of this env (processes, workers) step in lockstep with it; the frame counter grows
+            by ``workers`` times the batch size per step. A positive int.
 
     Example:
         >>> import torch
@@ -251,7 +209,7 @@ class Curriculum(CheckedLoad, TargetWriter):
                 saved.setdefault(entry, {})[name] = value
         own = {entry: dict(schedule.state_dict()) for entry, schedule in self.schedules.items()}
         missing, unknown = sorted(set(own) - set(saved)), sorted(set(saved) - set(own))
-        if missing or unknown:  # also with strict=False: torch does not tell a module which load it is in
+        if missing or unknown:  # a non-strict load of a partial state dict has ours in place of the missing ones
             raise ValueError(
                 "Curriculum.load_state_dict: the checkpoint schedules other targets than this Curriculum: saved "
                 f"{sorted(saved)}, here {sorted(own)} (entry names: the targets with '/' for '.'; a checkpoint is "
@@ -297,13 +255,20 @@ class Curriculum(CheckedLoad, TargetWriter):
     def _resolve(self) -> list[Target]:
         """Resolve the targets in the env (names, shapes, every value a schedule can write), cached until it changes."""
         schedules = list(self.schedules.values())
-        targets = resolve_targets(self, self.targets, [schedule.value_shape for schedule in schedules]).targets
+        placement, targets = resolve_targets(self, self.targets, [schedule.value_shape for schedule in schedules])
         for target, schedule in zip(targets, schedules, strict=True):  # as the reward's constructor would check them
-            target.check_values(possible_values(schedule, target.value), f"Curriculum: the schedule of {target.name!r}")
+            if target.source != DOMAIN:  # a distribution's values: with its other writers' (check_domain_writes)
+                label = f"Curriculum: the schedule of {target.name!r}"
+                target.check_values(possible_values(schedule, target.value), label)
         self._check_ranges(targets, schedules)
-        self._check_domain_combinations(targets, schedules)
-        self.__dict__["_resolved"] = targets
         self._forget_written()
+        self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
+        try:
+            check_one_owner(self, targets, placement)
+            check_domain_writes(self, placement)
+        except ValueError:
+            self._forget_setup()
+            raise
         return targets
 
     def _check_ranges(self, targets: list[Target], schedules: list[Schedule]) -> None:
@@ -339,37 +304,57 @@ class Curriculum(CheckedLoad, TargetWriter):
                 )
                 check_low_not_above_high([(lows.amax(0), highs.amin(0))], [gated])
 
-    def _check_domain_combinations(self, targets: list[Target], schedules: list[Schedule]) -> None:
-        """Refuse scheduled parameters of one domain distribution that the distribution refuses together: frame-driven
-        schedules at every breakpoint of any of them (where the extremes of a linear combination lie), gated ones at
-        every combination of their stages and the others' breakpoint values."""
-        domain = [i for i, target in enumerate(targets) if target.source == DOMAIN]
-        if len(domain) < 2:
-            return
-        rows: list[torch.Tensor | None] = [None] * len(targets)
-        frame_driven = [i for i in domain if not isinstance(schedules[i], GatedSchedule)]
+    def domain_writes(self) -> list[DomainWrites]:
+        """The rows of values the schedules can write into each domain distribution among the targets: the
+        frame-driven schedules together at every breakpoint of any of them (and, where a clipping bound moves with
+        the rest between two breakpoints, the mixed corners of that segment; see
+        :func:`~torchtasks.transforms.targets.check_domain_writes`), with every stage of every gated one."""
+        targets = self.written_targets()
+        schedules = list(self.schedules.values())
+        groups: dict[int, list[int]] = {}
+        for i, target in enumerate(targets):
+            if target.source == DOMAIN:
+                groups.setdefault(id(target.module), []).append(i)
+        return [self._domain_rows(targets, schedules, indices) for indices in groups.values()]
+
+    @staticmethod
+    def _domain_rows(targets: list[Target], schedules: list[Schedule], indices: list[int]) -> DomainWrites:
+        """The :class:`DomainWrites` of the schedules of ``indices`` (targets of one distribution)."""
+        param = targets[indices[0]].module
+        frame_driven = [i for i in indices if not isinstance(schedules[i], GatedSchedule)]
+        gates = [i for i in indices if isinstance(schedules[i], GatedSchedule)]
         counts = sorted(set().union(*(breakpoint_frames(schedules[i]) for i in frame_driven)))
-        per_target = {
-            i: possible_values(schedules[i], targets[i].value)
-            if isinstance(schedules[i], GatedSchedule)
-            else torch.stack([value_at(schedules[i], count) for count in counts])
-            for i in domain
+        # one row of the frame-driven schedules: (label, {target index: count whose value it takes})
+        moments = [(f"at frame {count}", dict.fromkeys(frame_driven, count)) for count in counts] or [("", {})]
+        parts = {}  # the frame-driven targets by the part of the clipped range they move: the two bounds, the rest
+        for i in frame_driven:
+            parts.setdefault(targets[i].buffer if targets[i].buffer in ("clip_lo", "clip_up") else "", []).append(i)
+        if len(parts) > 1:  # a clipping bound moving with the rest: the mixed corners of each segment with inner frames
+            for a, b in itertools.pairwise(counts):
+                if b - a < 2:
+                    continue
+                for ends in itertools.product((a, b), repeat=len(parts)):
+                    if len(set(ends)) > 1:
+                        at = {i: end for part, end in zip(parts.values(), ends, strict=True) for i in part}
+                        moments.append((f"between frames {a} and {b} (mixed)", at))
+        stages = [range(schedules[i].values.shape[0]) for i in gates]
+        labels, rows = [], {i: [] for i in indices}
+        for (moment, at), picked in itertools.product(moments, itertools.product(*stages)):
+            for i, count in at.items():
+                rows[i].append(value_at(schedules[i], count))
+            for i, stage in zip(gates, picked, strict=True):
+                rows[i].append(schedules[i].values[stage].detach().to("cpu", torch.float64))
+            gated_at = [
+                f"at stage {stage}" if len(indices) == 1 else f"{targets[i].name!r} at its stage {stage}"
+                for i, stage in zip(gates, picked, strict=True)
+            ]
+            labels.append(", ".join(part for part in (moment, *gated_at) if part))
+        names = ", ".join(repr(targets[i].name) for i in indices)
+        head = f"the schedule{'s' if len(indices) > 1 else ''} of {names}"
+        values = {
+            targets[i].buffer: torch.stack([row.expand(targets[i].value_shape) for row in rows[i]]) for i in indices
         }
-        # frame-driven schedules move together (one row per count); a gated one may be at any stage at any count
-        combos = [list(range(len(per_target[i]))) for i in domain if i not in frame_driven]
-        shared = list(range(len(counts))) if frame_driven else [0]
-        picks = list(itertools.product(shared, *combos))
-        for i in domain:
-            values = per_target[i]
-            if i in frame_driven:
-                chosen = values[[pick[0] for pick in picks]]
-            else:
-                slot = 1 + [j for j in domain if j not in frame_driven].index(i)
-                chosen = values[[pick[slot] for pick in picks]]
-            row = targets[i].value_shape
-            rows[i] = chosen.reshape(len(picks), -1).expand(len(picks), row.numel()).reshape(len(picks), *row)
-        names = ", ".join(repr(targets[i].name) for i in domain)
-        check_domain_combinations(targets, rows, f"Curriculum: the schedules of {names}")
+        return DomainWrites(param, "Curriculum", values, tuple(f"{head} {label}" for label in labels))
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task buffers this Curriculum sets, each with the entry recording the value every step used (shared by

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import copy
 from collections.abc import Mapping, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import torch
 from tensordict import TensorDict, TensorDictBase
@@ -33,50 +33,49 @@ __all__ = ["DomainRandomization"]
 WHEN = ("startup", "reset", "interval")
 
 
+class _Draw(NamedTuple):
+    """A draw before the env took it (:meth:`DomainRandomization._draw`)."""
+
+    #: every env's values by field (the new ones where the envs needed values)
+    values: dict[str, torch.Tensor]
+    #: the stored domains by field drawn by this draw (a cycle's first); ``None``: none drawn
+    domains: dict[str, torch.Tensor] | None
+    #: with a cycle, the index of the next stored domain after this draw (a 0-d int64 tensor); ``None`` without
+    next_domain: torch.Tensor | None
+
+
 class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     """Draw per-env physics from domain distributions and give them to the base env, at startup, resets or intervals.
 
     Each :class:`~torchtasks.domain.DomainParam` names a domain field of the base env
-    (``env.base_env.domain_fields()`` lists them: ``"body_mass:torso"``, ``"geom_friction_scale"``,
-    ``"gravity"``, ...). The transform draws one value per env and param and writes it into the env
-    with :meth:`~torchtasks.domain.DomainEnv.set_domain` before the env uses it:
+    (``env.base_env.domain_fields()`` lists them: ``"body_mass:torso"``, ``"gravity"``, ...). The transform
+    draws one value per env and param and gives it to the env (:meth:`~torchtasks.domain.DomainEnv.set_domain`):
+    ``when="reset"`` at every reset of an env, before the base env resets; ``"startup"`` once per env, at its
+    first reset; ``"interval"`` at its first reset and then before the step after every ``every`` steps of that
+    env (across episodes). ``cycle=K`` draws ``K`` domains at the first draw and gives each env that needs values
+    the next one of that stored set, in turn (Pyrado's ``DomainRandWrapperBuffer``); ``cycle={name: values}``
+    gives the set, and ``shard=(k, n)`` keeps its rows ``k, k + n, ...``: ``n`` workers together take every
+    domain once per pass. Without ``cycle`` every draw is fresh (Pyrado's ``DomainRandWrapperLive``).
 
-    - ``when="reset"`` (default): at every reset of an env, before the base env resets (so the reset
-      state is computed with the new physics), for the envs of TorchRL's ``"_reset"`` mask only;
-    - ``when="startup"``: once per env, at its first reset;
-    - ``when="interval"``: at each env's first reset and then, after every ``every`` steps of that env (counted
-      across episodes), before its next step (in TorchRL's ``inv`` pass), so that step runs with the new values.
+    Entries: every env's current values, float64 ``[*B, *value_shape]`` (``[*B, 1]`` for a scalar field, as
+    TorchRL's ``"reward"``: a privileged critic concatenates them with the observation) under ``(entry_key, name)``,
+    at reset and at every step; under ``"next"`` the values the step ran with.
 
-    With ``cycle=K`` the transform draws ``K`` domains (a value of every param each) at the first draw and
-    then gives each env that needs values the next domain of that stored set, in turn (envs in index
-    order), as Pyrado's ``DomainRandWrapperBuffer``; ``cycle={name: values [K, *value_shape]}`` gives the
-    set. Without ``cycle`` every draw is fresh (Pyrado's ``DomainRandWrapperLive``).
-
-    Entries: every env's current values, float64 ``[*B, *value_shape]`` under ``(entry_key, name)``, at
-    reset and at every step (observation spec; collectors keep them, a privileged critic can read them,
-    :func:`~torchtasks.stats.episode_statistics` averages them over finished episodes). Under ``"next"`` they
-    are the values the step ran with.
-
-    Run state: the drawn values (``drawn.<name>``), the interval counters, the stored domains and the
-    generator are in ``state_dict``; ``env.set_seed(s)`` seeds the generator per worker (see
-    :mod:`torchtasks.transforms.seeding`) and draws anew (:meth:`set_seed`); ``seed=None`` draws from torch's
-    global generator until then. A
-    load is refused unless the checkpoint has the same params (names and kinds), ``when``, ``every`` and
-    ``cycle``; loaded into a built env, the drawn values are written into the env at once, so a resumed
-    run continues with the physics it had.
-
-    Scheduling: the params' distribution parameters are targets of a
-    :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` placed
-    after this transform (TorchRL runs the pre-reset hooks, where the draws are, last to first), named
-    ``"domain.<field>.<parameter>"`` (``"domain.body_mass_scale.halfspan"``); every value (and combination of
-    values) a schedule or level table can write is checked against the field's range when the specs are built.
+    Run state (``state_dict``): the drawn values, the interval counters, the stored domains and the generator;
+    a checkpoint of other params, ``when``, ``every``, ``cycle`` or ``shard`` is refused. ``env.set_seed(s)``
+    seeds the generator per worker (:meth:`set_seed`). Distribution parameters are targets
+    ``"domain.<field>.<parameter>"`` of a :class:`~torchtasks.transforms.Curriculum` or
+    :class:`~torchtasks.transforms.DifficultyLevels` placed after this transform, when it draws again and again
+    (:meth:`unwritable_reason`). See ``docs/domain_randomization.md``.
 
     Args:
-        params: the domain parameters, one per field (a name twice, or two params writing the same model values,
-            is refused when the specs are built).
+        params: the domain parameters, one per field.
         when: ``"reset"``, ``"startup"`` or ``"interval"``.
         every: the steps between draws of ``when="interval"`` (required there, refused otherwise).
-        cycle: ``None`` (fresh draws), the number of stored domains to draw, or the stored domains.
+        cycle: ``None`` (fresh draws), the number of stored domains to draw, or the stored domains
+            (float64 ``[K, *value_shape]`` per field).
+        shard: ``(index, count)``: keep the given stored domains ``index, index + count, ...`` (one shard per
+            worker of ``count``); needs ``cycle={...}`` with at least ``count`` domains.
         entry_key: where the drawn values are written (a nested key; one entry per param).
         seed: seed of the transform's own generator (``None``: torch's global one until ``env.set_seed``).
 
@@ -90,8 +89,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), randomization)
         >>> masses = env.reset()["domain", "mass"]
         >>> masses.shape, bool(((masses >= 0.5) & (masses <= 1.5)).all())
-        (torch.Size([4]), True)
-        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses)
+        (torch.Size([4, 1]), True)
+        >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], masses[:, 0])
         True
     """
 
@@ -102,6 +101,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         when: str = "reset",
         every: int | None = None,
         cycle: int | Mapping[str, torch.Tensor] | None = None,
+        shard: tuple[int, int] | None = None,
         entry_key: str | tuple[str, ...] = DOMAIN_KEY,
         seed: int | None = None,
     ) -> None:
@@ -136,6 +136,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         #: whether each env has had its first draw, and its steps since its last draw (when="interval")
         self.register_buffer("started", torch.empty(0, dtype=torch.bool))
         self.register_buffer("steps", torch.empty(0, dtype=torch.int64))
+        #: ``(index, count)``: the given stored domains this transform takes (``None``: all of them)
+        self.shard = _check_shard(shard, cycle)
         self.cycle_size = self._register_cycle(cycle, params)
         #: whether the stored domains were given (``cycle={...}``) rather than drawn (``cycle=K``)
         self._given_domains = isinstance(cycle, Mapping)
@@ -169,14 +171,22 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
                         f"with K >= 1 (one row per stored domain), got {list(values.shape)}"
                     )
                 sizes.add(values.shape[0])
-                self.domains.register_buffer(param.name, values.detach().clone())
             if len(sizes) > 1:
                 raise ValueError(
                     "DomainRandomization: cycle's values must hold the same number of domains (rows), got "
                     f"{sorted(sizes)}"
                 )
+            size = sizes.pop()
+            index, count = (0, 1) if self.shard is None else self.shard
+            if count > size:
+                raise ValueError(
+                    f"DomainRandomization: shard={self.shard} splits the {size} given domains into {count} shards, "
+                    f"so some shards would hold none; use at most {size} shards (workers)"
+                )
+            for param in params:
+                self.domains.register_buffer(param.name, cycle[param.name].detach()[index::count].clone())
             self.domains_drawn.fill_(True)
-            return sizes.pop()
+            return self.domains._buffers[self.names[0]].shape[0]
         size = check_positive_int(cycle, "DomainRandomization: cycle (the number of stored domains)")
         for param in params:
             self.domains.register_buffer(param.name, torch.empty(size, *param.value_shape, dtype=torch.float64))
@@ -184,19 +194,40 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     # ------------------------------------------------------------------ seeding
     def set_seed(self, seed: int) -> None:
-        """Seed the transform's own generator with ``seed`` (``env.set_seed`` calls it with a derived seed).
+        """Seed the transform's own generator with ``seed`` and start the run's draws again from it.
 
-        The draws start again from the seed: a stored set drawn with ``cycle=K`` is drawn again, a given set starts
-        again from its first domain, and in an env that has been reset (a ``Collector`` resets its env when it is
-        built, before ``collector.set_seed``) every env draws its values anew now, as at a reset.
+        ``env.set_seed(s)`` calls it with a seed derived from ``s`` (:mod:`torchtasks.transforms.seeding`). Every
+        env's next reset is its first draw under the new seed (``when="startup"`` and ``"interval"`` too: the envs
+        count as not started, the interval counters start again); a stored set drawn with ``cycle=K`` is drawn
+        again at that draw, a given set starts again from its first domain. The running episodes keep the physics
+        they were reset with, so the data's entries always equal the physics the env runs. A run therefore repeats
+        from its first frame when it is seeded before its first reset (``env.set_seed(s)``, then build the
+        ``Collector``) or reset after the seed (``collector.set_seed(s); collector.reset()``, as TorchRL's
+        multi-process collectors do).
+
+        Example:
+            >>> import torch
+            >>> from torchrl.envs import TransformedEnv
+            >>> from torchtasks.domain import UniformDomainParam
+            >>> from torchtasks.envs import PendulumEnv
+            >>> from torchtasks.transforms import DomainRandomization
+            >>> env = TransformedEnv(
+            ...     PendulumEnv(batch_size=[3]), DomainRandomization([UniformDomainParam("mass", 1.0, 0.5)]))
+            >>> running = env.reset()["domain", "mass"]
+            >>> _ = env.set_seed(5)
+            >>> torch.equal(env.base_env.domain_values(["mass"])["mass"], running[:, 0])  # the episodes go on
+            True
+            >>> first = env.reset()["domain", "mass"]  # the first draw of the seed
+            >>> _ = env.set_seed(5)
+            >>> torch.equal(env.reset()["domain", "mass"], first)
+            True
         """
         self.generator = torch.Generator().manual_seed(check_int(seed, "DomainRandomization.set_seed: seed"))
         self.next_domain.zero_()
         if self.cycle_size is not None and not self._given_domains:
             self.domains_drawn.fill_(False)
-        if self.started.numel() and bool(self.started.any()):
-            with torch.no_grad():
-                self._apply_draw(torch.ones_like(self.started))
+        self.started = torch.zeros_like(self.started)
+        self.steps = torch.zeros_like(self.steps)
 
     def seed_identity(self) -> str:
         """``"DomainRandomization(<field names>)"``: mixed into the seed ``env.set_seed`` derives for it."""
@@ -238,6 +269,33 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         """The base env's fields of the params, in order, each param bound to its field (its draws checked against the
         field's range); cached until the env changes. A writer of the params' buffers calls it before its checks."""
         return self._resolve()
+
+    def unwritable_reason(self) -> str | None:
+        """Why values written into the params' distributions would never be drawn; ``None`` if every draw follows them.
+
+        Only ``when="reset"`` or ``"interval"`` without ``cycle`` draw from the distributions again and again:
+        ``when="startup"`` draws once per env, a drawn ``cycle=K`` once for the run, a given ``cycle`` never. A
+        :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` refuses to set
+        a distribution parameter of this transform when this says why.
+
+        Example:
+            >>> from torchtasks.domain import UniformDomainParam
+            >>> params = [UniformDomainParam("mass", mean=1.0, halfspan=0.5)]
+            >>> DomainRandomization(params).unwritable_reason() is None
+            True
+            >>> DomainRandomization(params, when="startup").unwritable_reason()
+            "when='startup', which draws each env's values once, at its first reset"
+        """
+        if self.cycle_size is not None and self._given_domains:
+            return f"cycle={{...}} ({self.cycle_size} stored domains given), which never draws from its distributions"
+        if self.cycle_size is not None:
+            return (
+                f"cycle={self.cycle_size}, which draws its {self.cycle_size} stored domains once, at the first draw, "
+                "and then gives them in turn"
+            )
+        if self.when == "startup":
+            return "when='startup', which draws each env's values once, at its first reset"
+        return None
 
     def _resolve(self) -> list[DomainField]:
         """The base env's fields of the params (checked: names, overlaps, shapes, ranges), cached until it changes."""
@@ -297,50 +355,70 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         batch, device = observation_spec.shape, observation_spec.device
         self._make_state(batch, device)
         for key, field in zip(self.__dict__["_keys"], self._resolve(), strict=True):
-            observation_spec[key] = Unbounded(shape=(*batch, *field.value_shape), dtype=torch.float64, device=device)
+            shape = (*batch, *entry_shape(field.value_shape))
+            observation_spec[key] = Unbounded(shape=shape, dtype=torch.float64, device=device)
         return observation_spec
 
     # ------------------------------------------------------------------ drawing
-    def _draw(self, need: torch.Tensor) -> dict[str, torch.Tensor]:
+    def _draw(self, need: torch.Tensor) -> _Draw:
         """New values for the envs of ``need`` (bool ``[*B]``), the others' kept: one draw of every env per call.
 
         Fresh draws sample every env (the generator's use does not depend on which envs need values); a cycle
-        gives the envs of ``need`` the next stored domains in index order.
+        gives the envs of ``need`` the next stored domains in index order. Nothing of the transform is written here:
+        :meth:`_apply_draw` keeps the draw once the env has taken the values.
         """
         batch = need.shape
+        domains = next_domain = None
         if self.cycle_size is None:
             new = {name: self._sample(param, batch) for name, param in self.params.items()}
         else:
-            if not bool(self.domains_drawn):  # the first draw of the run: fill the stored set (a host fact, once)
-                for name, param in self.params.items():
-                    self.domains._buffers[name].copy_(param.sample(self.cycle_size, self.generator))
-                self.domains_drawn.fill_(True)
+            stored = {name: self.domains._buffers[name] for name in self.names}
+            if not bool(self.domains_drawn):  # the first draw of the run: the stored set (a host fact, once)
+                domains = {name: param.sample(self.cycle_size, self.generator) for name, param in self.params.items()}
+                stored = domains
             flat = need.reshape(-1)
             rank = torch.cumsum(flat.to(torch.int64), 0) - 1
             index = (self.next_domain + rank).remainder(self.cycle_size)
-            self.next_domain.copy_((self.next_domain + flat.sum()).remainder(self.cycle_size))
+            next_domain = (self.next_domain + flat.sum()).remainder(self.cycle_size)
             new = {
-                name: self.domains._buffers[name].to(need.device)[index].reshape(batch + param.value_shape)
+                name: stored[name].to(need.device)[index].reshape(batch + param.value_shape)
                 for name, param in self.params.items()
             }
-        drawn = {}
+        values = {}
         for name, param in self.params.items():
             old = self.drawn._buffers[name]
             mask = need.reshape(batch + (1,) * len(param.value_shape))
-            drawn[name] = torch.where(mask, new[name].to(old.device), old)
-            self.drawn._buffers[name] = drawn[name]
-        return drawn
+            values[name] = torch.where(mask, new[name].to(old.device), old)
+        return _Draw(values, domains, next_domain)
 
     def _sample(self, param: DomainParam, batch: torch.Size) -> torch.Tensor:
         return param.sample(batch.numel(), self.generator).reshape(batch + param.value_shape)
 
     def _apply_draw(self, need: torch.Tensor) -> None:
         """Draw for the envs of ``need`` and give the values to the base env (nothing when no env needs values: one
-        host read, which the base env's write on the host needs anyway)."""
+        host read, which the base env's write on the host needs anyway). A draw the env refuses changes nothing: the
+        drawn values, the stored set and its index, the counters and the generator's place stay as they were."""
         if not bool(need.any()):
             return
-        drawn = self._draw(need)
-        self._base_env().set_domain(drawn, need)
+        generator = self.generator
+        before = torch.get_rng_state() if generator is None else generator.get_state()
+        try:
+            draw = self._draw(need)
+            self._base_env().set_domain(draw.values, need)
+        except Exception:
+            if generator is None:
+                torch.set_rng_state(before)
+            else:
+                generator.set_state(before)
+            raise
+        for name, value in draw.values.items():
+            self.drawn._buffers[name] = value
+        if draw.domains is not None:
+            for name, values in draw.domains.items():
+                self.domains._buffers[name].copy_(values)
+            self.domains_drawn.fill_(True)
+        if draw.next_domain is not None:
+            self.next_domain.copy_(draw.next_domain)
         buffers = self._buffers  # written directly: nn.Module.__setattr__ costs more than the ops at every reset
         buffers["started"] = buffers["started"] | need
         if self.when == "interval":
@@ -365,8 +443,14 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return tensordict
 
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write every env's current values under ``entry_key``."""
-        values = {name: self.drawn._buffers[name].clone() for name in self.names}
+        """Write every env's current values under ``entry_key`` (a scalar field's ``[*B, 1]``, as TorchRL's reward)."""
+        scalars = self.__dict__.get("_scalars")
+        if scalars is None:
+            scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
+        values = {}
+        for name in self.names:
+            value = self.drawn._buffers[name]
+            values[name] = (value.unsqueeze(-1) if name in scalars else value).clone()
         prefix = key_parts(self.entry_key)
         batch = tensordict.batch_size
         node = TensorDict._new_unsafe(values, batch_size=batch, device=tensordict.device)
@@ -406,6 +490,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             "when": self.when,
             "every": self.every,
             "cycle": self.cycle_size,
+            "shard": self.shard,
             "generator_state": None if generator is None else generator.get_state(),
         }
 
@@ -429,7 +514,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
                 "DomainRandomization.load_state_dict: the checkpoint has no DomainRandomization configuration "
                 f"(_extra_state with {list(keys)}), got {saved!r}"
             )
-        differ = [key for key in keys if saved[key] != own[key]]
+        saved = {**saved, "shard": _as_shard(saved.get("shard"))}  # absent from older checkpoints: no shard
+        differ = [key for key in (*keys, "shard") if saved[key] != own[key]]
         if differ:
             raise ValueError(
                 "DomainRandomization.load_state_dict: the checkpoint is of another randomization ("
@@ -477,6 +563,8 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         env = container_env(self)
         if env is None or not isinstance(getattr(env, "base_env", None), DomainEnv):
             return
+        if self.started.numel() == 0 and env.batch_size.numel() != 0:
+            return  # no env's values held (a non-strict load without them, before the env built its specs)
         if self.started.shape != env.batch_size:
             raise ValueError(
                 f"DomainRandomization.load_state_dict: the checkpoint holds the values of a batch "
@@ -497,4 +585,37 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     def __repr__(self) -> str:
         every = f", every={self.every}" if self.every is not None else ""
         cycle = f", cycle={self.cycle_size}" if self.cycle_size is not None else ""
-        return f"{type(self).__name__}({list(self.params.values())}, when={self.when!r}{every}{cycle})"
+        shard = f", shard={self.shard}" if self.shard is not None else ""
+        return f"{type(self).__name__}({list(self.params.values())}, when={self.when!r}{every}{cycle}{shard})"
+
+
+def _as_shard(saved: object) -> tuple[int, int] | None:
+    """A saved shard as the tuple the constructor keeps (a checkpoint may hold a list)."""
+    return tuple(saved) if isinstance(saved, list | tuple) else saved
+
+
+def _check_shard(shard: object, cycle: object) -> tuple[int, int] | None:
+    """``shard`` as ``(index, count)`` with ``0 <= index < count``, refused without given stored domains."""
+    if shard is None:
+        return None
+    if not isinstance(shard, tuple | list) or len(shard) != 2:
+        raise TypeError(
+            "DomainRandomization: shard must be a pair (index, count) of ints: this worker's index among count "
+            f"workers, got {shard!r}"
+        )
+    count = check_positive_int(shard[1], "DomainRandomization: shard[1] (the number of shards)")
+    index = check_int(shard[0], "DomainRandomization: shard[0] (this shard's index)")
+    if not 0 <= index < count:
+        raise ValueError(f"DomainRandomization: shard=(index, count) needs 0 <= index < count, got {tuple(shard)}")
+    if not isinstance(cycle, Mapping):
+        raise ValueError(
+            "DomainRandomization: shard splits given stored domains between workers and needs cycle={name: values}; "
+            f"got cycle={cycle!r} (a set drawn with cycle=K is drawn by each worker from its own stream)"
+        )
+    return index, count
+
+
+def entry_shape(value_shape: torch.Size) -> torch.Size:
+    """The trailing shape of a field's entry: its value shape, ``[1]`` for a scalar (TorchRL's per-env scalars, such as
+    ``"reward"``, are ``[*B, 1]``: they concatenate with observations into a network's input)."""
+    return value_shape if len(value_shape) else torch.Size([1])

@@ -15,8 +15,9 @@ from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 from tensordict.utils import NestedKey, unravel_key
 
+from torchtasks._memory import has_leaves
 from torchtasks._torchrl import key_parts
-from torchtasks.tasks.transition import Transition
+from torchtasks.tasks.transition import TRANSITION_FIELDS
 from torchtasks.transforms.names import (
     COST_KEY,
     COST_TERMS_KEY,
@@ -35,7 +36,6 @@ from torchtasks.transforms.names import (
 )
 
 if TYPE_CHECKING:
-    from torchtasks.tasks.memory import MemoryLayout
     from torchtasks.tasks.protocol import Task
 
 __all__ = [
@@ -66,8 +66,6 @@ KIND_SPECS: dict[str, tuple[str, ...]] = {
     "goal": ("observation",),  # the achieved goal [*B, k], in the state's dtype
 }
 
-#: the fields of the task's transition result (``Task._transition``, a :class:`~torchtasks.tasks.Transition`)
-TRANSITION_FIELDS = Transition._fields
 
 EVERY_STEP: frozenset[str] = frozenset({"step", "offline", "relabel"})
 EVERY_STEP_AND_RESET: frozenset[str] = EVERY_STEP | {"reset"}
@@ -178,11 +176,6 @@ class TaskEntries:
         rows = self.select(argument=argument)
         depth = len(key_parts(self.root(argument))) if rows else 0
         return tuple("/".join(key_parts(row.key)[depth:]) for row in rows)
-
-
-def has_leaves(layout: MemoryLayout) -> bool:
-    """Whether a memory layout holds any tensor (a memory of only empty sub-memories holds none)."""
-    return any(key not in layout.nested or has_leaves(layout.nested[key]) for key in layout.keys)
 
 
 def task_entries(

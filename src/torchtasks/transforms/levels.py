@@ -29,12 +29,13 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
-from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, FRAMES, LEVEL, entry_name, respelt_entries
+from torchtasks.transforms.names import COMMAND, CURRICULUM_KEY, DOMAIN, FRAMES, LEVEL, entry_name, respelt_entries
 from torchtasks.transforms.targets import (
     TASK,
+    DomainWrites,
     Target,
     TargetWriter,
-    check_domain_combinations,
+    check_domain_writes,
     check_in_goal_space,
     check_low_not_above_high,
     check_one_owner,
@@ -77,58 +78,35 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
     """Keep an integer difficulty level per env, moved at that env's episode ends; set per-env values from it.
 
     Place it after the :class:`~torchtasks.transforms.TaskTransform` of the env and before the
-    :class:`~torchtasks.transforms.GoalCommand` whose range it sets (in the same ``Compose``). At
-    every step, for each env whose episode ended (its ``done`` flag), the level moves by the rule's
-    change, clamped to ``[0, num_levels - 1]``; the other envs keep theirs. The default rule is
-    ``success - failure`` of the step's flags: up one after an episode that ends in success, down one
-    after one that ends in failure, unchanged after a truncation. Resets never change a level.
-
-    ``values`` maps targets to tables with one row per level (``[num_levels, *value_shape]``); after
-    every step, and before every reset (the base env and the TaskTransform read some targets at reset),
-    each env's row, ``table[level]``, is written into the target:
-
-    - ``"command.low"`` / ``"command.high"`` (``"command.<goal key>.low"`` with several commands):
-      the GoalCommand's sampling range, made per env (``[*B, k]``); each row must lie in the
-      command's ``Box`` (its goal spec) and no level's ``low`` may exceed its ``high``;
-    - a float buffer of the task tree, by its ``task.named_buffers()`` name, or of the base env as
-      ``"env.<name>"``: the buffer must already hold one value per env (shape ``[*B, *value_shape]``);
-      a value shared by all envs is a :class:`~torchtasks.transforms.Curriculum`'s job.
-
-    A misspelt target, a table of the wrong shape, a range that leaves the goal space and a target a
-    Curriculum also schedules are ``ValueError``\\ s when the env's specs are built.
-
-    Written entries (observation spec): ``(curriculum_key, "level")``, int64 ``[*B, 1]``: at the root of
-    a step the level the step was played at, under ``"next"`` the level after it (changed at an
-    episode's last step). :func:`~torchtasks.stats.episode_statistics` reports its mean and the
-    fraction of envs at each level. For every task-tree and base-env target, ``(curriculum_key, <target
-    with "." replaced by "/">)``, the target's dtype, ``[*B, *value_shape]`` (``[*B]`` for a scalar
-    value): each env's row, at the root of a step the one the step used, so that offline recomputation
-    (:meth:`TaskTransform.forward <torchtasks.transforms.TaskTransform.forward>`, ``relabel``) evaluates
-    every frame with it. A GoalCommand's range is not written (the goal drawn is in the data).
-
-    State: ``level`` (int64 ``[*B]``, created when the env's specs are built) is a registered buffer;
-    ``state_dict()``/``load_state_dict()`` restore it, also before the specs are built.
+    :class:`~torchtasks.transforms.GoalCommand` whose range it sets (in the same ``Compose``). At every step, for each
+    env whose episode ended (its ``done`` flag), the level moves by the rule's change, clamped to
+    ``[0, num_levels - 1]``; by default ``success - failure`` of the step's flags (up after a success, down after a
+    failure, unchanged after a truncation). Resets never change a level. ``values`` maps targets to tables with one
+    row per level; after every step and before every reset each env's row, ``table[level]``, is written into the
+    target: the GoalCommand's range (``"command.low"``/``"command.high"``, made per env), or a float buffer of the
+    task tree or of the base env (``"env.<name>"``) that holds one value per env. A misspelt target, a table of the
+    wrong shape, a range that leaves the goal space and a target a Curriculum also schedules are a ``ValueError``
+    when the env's specs are built. It writes ``(curriculum_key, "level")`` (int64 ``[*B, 1]``: at the root of a step
+    the level the step was played at) and each env's row of every task-tree and base-env target; ``level`` is a
+    registered buffer (``state_dict()``). The docs page "Curriculum" has the rules in full.
 
     Args:
         num_levels: the number of levels (levels ``0 .. num_levels - 1``).
         values: ``{target: table}``, one row per level.
         initial_level: every env's level at the start.
-        rule: ``rule(tensordict, next_tensordict) -> change`` (integer ``[*B]`` or ``[*B, 1]``), read at every
-            step and applied where the episode ended; ``None``: ``success - failure``.
-        success_key: the success flag of the default rule; ``None``: the TaskTransform's.
-        failure_key: the failure flag of the default rule; ``None``: the TaskTransform's.
+        rule: ``rule(tensordict, next_tensordict) -> change`` (integer ``[*B]`` or ``[*B, 1]``), read at every step
+            and applied where the episode ended; ``None``: ``success - failure``.
+        success_key, failure_key: the flags of the default rule; ``None``: the TaskTransform's.
         curriculum_key: where the ``"level"`` entry is written (a Curriculum's key may be shared).
 
     Example:
         >>> import functools, torch
         >>> from torchrl.envs import Compose, StepCounter, TransformedEnv
-        >>> from torchtasks.transforms import GoalCommand
         >>> from torchtasks.envs import PointMassEnv
-        >>> from torchtasks.transforms import DifficultyLevels
         >>> from torchtasks.rewards import ConstantReward
         >>> from torchtasks.spaces import Box, EnvSpec
         >>> from torchtasks.tasks import DesiredStateTask, MaskedTask, proximity_succeeded
-        >>> from torchtasks.transforms import TaskTransform
+        >>> from torchtasks.transforms import DifficultyLevels, GoalCommand, TaskTransform
         >>> spec = EnvSpec(Box([-1.0] * 4, [1.0] * 4, labels=["x", "y", "vx", "vy"]), 2)
         >>> near = functools.partial(proximity_succeeded, threshold=0.1)
         >>> reach = DesiredStateTask(spec.select_state(["x", "y"]), [0.0, 0.0], ConstantReward(-1.0), near)
@@ -139,8 +117,6 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         ...     StepCounter(20), TaskTransform(MaskedTask(spec, reach, ["x", "y"]), goal_key="goal"), levels,
         ...     GoalCommand(Box([-1.0, -1.0], [1.0, 1.0]), seed=0)))
         >>> data = env.rollout(40, break_when_any_done=False)
-        >>> data["curriculum", "level"].shape
-        torch.Size([4, 40, 1])
         >>> ended = data["next", "done"]  # levels move only at an episode's last step
         >>> moved = data["next", "curriculum", "level"] != data["curriculum", "level"]
         >>> bool((moved <= ended).all())
@@ -234,7 +210,7 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         head = prefix + "tables."
         saved = {key[len(head) :]: value for key, value in state_dict.items() if key.startswith(head)}
         own = dict(self.tables.named_buffers())
-        if set(saved) != set(own):  # also with strict=False: torch does not tell a module which load it is in
+        if set(saved) != set(own):  # a non-strict load of a partial state dict has ours in place of the missing
             raise ValueError(
                 "DifficultyLevels.load_state_dict: the checkpoint sets other targets than this DifficultyLevels: "
                 f"saved {sorted(saved)}, here {sorted(own)} (the targets with '/' for '.'; loaded by target, "
@@ -288,14 +264,14 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
         rows = [self._table(i).shape[1:] for i in range(len(self.targets))]
         targets = resolve_targets(self, self.targets, rows, batch=batch, rows=self.num_levels, env_fields=True).targets
         for i, target in enumerate(targets):  # every level's row, as the reward's constructor would check the value
-            levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
-            target.check_values(self._table(i), levels)
+            if target.source != DOMAIN:  # a distribution's values: with its other writers' (check_domain_writes)
+                levels = [f"DifficultyLevels: level {level} of {target.name!r}" for level in range(self.num_levels)]
+                target.check_values(self._table(i), levels)
         self._check_ranges(targets)
-        tables = [self._table(i) for i in range(len(targets))]  # row k of every table: level k's values, together
-        check_domain_combinations(targets, tables, "DifficultyLevels: the level tables")
         self.__dict__["_resolved"] = targets  # what written_targets() answers while the env's other writers are asked
         try:
             check_one_owner(self, targets, placement, " (schedule the level tables' rows instead)")
+            check_domain_writes(self, placement)
         except ValueError:
             self._forget_setup()
             raise
@@ -318,6 +294,22 @@ class DifficultyLevels(CheckedLoad, TargetWriter):
             where = f"of the GoalCommand writing {command.goal_key!r}"
             levels = [f"DifficultyLevels: level {level} {where}" for level in range(len(low))]
             check_low_not_above_high(zip(low, high, strict=True), levels)
+
+    def domain_writes(self) -> list[DomainWrites]:
+        """The rows of values the level tables write into each domain distribution among the targets: level ``k`` of
+        every table of one distribution together, each level for any env."""
+        targets = self.written_targets()
+        groups: dict[int, list[int]] = {}
+        for i, target in enumerate(targets):
+            if target.source == DOMAIN:
+                groups.setdefault(id(target.module), []).append(i)
+        writes = []
+        for indices in groups.values():
+            names = " and ".join(repr(targets[i].name) for i in indices)
+            labels = tuple(f"level {level} of {names}" for level in range(self.num_levels))
+            values = {targets[i].buffer: self._table(i) for i in indices}
+            writes.append(DomainWrites(targets[indices[0]].module, "DifficultyLevels", values, labels))
+        return writes
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task-tree targets, each with the entry recording every env's value of the step (one row of its

@@ -16,6 +16,16 @@ worker env its own seed (``seed``, then TorchRL's next seed, ...). The same seed
 they are. :func:`seed_transforms` does the transform part alone, e.g. for an env whose base env is
 seeded elsewhere.
 
+What a seed changes, for every seeded transform as for TorchRL's base envs: the draws from then on. The
+running episodes keep what they were reset with (goals and their timers, physics), because the data a
+collector carries from one step to the next was made with it: a ``Collector`` resets its env when it is
+built and keeps that reset's output, which no transform can change, so a ``set_seed`` that changed the
+running episodes would make the next frame's root entries disagree with what the env simulates. A run
+therefore repeats from its first frame when it is seeded before its first reset (``env.set_seed(s)``, then
+build the ``Collector``) or reset after the seed (``collector.set_seed(s); collector.reset()``; TorchRL's
+multi-process collectors reset after seeding by themselves). ``collector.set_seed(s)`` alone seeds what
+comes after the episodes its construction started.
+
 Mechanism, and why: when a :class:`SeededTransform` learns the ``TransformedEnv`` it sits in, it
 installs on that env *instance* (``env.__dict__["set_seed"]``) a small picklable callable,
 :class:`SeedHook`, which Python finds before the class's ``set_seed``. Every TorchRL path calls

@@ -22,6 +22,7 @@ domain distribution, whose draws must stay in the env's field; :func:`check_in_g
 from __future__ import annotations
 
 import functools
+import itertools
 from collections.abc import Iterable, Sequence
 from typing import NamedTuple
 
@@ -49,16 +50,18 @@ from torchtasks.transforms.task import RecordedValue, TaskTransform, buffer_owne
 
 __all__ = [
     "TASK",
+    "DomainWrites",
     "Placement",
     "ResolvedTargets",
     "Target",
     "TargetRow",
     "TargetTable",
     "TargetWriter",
-    "check_domain_combinations",
+    "check_domain_writes",
     "check_in_goal_space",
     "check_low_not_above_high",
     "check_one_owner",
+    "check_written_together",
     "command_ranges",
     "find_placement",
     "resolve_targets",
@@ -186,6 +189,11 @@ class TargetWriter(ResetWritingTransform):
 
     def recorded_task_values(self) -> list[RecordedValue]:
         """The task-tree buffers this transform sets at every step, each with the entry recording its values."""
+        raise NotImplementedError
+
+    def domain_writes(self) -> list[DomainWrites]:
+        """What this transform can write into each domain distribution among its targets (for
+        :func:`check_domain_writes`), resolved in its env."""
         raise NotImplementedError
 
 
@@ -423,13 +431,27 @@ def resolve_targets(
                 "writer after it writes the reset's values first"
             )
     for randomization in placement.transforms[: placement.position]:
-        if isinstance(randomization, DomainRandomization) and any(c.root is randomization.params for c in found):
-            randomization.fields()  # its params bound to the env's fields: their checks below include the ranges
+        if not isinstance(randomization, DomainRandomization):
+            continue
+        params = [repr(n) for n, candidate in zip(names, found, strict=True) if candidate.root is randomization.params]
+        if not params:
+            continue
+        reason = randomization.unwritable_reason()
+        if reason is not None:
+            raise ValueError(
+                f"{who} sets {', '.join(params)} of a DomainRandomization with {reason}: values written after that are "
+                "never drawn, and the data would report a distribution the physics do not follow. To draw from the "
+                "written values, randomize with when='reset' or when='interval' and no cycle; for fixed values, build "
+                "the distribution (or the cycle) with them"
+            )
+        randomization.fields()  # its params bound to the env's fields: their checks include the ranges
     targets = []
     for name, full, candidate, received in zip(names, fulls, found, value_shapes, strict=True):
         module, leaf = buffer_owner(candidate.root, candidate.path)
         source = candidate.source
         shape = module._buffers[leaf].shape
+        if source == DOMAIN:  # one env's row: the buffer is per env once a DifficultyLevels writes it
+            shape = module.parameter_shape(leaf)
         if batch is None:
             if received != torch.Size(()) and received != shape:
                 raise ValueError(
@@ -437,14 +459,13 @@ def resolve_targets(
                     f"{tuple(shape)}; give values of shape {tuple(shape)} or scalars"
                 )
             targets.append(Target(name, module, leaf, source, shape, False, full))
-        elif source == DOMAIN:  # made per env below (a parameter of one env: the shared buffer's shape)
-            own = shape[len(batch) :] if shape[: len(batch)] == batch and shape[len(batch) :] == received else shape
-            if received != own:
+        elif source == DOMAIN:  # made per env below
+            if received != shape:
                 raise ValueError(
-                    f"{who}: the values of {name!r} must have shape {[*leading, *own]} (one distribution parameter "
+                    f"{who}: the values of {name!r} must have shape {[*leading, *shape]} (one distribution parameter "
                     f"per row), got {[*leading, *received]}"
                 )
-            targets.append(Target(name, module, leaf, source, own, True, full))
+            targets.append(Target(name, module, leaf, source, shape, True, full))
         elif source == COMMAND:  # made per env below
             if received != shape[-1:]:
                 raise ValueError(
@@ -540,7 +561,8 @@ def target_names(env: TransformedEnv) -> TargetTable:
     - ``"command"``: a GoalCommand's sampling range, both writers, which must come before the GoalCommand (insert the
       writer before it rather than appending it);
     - ``"env"``: a float buffer of the base env, DifficultyLevels only and only one with a value per env;
-    - ``"domain"``: a DomainRandomization's distribution parameter, both writers, which must come after it.
+    - ``"domain"``: a DomainRandomization's distribution parameter, both writers, which must come after it; none
+      for a randomization that never draws written values (``when="startup"``, a ``cycle``).
 
     Both writers take a row's ``alias`` or its full ``name``: the alias is the shortest dotted suffix of two parts
     or more that ends no other task buffer's name (a GoalCommand's range: ``"command.low"`` with one command);
@@ -580,6 +602,9 @@ def target_names(env: TransformedEnv) -> TargetTable:
             qualified = next(full for full, other in choices.named.items() if other is candidate and full != name)
             aliases[qualified] = name
     batch = tuple(env.batch_size)
+    undrawn = [  # the distributions of randomizations that never draw written values (the writers refuse them)
+        t.params for t in transforms if isinstance(t, DomainRandomization) and t.unwritable_reason() is not None
+    ]
     rows = []
     for name, candidate in choices.named.items():
         if name in aliases.values() and name not in aliases:  # a short name, listed with its full name
@@ -590,6 +615,7 @@ def target_names(env: TransformedEnv) -> TargetTable:
         writers = {
             TASK: (_CURRICULUM, _LEVELS) if per_env else (_CURRICULUM,),
             ENV: (_LEVELS,) if per_env else (),
+            DOMAIN: () if any(candidate.root is params for params in undrawn) else (_CURRICULUM, _LEVELS),
         }.get(candidate.source, (_CURRICULUM, _LEVELS))
         rows.append(
             TargetRow(aliases.get(name, name), name, candidate.source, value.shape, writers, _short_value(value))
@@ -606,32 +632,139 @@ def command_ranges(targets: Sequence[Target]) -> dict[GoalCommand, dict[str, int
     return ranges
 
 
-def check_domain_combinations(targets: Sequence[Target], rows: Sequence[torch.Tensor | None], label: str) -> None:
-    """Refuse values that several targets of one domain distribution take together (a mean and a halfspan).
+class DomainWrites(NamedTuple):
+    """What one writer can write into one domain distribution (:meth:`TargetWriter.domain_writes`).
 
-    Args:
-        targets: the resolved targets of a writer.
-        rows: for each target, the values it takes as rows ``[n, *row]`` aligned across the targets of one
-            distribution (row ``k`` of each is one combination the writer writes together: one level of every table,
-            or every schedule at one frame count); ``None`` for targets that are no domain distribution's.
-        label: who writes them, for the message.
+    Row ``k`` of every buffer's values is one combination the writer writes at once (one level of every table; every
+    schedule at one frame count, or at one stage of a gated one). Every value the writer can put into the
+    distribution is one of these rows or, for a schedule between two breakpoints, bounded by them as
+    :func:`check_domain_writes` needs.
+    """
+
+    #: the DomainParam written
+    param: nn.Module
+    #: the writer's kind, for messages (``"Curriculum"``)
+    writer: str
+    #: the rows ``[n, *parameter shape]`` written into each buffer, by buffer name
+    values: dict[str, torch.Tensor]
+    #: what each row is, for messages (``"the schedule of 'domain.mass.mean' at frame 100"``)
+    labels: tuple[str, ...]
+
+
+def check_domain_writes(writer: TargetWriter, placement: Placement) -> None:
+    """Refuse values that the env's writers can put into a domain distribution of ``writer``'s together and that the
+    distribution (its rules, the field's range) refuses; naming the first such combination.
+
+    Every writer of the distribution (``writer`` and the other :class:`TargetWriter`\\ s among the env's transforms)
+    gives its rows (:class:`DomainWrites`); a writer's rows are taken together, and every row of one writer with
+    every row of the others (they move independently: levels at episode ends, schedules with frames or gates). The
+    unwritten buffers keep their current values (every env's). A buffer written by two writers is refused (one owner).
+
+    Why these rows suffice. A distribution's rules and the range of its draws (:meth:`DomainParam.support`: ``mean
+    -/+ halfspan``, ``min``/``max`` of a Bernoulli's values, unbounded for normals, then clipped and rounded) are
+    monotone in each parameter, elementwise: a bound that holds at every corner of a box of parameters holds inside
+    it. Level tables and gated stages take only their rows. A frame-driven schedule is linear between consecutive
+    breakpoints (:func:`~torchtasks.transforms.schedules.breakpoint_frames`), where its buffers move together: the
+    unclipped range is linear (uniform) or concave/convex (a Bernoulli's ``min``/``max``) along that segment, so its
+    extremes are at the segment's ends, and so are the linear rules (a halfspan >= 0, ``clip_lo <= clip_up``,
+    ``prob_1`` in [0, 1]) and positive definiteness (a segment between two such matrices holds only such matrices).
+    A clipping bound moving in the same segment as the range is the one exception (the clipped range is not convex
+    along it): the Curriculum adds the mixed corners of that segment (one at one end, the others at the other).
 
     Example:
-        >>> import torch
+        >>> from torchrl.envs import Compose, TransformedEnv
         >>> from torchtasks.domain import UniformDomainParam
-        >>> param = UniformDomainParam("mass", mean=1.0, halfspan=0.0)
-        >>> mean = Target("domain.mass.mean", param, "mean", "domain", torch.Size([]), per_env=False)
-        >>> halfspan = Target("domain.mass.halfspan", param, "halfspan", "domain", torch.Size([]), per_env=False)
-        >>> check_domain_combinations([mean, halfspan], [torch.tensor([1.0, 2.0]), torch.tensor([0.0, 0.5])], "levels")
+        >>> from torchtasks.envs import PendulumEnv, swing_up_task
+        >>> from torchtasks.transforms import Curriculum, DifficultyLevels, DomainRandomization, TaskTransform, linear
+        >>> randomization = DomainRandomization([UniformDomainParam("mass", mean=1.0, halfspan=0.0)])
+        >>> lighter = Curriculum({"domain.mass.mean": linear(1.0, 0.3, 0, 100)})  # alone: masses of 0.3 at least
+        >>> wider = DifficultyLevels(2, {"domain.mass.halfspan": [0.0, 0.5]})  # alone: masses of 0.5 at least
+        >>> env = TransformedEnv(PendulumEnv(batch_size=[2]), Compose(
+        ...     TaskTransform(swing_up_task()), randomization, lighter, wider))
+        >>> try:
+        ...     env.reset()
+        ... except ValueError as error:
+        ...     print(str(error).split(" can write")[0])
+        Curriculum: the schedule of 'domain.mass.mean' at frame 99 with level 1 of 'domain.mass.halfspan' (a \
+DifficultyLevels of the env)
     """
-    groups: dict[int, list[int]] = {}
-    for i, target in enumerate(targets):
-        if target.source == DOMAIN:
-            groups.setdefault(id(target.module), []).append(i)
-    for indices in groups.values():
-        if len(indices) > 1:
-            module = targets[indices[0]].module
-            module.check_written_values({targets[i].buffer: rows[i] for i in indices}, label)
+    own = writer.domain_writes()
+    if not own:
+        return
+    who = type(writer).__name__
+    others = [t for i, t in enumerate(placement.transforms) if i != placement.position and isinstance(t, TargetWriter)]
+    for mine in own:
+        writes = [mine]
+        for other in others:  # resolves the other writers (their own checks first); they find this one resolved
+            writes += [write for write in other.domain_writes() if write.param is mine.param]
+        check_written_together(who, writes)
+
+
+def check_written_together(who: str, writes: Sequence[DomainWrites]) -> None:
+    """Refuse a combination of rows of ``writes`` (of one distribution; the first one's writer is ``who``) that the
+    distribution refuses: every row of each writer with every row of the others (see :func:`check_domain_writes`).
+
+    Example:
+        >>> import math, torch
+        >>> from torchtasks.domain import DomainField, UniformDomainParam
+        >>> nominal = torch.tensor(1.0, dtype=torch.float64)
+        >>> param = UniformDomainParam("mass", mean=1.0, halfspan=0.0)
+        >>> param.bind_field(DomainField("mass", torch.Size([]), nominal, 0.0, math.inf, True, (), True, "mass (kg)"))
+        >>> means = DomainWrites(param, "Curriculum", {"mean": torch.tensor([1.0, 0.5], dtype=torch.float64)},
+        ...                      ("the schedule of 'domain.mass.mean' at frame 0", "the schedule ... at frame 9"))
+        >>> spans = torch.tensor([0.0, 0.8], dtype=torch.float64)
+        >>> halfspans = DomainWrites(param, "DifficultyLevels", {"halfspan": spans},
+        ...                          ("level 0 of 'domain.mass.halfspan'", "level 1 of 'domain.mass.halfspan'"))
+        >>> try:
+        ...     check_written_together("DifficultyLevels", [halfspans, means])
+        ... except ValueError as error:
+        ...     print(str(error).split(" together")[0])
+        DifficultyLevels: level 1 of 'domain.mass.halfspan' with the schedule ... at frame 9 (a Curriculum of the env) \
+can write halfspan=[0.8] and mean=[0.5]
+    """
+    param = writes[0].param
+    owners: dict[str, str] = {}
+    for write in writes:
+        for buffer in write.values:
+            if buffer in owners:
+                raise ValueError(
+                    f"{who}: a {owners[buffer]} and a {write.writer} of the env both write {buffer!r} of {param!r}: a "
+                    "buffer has one owner"
+                )
+            owners[buffer] = write.writer
+    kept = [_distinct_rows(write) for write in writes]
+    picks = list(itertools.product(*kept))
+    values = {
+        buffer: value[[pick[i] for pick in picks]]
+        for i, write in enumerate(writes)
+        for buffer, value in write.values.items()
+    }
+    try:
+        param.check_written_values(values, who, as_rows=True)
+    except ValueError:
+        for pick in picks:  # the failing combination, named (the refusal's path only)
+            label = f"{who}: " + " with ".join(
+                write.labels[k]
+                if i == 0
+                else f"{write.labels[k]} ({'another' if write.writer == who else 'a'} {write.writer} of the env)"
+                for i, (write, k) in enumerate(zip(writes, pick, strict=True))
+            )
+            one = {
+                buffer: value[pick[i] : pick[i] + 1]
+                for i, write in enumerate(writes)
+                for buffer, value in write.values.items()
+            }
+            param.check_written_values(one, label, as_rows=True)
+        raise
+
+
+def _distinct_rows(write: DomainWrites) -> list[int]:
+    """The index of the first of every distinct row of ``write`` (a row: its values in every buffer)."""
+    flat = torch.cat([value.reshape(len(value), -1) for value in write.values.values()], 1)
+    first: dict[tuple[float, ...], int] = {}
+    for k, row in enumerate(flat.tolist()):
+        first.setdefault(tuple(row), k)
+    return list(first.values())
 
 
 def check_in_goal_space(target: Target, values: torch.Tensor, label: str, offenders: Sequence[str]) -> None:

@@ -18,7 +18,7 @@ from torchrl.envs.transforms import RewardSum, StepCounter, Transform, Transform
 from torchrl.envs.utils import make_composite_from_td
 
 from torchtasks._checks import SUPPORTED_FLOATS, check_input, check_positive_int
-from torchtasks._memory import td_get, td_set
+from torchtasks._memory import hollow_paths, td_get, td_set, unshared, with_hollow, without_hollow
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, keys_text, nested_key
 from torchtasks.tasks.goals import GoalSlot, replace_goals
 from torchtasks.tasks.memory import where_memory
@@ -308,89 +308,36 @@ def _check_within_limit(
 class TaskTransform(EnvDerivedTransform):
     """Apply a task to a TorchRL env: task reward, success, failure and termination on every step.
 
-    In each step the transform reads ``s_t`` and ``a_t`` from the root tensordict, ``s_{t+1}`` from
-    ``"next"`` and the task memory from ``memory_key``. The step reward is evaluated on
-    ``s_{t+1}`` (``reward_on="next"``, the Gymnasium convention) or ``s_t`` (``reward_on="state"``,
-    Pyrado's order); success, failure and the final reward on ``s_{t+1}``. The final reward is
-    paid once, in the step where the episode ends (success, failure, the env's own termination
-    or truncation). The reward written to ``"reward"`` replaces the env's reward and is cast to
-    the reward spec's dtype. ``terminated`` and ``done`` are OR-ed with success and failure;
-    ``truncated`` is left untouched.
-
-    The remaining steps passed to the task are ``max_steps - step_count`` when a
-    ``StepCounter(max_steps)`` precedes this transform or ``max_steps`` is given (0 without a limit,
-    as in Pyrado). A task that reads them (``task.uses_remaining_steps``) in an env that counts steps
-    with a limit the transform cannot see (e.g. StepCounters inside the workers of a batched env) is
-    an error, not "no limit"; offline, such a task needs ``max_steps`` for data holding
-    ``("next", "step_count")``. In an env with no limit in sight it gets 0 and a ``UserWarning`` at
-    set-up (once per env). A ``RewardSum`` that runs before this transform (in its Compose or in a
-    TransformedEnv it wraps) and sums an entry it overwrites (:attr:`reward_key`, :attr:`term_keys`,
-    :attr:`cost_keys`) is refused with a ``ValueError``: put ``RewardSum`` after it.
-
-    Every time the env's specs are built the transform sets itself up for the env it is in now
-    (state and action sizes, dtype, time limit, transform order): a transform moved, cloned or
-    deep-copied into another env follows that env.
-
-    When the specs are first built, the task is moved to the dtype of the state entry
-    (``task.to(dtype)``, in place), so constants are cast once and not at every step; build a
-    separate task object if you need the original precision elsewhere.
-
-    Written entries: ``success`` and ``failure`` (bool, observation spec), the memory under
-    ``memory_key`` (observation AND state spec, so batched and multi-process envs carry it; none for
-    a task tree whose memory holds no tensor, e.g. :class:`~torchtasks.tasks.GoallessTask`), and,
-    with ``log_terms``, the reward breakdown (reward spec, so a following ``RewardSum()`` reports
-    per-episode sums): ``(terms_key, "step")`` and ``(terms_key, "final")`` when some task of the tree
-    pays a final reward (:attr:`~torchtasks.tasks.Task.pays_final_reward`; otherwise the step reward is
-    the reward and the final reward is always 0, so neither is written), then one entry per named term
-    of a compound, product or locomotion reward. :attr:`entries` lists them all, with when each is written.
+    Each step reads ``s_t`` and ``a_t`` from the root, ``s_{t+1}`` from ``"next"`` and the task memory from
+    ``memory_key``, and evaluates the task once: the step reward on ``s_{t+1}`` (``reward_on="next"``, Gymnasium's
+    convention) or on ``s_t`` (``"state"``, Pyrado's order), success, failure and the final reward on ``s_{t+1}``, the
+    final reward paid once, where the episode ends. The reward replaces the env's (cast to the reward spec's dtype);
+    ``terminated`` and ``done`` are OR-ed with success and failure, ``truncated`` is left alone. The remaining steps
+    are ``max_steps - step_count`` of a preceding ``StepCounter`` (0 without a limit). Whenever the env's specs are
+    built the transform sets itself up for the env it is in (sizes, dtype, time limit, transform order) and casts the
+    task to the state's dtype, in place. :attr:`entries` lists what it writes and when; the docs page "TorchRL
+    integration" gives the rules in full (specs, order, time limits, offline use).
 
     Args:
         task: the task to apply.
         state_key: the key (or keys, concatenated on the last dim) holding the task's state.
         action_key: the action key.
         reward_on: ``"next"`` or ``"state"``: which state the step reward is evaluated on.
-        memory_key, success_key, failure_key, terms_key: output keys. The success flag is written only for a
-            tree that can succeed, the failure flag only for one that can fail (``task.facts.can_succeed``,
-            ``task.facts.can_fail``; e.g. a :class:`~torchtasks.tasks.GoallessTask` writes no success flag).
-        log_terms: write the reward breakdown.
-        max_steps: time limit for the remaining steps; by default read from a preceding StepCounter.
-            Needed offline, and when the env's StepCounters are out of the transform's sight. ``math.inf``
-            says the env has no limit on purpose (remaining steps 0, as Pyrado's ``max_steps=inf``): a
-            time-dependent task is then not warned about, and a preceding StepCounter with a limit is an error.
-        reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (e.g. a goal
-            sampler returning ``{"state_des": goals}``); must be picklable for multi-process envs.
+        memory_key, success_key, failure_key, terms_key: output keys (the success flag only for a tree that can
+            succeed, the failure flag only for one that can fail: ``task.facts``).
+        log_terms: write the reward breakdown, ``(terms_key, <term>)`` per named term, for a ``RewardSum`` after it.
+        max_steps: the time limit of the remaining steps (default: a preceding StepCounter's; ``math.inf``: none,
+            on purpose); needed offline and when the env's StepCounters are out of the transform's sight.
+        reset_overrides: ``init_state -> {name: value}`` per-env reset overrides (picklable for workers).
         compile: evaluate the task with ``torch.compile(fullgraph=True)``.
-        goal_key: read the goal of step ``t`` from this root entry (``[*B, k]``: the goal the policy
-            saw when it chose ``a_t``, e.g. written by :class:`~torchtasks.transforms.GoalCommand`) and
-            pass it to the task (``Task.transition(..., goal=...)``); offline, a relabelled goal there
-            re-judges reward, success and the episode end.
-        achieved_goal_key: write the achieved goal (the entries of the state the goal is compared
-            with) of ``s_{t+1}`` under ``"next"`` (and of the initial state at reset).
-        goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has
-            several.
-        ended_by_key: where a tree that names its end conditions (:attr:`Task.termination_names
-            <torchtasks.tasks.Task.termination_names>`, e.g. ``"out_of_bounds"`` and ``"unhealthy"``)
-            writes one flag per condition, ``(ended_by_key, name)`` (bool, the shape of ``done``), set
-            in the step where that condition holds (and so ends the episode); with ``log_terms``. A
-            tree with at most one condition of each kind writes none (``success`` and ``failure`` say it).
-        cost_key, cost_terms_key: where a tree with costs (:class:`~torchtasks.tasks.ConstrainedTask`)
-            writes them under ``"next"``: all costs as ``cost_key`` (``[*B, k]``, in
-            :attr:`cost_names` order) and each one as ``(cost_terms_key, name)`` (``[*B, 1]``, for a
-            ``RewardSum`` over :attr:`cost_keys` and for :func:`~torchtasks.stats.episode_statistics`);
-            both are reward-spec entries, so they are not carried to the next step's root. A tree
-            without costs writes neither.
-        vector_reward_key, groups_key: where a tree with reward groups (:class:`~torchtasks.tasks.RewardGroupsTask`)
-            writes them under ``"next"``: all groups as ``vector_reward_key`` (``[*B, k]``, in
-            :attr:`group_names` order: a vector reward for one critic per group, TorchRL's ``LineariseRewards`` or
-            ``RewardSum``) and each one as ``(groups_key, name)`` (``[*B, 1]``); reward-spec entries in the
-            tree's :attr:`~torchtasks.tasks.Task.group_dtype` (the reward's dtype when it is ``None``). The
-            scalar reward stays at ``reward_key``. A tree without groups writes neither.
-        curriculum_key: offline (:meth:`forward`, :meth:`reward_fn`, :meth:`relabel`), where the data records the
-            values of task buffers that a :class:`~torchtasks.transforms.Curriculum` or
-            :class:`~torchtasks.transforms.DifficultyLevels` set at each step, when this transform is not in their env
-            (e.g. a replay buffer's transform): every entry under it that names a float buffer of the task
-            (``"/"`` for ``"."``) is read. In their env the transform reads their entries and refuses data without
-            them. ``None``: look for none (outside such an env, the task's buffers as they are now).
+        goal_key: the root entry holding the goal the policy saw at step ``t`` (e.g. a
+            :class:`~torchtasks.transforms.GoalCommand`'s), passed to the task as ``goal=``.
+        achieved_goal_key: where to write the achieved goal of ``s_{t+1}`` (and of the initial state at reset).
+        goal_name: which goal task of the tree (:attr:`Task.goal_slots`) the goal is for, when it has several.
+        ended_by_key: where a tree that names its end conditions writes one flag per condition (with ``log_terms``).
+        cost_key, cost_terms_key: where a tree with costs writes them: ``[*B, k]``, and ``[*B, 1]`` each.
+        vector_reward_key, groups_key: where a tree with reward groups writes them: ``[*B, k]``, and ``[*B, 1]`` each.
+        curriculum_key: offline, the entries holding the values a Curriculum or DifficultyLevels set per step.
 
     Example:
         >>> import torch
@@ -403,7 +350,7 @@ class TaskTransform(EnvDerivedTransform):
         ...     EnvSpec(2, 1), [0.0, 0.0], QuadraticErrorReward([1.0, 0.1], [0.001]), indices=[0], threshold=0.1)
         >>> transforms = Compose(StepCounter(50), TaskTransform(task), RewardSum())
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), transforms)
-        >>> rollout = env.rollout(10)
+        >>> rollout = env.rollout(10, break_when_any_done=False)  # a success would end the rollout early
         >>> rollout["next", "reward"].shape, rollout["next", "success"].dtype
         (torch.Size([4, 10, 1]), torch.bool)
     """
@@ -508,8 +455,11 @@ class TaskTransform(EnvDerivedTransform):
         self.termination_names = entries.names("ended_by_key")
         self._ended_by_keys = entries.keys(argument="ended_by_key")
         # a task tree without memory tensors (e.g. GoallessTask) registers and writes no memory entry: batched
-        # envs refuse empty specs; its (empty) memory is built in the step
+        # envs refuse empty specs; its (empty) memory is built in the step. Likewise the empty sub-memories of
+        # memory-less sub-tasks (a FinalRewardTask's "wrapped" around a GoallessTask) are neither registered nor
+        # written, and are put back when the memory is read
         self._has_memory = bool(entries.select(kinds=("memory",)))
+        self._hollow = hollow_paths(task.memory_layout) if self._has_memory else ()
         self._uses_remaining = task.uses_remaining_steps
         self._check_key_collisions()
         memory_keys = entries.keys(kinds=("memory",))
@@ -874,7 +824,7 @@ class TaskTransform(EnvDerivedTransform):
 
     def _memory_spec(self, batch: torch.Size, dtype: torch.dtype, device: torch.device | None) -> Composite:
         init_state = torch.zeros((*batch, self.task.state_size), dtype=dtype, device=device)
-        memory = self.task._reset(init_state, self._overrides(init_state))
+        memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
         spec = make_composite_from_td(memory, unsqueeze_null_shapes=False)
         return spec.to(device) if device is not None else spec
 
@@ -1226,6 +1176,8 @@ class TaskTransform(EnvDerivedTransform):
             memory = td_get(tensordict, self.memory_key)
             if memory is None:
                 self._missing_memory(tensordict, offline)
+            if self._hollow:  # the empty sub-memories of memory-less sub-tasks, which the data do not hold
+                memory = with_hollow(memory, self._hollow)
         else:
             memory = self._empty_memory(state)
         if self.goal_key is not None:
@@ -1246,6 +1198,9 @@ class TaskTransform(EnvDerivedTransform):
         shape = done.shape
         for key, read, item, write_as in self._writes[occasion, has_terminated]:  # the table's rows, precomputed
             value = next_state if read is None else read(outputs)
+            if write_as is _as_is:  # the memory: never a tensor of the root (the given memory, the goal) under "next",
+                # nor the empty sub-memories of memory-less sub-tasks (the specs have none: batched envs refuse them)
+                value = unshared(without_hollow(value, self._hollow), memory, state, action)
             if item is not None:
                 value = value[item]
             td_set(next_tensordict, key, write_as(value, shape, reward_dtype))
@@ -1260,7 +1215,7 @@ class TaskTransform(EnvDerivedTransform):
         needs_state = self._has_memory or self.achieved_goal_key is not None
         init_state = self._read_state(tensordict_reset) if needs_state else None
         if self._has_memory:
-            memory = self.task._reset(init_state, self._overrides(init_state))
+            memory = without_hollow(self.task._reset(init_state, self._overrides(init_state)), self._hollow)
             reset_mask = None if tensordict is None else tensordict.get("_reset", None)
             old = None if tensordict is None else tensordict.get(self.memory_key, None)
             if reset_mask is not None and old is not None and old.batch_size == memory.batch_size:
