@@ -127,9 +127,17 @@ def _ungrouped_id(item: pytest.Item) -> str:
 
 @pytest.hookimpl(trylast=True)  # after pytest-xdist's own hook, which writes the group suffix
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Apply the xdist groups (:func:`_apply_xdist_groups`); the tests using :func:`ray_cluster` run one after the
-    other, where the first of them was collected."""
+    """Apply the xdist groups (:func:`_apply_xdist_groups`); run the tests marked ``slow`` first; the tests using
+    :func:`ray_cluster` run one after the other, where the first of them was collected.
+
+    Slow tests first: pytest-xdist hands out the groups (largest first), then single tests in this order, so a
+    long test (the docs build, an example's run) starts while the other worker still has work, instead of
+    running alone at the end.
+    """
     _apply_xdist_groups(items)
+    items[:] = [item for item in items if item.get_closest_marker("slow")] + [
+        item for item in items if not item.get_closest_marker("slow")
+    ]
     users = [item for item in items if _uses_ray_cluster(item)]
     if len(users) < 2:
         return
