@@ -7,13 +7,17 @@ from typing import Any
 
 import pytest
 
-from golden import load_golden
 from repo_paths import TESTS
+
+# Nothing here imports torch at module level: pytest-xdist's controller process loads this file too, and runs no
+# test (importing torch there cost ~4 s of CPU while the two workers start and collect).
 
 
 @pytest.fixture(scope="session")
 def golden() -> dict[str, Any]:
     """The decoded Pyrado golden data (``tests/data/pyrado_golden.json``); treat it as read-only."""
+    from golden import load_golden
+
     return load_golden()
 
 
