@@ -24,9 +24,10 @@ import pytest
 
 from example_runs import EXAMPLES, run_quick
 
-# no xdist group for the module: each ``--quick`` run is a test of its own, which either worker may take; the
-# ``--help`` checks share one interpreter (a module-scoped fixture), so they go to one worker together
-pytestmark = [pytest.mark.slow]
+# the ``--quick`` runs go to one worker with those of test_examples_training.py (group "examples"): they fork from
+# one server (example_runs.py) there; the ``--help`` checks share one interpreter (a module-scoped fixture), so they
+# form a group of their own ("examples_help": this mark and theirs), which the other worker may take
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("examples")]
 
 
 SPHINX_MARKUP = ("``", ":class:", ":func:", ":meth:", ":mod:", ":attr:")
@@ -108,7 +109,7 @@ def help_outputs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
     return outputs
 
 
-@pytest.mark.xdist_group("example_help")
+@pytest.mark.xdist_group("help")
 @pytest.mark.parametrize("script", SCRIPTS)
 def test_help_is_short_plain_and_shows_defaults(script: str, help_outputs: dict[str, dict]) -> None:
     """``--help``: the docstring's first paragraph, then every option with a description and its default, in 40 x 100.
