@@ -189,7 +189,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             return self.domains._buffers[self.names[0]].shape[0]
         size = check_positive_int(cycle, "DomainRandomization: cycle (the number of stored domains)")
         for param in params:
-            self.domains.register_buffer(param.name, torch.empty(size, *param.value_shape, dtype=torch.float64))
+            self.domains.register_buffer(param.name, torch.zeros(size, *param.value_shape, dtype=torch.float64))
         return size
 
     # ------------------------------------------------------------------ seeding
