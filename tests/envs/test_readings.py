@@ -301,6 +301,7 @@ def _cases(world: World):
     for name in _names(model, "body"):
         b = model.body(name).id
         yield R.body_pos(name), lambda m, d, i, b=b: d.xpos[b].copy()
+        yield R.body_pos(name, index=(2,)), lambda m, d, i, b=b: d.xpos[b, [2]]
         yield R.body_quat(name), lambda m, d, i, b=b: d.xquat[b].copy()
         for point, objtype in (("origin", _XBODY), ("com", _BODY)):
             for frame in ("world", "local"):
@@ -327,7 +328,16 @@ def _cases(world: World):
     yield R.data_field("cinert", 1), lambda m, d, i: d.cinert[1:].ravel()
     yield R.data_field("cvel", 1, clip=(-1, 1)), lambda m, d, i: np.clip(d.cvel[1:].ravel(), -1, 1)
     yield R.data_field("qfrc_actuator"), lambda m, d, i: d.qfrc_actuator.copy()
+    yield R.data_field("qpos", 0, 2), lambda m, d, i: d.qpos[0:2].copy()
+    yield (
+        R.data_field("xpos", 1, 3, index=(5, 0), clip=(-0.5, 0.5)),
+        lambda m, d, i: np.clip(d.xpos[[2, 1], [2, 0]], -0.5, 0.5),
+    )
     yield R.mass_centre(), lambda m, d, i: np.sum(m.body_mass[:, None] * d.xipos, 0) / np.sum(m.body_mass)
+    yield (
+        R.mass_centre(index=(1, 0)),
+        lambda m, d, i: (np.sum(m.body_mass[:, None] * d.xipos, 0) / np.sum(m.body_mass))[[1, 0]],
+    )
 
 
 def _compare(world: World) -> dict[str, tuple[str, float]]:
@@ -563,6 +573,16 @@ def test_bad_input_is_refused_clearly() -> None:
             R.data_field("time").resolve,
         ),
         (ValueError, r"data_field\(cinert\) start must be below its 6 rows, got 6", R.data_field("cinert", 6).resolve),
+        (
+            ValueError,
+            r"data_field\(cinert\) stop must be at most its 6 rows, got 7",
+            R.data_field("cinert", 1, 7).resolve,
+        ),
+        (
+            ValueError,
+            r"body_pos\(torso, index=\(3,\)\): index must be positions in \[0, 3\) of its 3 elements, got \(3,\)",
+            R.body_pos("torso", index=(3,)).resolve,
+        ),
     ]
     for error, match, resolve in cases:
         with pytest.raises(error, match=match):
@@ -638,7 +658,33 @@ def test_bad_arguments_are_refused_when_declared() -> None:
             r"finite_difference dt must be None or a number of seconds, got '0.1'",
             lambda: R.finite_difference(R.time(), dt="0.1"),
         ),
-        (ValueError, r"finite_difference takes no clip", lambda: R.FiniteDifference(reading=R.time(), clip=(0, 1))),
+        (
+            ValueError,
+            r"finite_difference takes no index or clip",
+            lambda: R.FiniteDifference(reading=R.time(), clip=(0, 1)),
+        ),
+        (
+            ValueError,
+            r"finite_difference takes no index or clip",
+            lambda: R.FiniteDifference(reading=R.time(), index=(0,)),
+        ),
+        (
+            TypeError,
+            r"index must be None or a sequence of element positions \(ints\), got 2",
+            lambda: R.body_pos("t", index=2),
+        ),
+        (
+            TypeError,
+            r"index must be a sequence of element positions \(ints\), got \(0.5,\)",
+            lambda: R.time(index=(0.5,)),
+        ),
+        (ValueError, r"index must select at least one element, got an empty sequence", lambda: R.time(index=())),
+        (
+            TypeError,
+            r"data_field stop must be None or an int \(the row after the last\), got '2'",
+            lambda: R.data_field("cvel", 1, "2"),
+        ),
+        (ValueError, r"data_field stop must be above start 2, got 2", lambda: R.data_field("cvel", 2, 2)),
         (
             ValueError,
             r"data_field name must be an MjData field the batch binds; did you mean 'cinert'",

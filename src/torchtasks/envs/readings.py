@@ -217,8 +217,17 @@ def _time(arrays: Mapping[str, Array]) -> Array:
     return arrays["time"].reshape(-1, 1) * 1
 
 
-def _clipped(arrays: Mapping[str, Array], *, inner: Callable[[Mapping[str, Array]], Array], low: float, high: float):
-    return inner(arrays).clip(low, high)
+def _selected(
+    arrays: Mapping[str, Array],
+    *,
+    inner: Callable[[Mapping[str, Array]], Array],
+    index: np.ndarray | None,
+    clip: tuple[float, float] | None,
+) -> Array:
+    value = inner(arrays)
+    if index is not None:
+        value = value[:, index]
+    return value if clip is None else value.clip(clip[0], clip[1])
 
 
 def _differenced_by_the_engine(arrays: Mapping[str, Array], *, label: str) -> Array:
@@ -271,6 +280,19 @@ def _check_clip(clip: object) -> tuple[float, float] | None:
     return low, high
 
 
+def _check_index(index: object) -> tuple[int, ...] | None:
+    if index is None:
+        return None
+    if isinstance(index, (str, bytes)) or not isinstance(index, Sequence):
+        raise TypeError(f"index must be None or a sequence of element positions (ints), got {index!r}")
+    for position in index:
+        if isinstance(position, bool) or not isinstance(position, (int, np.integer)):
+            raise TypeError(f"index must be a sequence of element positions (ints), got {index!r}")
+    if not index:
+        raise ValueError("index must select at least one element, got an empty sequence")
+    return tuple(int(position) for position in index)
+
+
 def _check_model(model: object) -> mujoco.MjModel:
     if not isinstance(model, mujoco.MjModel):
         raise TypeError(
@@ -306,7 +328,8 @@ def _element_labels(name: str, suffixes: tuple[str, ...] | None) -> tuple[str, .
 class Reading:
     """A named model quantity of the batched MuJoCo env; the kinds below derive from it.
 
-    Every kind takes ``clip=(low, high)``: finite numbers with ``low <= high``, applied to the value by ``compute``.
+    Every kind takes ``index``, the positions of the elements to keep (e.g. ``(2,)``: a position's height), and
+    ``clip=(low, high)``: finite numbers with ``low <= high``, applied to the value by ``compute``.
     ``resolve(model)`` checks the reading against a compiled ``mujoco.MjModel`` and returns its :class:`Resolved`.
 
     Example:
@@ -316,21 +339,32 @@ class Reading:
     """
 
     kind: ClassVar[str] = ""
+    index: tuple[int, ...] | None = field(default=None, kw_only=True)
     clip: tuple[float, float] | None = field(default=None, kw_only=True)
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "index", _check_index(self.index))
         object.__setattr__(self, "clip", _check_clip(self.clip))
 
     def resolve(self, model: mujoco.MjModel) -> Resolved:
         """This reading against ``model``: its shape, the arrays it reads and its ``compute``."""
         resolved = self._resolve(_check_model(model))
-        if self.clip is None:
+        if self.index is None and self.clip is None:
             return resolved
-        low, high = self.clip
+        size = int(np.prod(resolved.shape, dtype=np.int64))
+        outside = [position for position in self.index or () if not 0 <= position < size]
+        if outside:
+            raise ValueError(
+                f"{self._label()}: index must be positions in [0, {size}) of its {size} elements, got {self.index}"
+            )
+        index = None if self.index is None else np.array(self.index, dtype=np.int64)
+        selected = resolved.labels if index is None else tuple(resolved.labels[i] for i in self.index)  # type: ignore[union-attr]
         return dataclasses.replace(
             resolved,
             label=self._label(),
-            compute=functools.partial(_clipped, inner=resolved.compute, low=low, high=high),
+            shape=resolved.shape if index is None else (len(index),),
+            labels=selected,
+            compute=functools.partial(_selected, inner=resolved.compute, index=index, clip=self.clip),
         )
 
     def _resolve(self, model: mujoco.MjModel) -> Resolved:
@@ -341,6 +375,8 @@ class Reading:
 
     def _label(self) -> str:
         arguments = self._arguments()
+        if self.index is not None:
+            arguments.append(f"index={self.index}")
         if self.clip is not None:
             arguments.append(f"clip=({self.clip[0]:g}, {self.clip[1]:g})")
         return f"{self.kind}({', '.join(arguments)})"
@@ -594,6 +630,9 @@ class BodyPos(_BodyReading):
         ...                    '</worldbody></mujoco>')
         >>> body_pos("torso").resolve(model).labels
         ('torso.x', 'torso.y', 'torso.z')
+        >>> height = body_pos("torso", index=(2,)).resolve(model)
+        >>> height.label, height.shape, height.labels
+        ('body_pos(torso, index=(2,))', (1,), ('torso.z',))
     """
 
     kind: ClassVar[str] = "body_pos"
@@ -934,7 +973,7 @@ class FiniteDifference(Reading):
     ``dt=None`` divides by the env's control timestep (as Gymnasium's ``x_velocity`` from the body position before
     and after the step). The env keeps the inner reading's value from before the step: the resolved reading names it
     (``difference_of``) and has no ``compute`` of its own. A finite difference of a finite difference is refused,
-    and so is ``clip`` (clip the inner reading).
+    and so are ``index`` and ``clip`` (give them to the inner reading).
 
     Example:
         >>> from torchtasks.envs.mujoco_model import load_model
@@ -958,8 +997,11 @@ class FiniteDifference(Reading):
             )
         if isinstance(self.reading, FiniteDifference):
             raise ValueError(f"finite_difference reading must not be a finite difference itself, got {self.reading}")
-        if self.clip is not None:
-            raise ValueError(f"finite_difference takes no clip (clip its reading instead), got clip={self.clip}")
+        if self.clip is not None or self.index is not None:
+            raise ValueError(
+                f"finite_difference takes no index or clip (give them to its reading), "
+                f"got index={self.index}, clip={self.clip}"
+            )
         if self.dt is not None:
             if isinstance(self.dt, bool) or not isinstance(self.dt, (int, float, np.integer, np.floating)):
                 raise TypeError(f"finite_difference dt must be None or a number of seconds, got {self.dt!r}")
@@ -986,7 +1028,7 @@ class FiniteDifference(Reading):
 
 @dataclass(frozen=True)
 class DataField(Reading):
-    """Rows ``[start:]`` of an ``MjData`` field, flattened: shape ``((rows - start) * row size,)``, e.g. Gymnasium's
+    """Rows ``[start:stop]`` of an ``MjData`` field, flattened: shape ``((stop - start) * row size,)``, e.g. Gymnasium's
     ``cinert[1:]``, ``cvel[1:]`` and ``qfrc_actuator[6:]`` observations. ``name`` is a ``mujoco.batch.Batch.bind``
     field of floating-point values; frames and units are MuJoCo's for that field.
 
@@ -1003,6 +1045,7 @@ class DataField(Reading):
     kind: ClassVar[str] = "data_field"
     name: str = ""
     start: int = 0
+    stop: int | None = None
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -1018,9 +1061,16 @@ class DataField(Reading):
         if self.start < 0:
             raise ValueError(f"data_field start must be >= 0 (the first row), got {self.start}")
         object.__setattr__(self, "start", int(self.start))
+        if self.stop is not None:
+            if isinstance(self.stop, bool) or not isinstance(self.stop, (int, np.integer)):
+                raise TypeError(f"data_field stop must be None or an int (the row after the last), got {self.stop!r}")
+            if self.stop <= self.start:
+                raise ValueError(f"data_field stop must be above start {self.start}, got {self.stop}")
+            object.__setattr__(self, "stop", int(self.stop))
 
     def _arguments(self) -> list[str]:
-        return [self.name, *([] if self.start == 0 else [f"start={self.start}"])]
+        rows = [] if self.start == 0 else [f"start={self.start}"]
+        return [self.name, *rows, *([] if self.stop is None else [f"stop={self.stop}"])]
 
     def _resolve(self, model: mujoco.MjModel) -> Resolved:
         example = np.asarray(getattr(mujoco.MjData(model), self.name))
@@ -1032,14 +1082,17 @@ class DataField(Reading):
         rows = example.shape[0]
         if self.start >= rows:
             raise ValueError(f"data_field({self.name}) start must be below its {rows} rows, got {self.start}")
+        if self.stop is not None and self.stop > rows:
+            raise ValueError(f"data_field({self.name}) stop must be at most its {rows} rows, got {self.stop}")
+        stop = rows if self.stop is None else self.stop
         row_size = int(np.prod(example.shape[1:], dtype=np.int64))
         labels = tuple(
             f"{self.name}[{row}]" if example.ndim == 1 else f"{self.name}[{row}, {i}]"
-            for row in range(self.start, rows)
+            for row in range(self.start, stop)
             for i in range(row_size)
         )
-        compute = functools.partial(_gather_rows, name=self.name, rows=np.arange(self.start, rows))
-        return self._resolved(((rows - self.start) * row_size,), (self.name,), compute, labels)
+        compute = functools.partial(_gather_rows, name=self.name, rows=np.arange(self.start, stop))
+        return self._resolved(((stop - self.start) * row_size,), (self.name,), compute, labels)
 
 
 @dataclass(frozen=True)
@@ -1093,176 +1146,181 @@ READING_KINDS: dict[str, type[Reading]] = {
 
 # ---------------------------------------------------------------------------------------------------- constructors
 Clip = tuple[float, float] | None
+Index = Sequence[int] | None
 
 
-def joint_pos(*joints: str, relative_to: str | None = None, clip: Clip = None) -> JointPos:
+def joint_pos(*joints: str, relative_to: str | None = None, index: Index = None, clip: Clip = None) -> JointPos:
     """Positions of ``joints`` (all when none), optionally relative to ``"qpos0"`` or a keyframe: see :class:`JointPos`.
 
     Example:
         >>> joint_pos("knee", "hip", relative_to="home")
-        JointPos(clip=None, joints=('knee', 'hip'), relative_to='home')
+        JointPos(index=None, clip=None, joints=('knee', 'hip'), relative_to='home')
     """
-    return JointPos(joints=joints, relative_to=relative_to, clip=clip)
+    return JointPos(joints=joints, relative_to=relative_to, index=index, clip=clip)
 
 
-def joint_vel(*joints: str, clip: Clip = None) -> JointVel:
+def joint_vel(*joints: str, index: Index = None, clip: Clip = None) -> JointVel:
     """Velocities of ``joints`` (all when none): see :class:`JointVel`.
 
     Example:
         >>> joint_vel("knee").joints
         ('knee',)
     """
-    return JointVel(joints=joints, clip=clip)
+    return JointVel(joints=joints, index=index, clip=clip)
 
 
-def actuator_ctrl(*actuators: str, clip: Clip = None) -> ActuatorCtrl:
+def actuator_ctrl(*actuators: str, index: Index = None, clip: Clip = None) -> ActuatorCtrl:
     """Controls of ``actuators`` (all when none): see :class:`ActuatorCtrl`.
 
     Example:
         >>> actuator_ctrl("hip_motor").kind
         'actuator_ctrl'
     """
-    return ActuatorCtrl(actuators=actuators, clip=clip)
+    return ActuatorCtrl(actuators=actuators, index=index, clip=clip)
 
 
-def actuator_force(*actuators: str, clip: Clip = None) -> ActuatorForce:
+def actuator_force(*actuators: str, index: Index = None, clip: Clip = None) -> ActuatorForce:
     """Forces of ``actuators`` (all when none): see :class:`ActuatorForce`.
 
     Example:
         >>> actuator_force().actuators
         ()
     """
-    return ActuatorForce(actuators=actuators, clip=clip)
+    return ActuatorForce(actuators=actuators, index=index, clip=clip)
 
 
-def sensor(name: str, *, clip: Clip = None) -> Sensor:
+def sensor(name: str, *, index: Index = None, clip: Clip = None) -> Sensor:
     """The data of the sensor ``name``: see :class:`Sensor`.
 
     Example:
         >>> sensor("imu_gyro", clip=(-20, 20)).clip
         (-20.0, 20.0)
     """
-    return Sensor(name=name, clip=clip)
+    return Sensor(name=name, index=index, clip=clip)
 
 
-def body_pos(body: str, *, clip: Clip = None) -> BodyPos:
-    """The world position of ``body``'s frame: see :class:`BodyPos`.
+def body_pos(body: str, *, index: Index = None, clip: Clip = None) -> BodyPos:
+    """The world position of ``body``'s frame (``index=(2,)``: its height): see :class:`BodyPos`.
 
     Example:
-        >>> body_pos("torso").body
-        'torso'
+        >>> body_pos("torso", index=(2,)).index
+        (2,)
     """
-    return BodyPos(body=body, clip=clip)
+    return BodyPos(body=body, index=index, clip=clip)
 
 
-def body_quat(body: str, *, clip: Clip = None) -> BodyQuat:
+def body_quat(body: str, *, index: Index = None, clip: Clip = None) -> BodyQuat:
     """The world orientation of ``body``'s frame: see :class:`BodyQuat`.
 
     Example:
         >>> body_quat("torso").kind
         'body_quat'
     """
-    return BodyQuat(body=body, clip=clip)
+    return BodyQuat(body=body, index=index, clip=clip)
 
 
-def body_lin_vel(body: str, *, frame: str = "world", point: str = "origin", clip: Clip = None) -> BodyLinVel:
+def body_lin_vel(
+    body: str, *, frame: str = "world", point: str = "origin", index: Index = None, clip: Clip = None
+) -> BodyLinVel:
     """The linear velocity of ``body``'s origin or centre of mass, in world or local axes: see :class:`BodyLinVel`.
 
     Example:
         >>> body_lin_vel("torso", frame="local", point="com").point
         'com'
     """
-    return BodyLinVel(body=body, frame=frame, point=point, clip=clip)
+    return BodyLinVel(body=body, frame=frame, point=point, index=index, clip=clip)
 
 
-def body_ang_vel(body: str, *, frame: str = "world", point: str = "origin", clip: Clip = None) -> BodyAngVel:
+def body_ang_vel(
+    body: str, *, frame: str = "world", point: str = "origin", index: Index = None, clip: Clip = None
+) -> BodyAngVel:
     """The angular velocity of ``body``, in world or local axes: see :class:`BodyAngVel`.
 
     Example:
         >>> body_ang_vel("torso", frame="local").frame
         'local'
     """
-    return BodyAngVel(body=body, frame=frame, point=point, clip=clip)
+    return BodyAngVel(body=body, frame=frame, point=point, index=index, clip=clip)
 
 
-def projected_gravity(body: str, *, clip: Clip = None) -> ProjectedGravity:
+def projected_gravity(body: str, *, index: Index = None, clip: Clip = None) -> ProjectedGravity:
     """The unit gravity direction in ``body``'s frame: see :class:`ProjectedGravity`.
 
     Example:
         >>> projected_gravity("torso").kind
         'projected_gravity'
     """
-    return ProjectedGravity(body=body, clip=clip)
+    return ProjectedGravity(body=body, index=index, clip=clip)
 
 
-def subtree_com(body: str, *, clip: Clip = None) -> SubtreeCom:
+def subtree_com(body: str, *, index: Index = None, clip: Clip = None) -> SubtreeCom:
     """The centre of mass of ``body``'s subtree: see :class:`SubtreeCom`.
 
     Example:
         >>> subtree_com("torso").body
         'torso'
     """
-    return SubtreeCom(body=body, clip=clip)
+    return SubtreeCom(body=body, index=index, clip=clip)
 
 
-def subtree_lin_vel(body: str, *, clip: Clip = None) -> SubtreeLinVel:
+def subtree_lin_vel(body: str, *, index: Index = None, clip: Clip = None) -> SubtreeLinVel:
     """The velocity of the centre of mass of ``body``'s subtree: see :class:`SubtreeLinVel`.
 
     Example:
         >>> subtree_lin_vel("torso").kind
         'subtree_lin_vel'
     """
-    return SubtreeLinVel(body=body, clip=clip)
+    return SubtreeLinVel(body=body, index=index, clip=clip)
 
 
-def contact_force(*bodies: str, clip: Clip = None) -> ContactForce:
+def contact_force(*bodies: str, index: Index = None, clip: Clip = None) -> ContactForce:
     """The external (contact) forces on ``bodies`` (every body but the world when none): see :class:`ContactForce`.
 
     Example:
         >>> contact_force("left_foot", "right_foot", clip=(-1, 1)).bodies
         ('left_foot', 'right_foot')
     """
-    return ContactForce(bodies=bodies, clip=clip)
+    return ContactForce(bodies=bodies, index=index, clip=clip)
 
 
-def site_pos(site: str, *, clip: Clip = None) -> SitePos:
+def site_pos(site: str, *, index: Index = None, clip: Clip = None) -> SitePos:
     """The world position of ``site``: see :class:`SitePos`.
 
     Example:
         >>> site_pos("fingertip").site
         'fingertip'
     """
-    return SitePos(site=site, clip=clip)
+    return SitePos(site=site, index=index, clip=clip)
 
 
-def site_quat(site: str, *, clip: Clip = None) -> SiteQuat:
+def site_quat(site: str, *, index: Index = None, clip: Clip = None) -> SiteQuat:
     """The world orientation of ``site``: see :class:`SiteQuat`.
 
     Example:
         >>> site_quat("fingertip").kind
         'site_quat'
     """
-    return SiteQuat(site=site, clip=clip)
+    return SiteQuat(site=site, index=index, clip=clip)
 
 
-def last_action(*, clip: Clip = None) -> LastAction:
+def last_action(*, index: Index = None, clip: Clip = None) -> LastAction:
     """The last action: see :class:`LastAction`.
 
     Example:
         >>> last_action() == last_action()
         True
     """
-    return LastAction(clip=clip)
+    return LastAction(index=index, clip=clip)
 
 
-def time(*, clip: Clip = None) -> Time:
+def time(*, index: Index = None, clip: Clip = None) -> Time:
     """The simulation time: see :class:`Time`.
 
     Example:
         >>> time().kind
         'time'
     """
-    return Time(clip=clip)
+    return Time(index=index, clip=clip)
 
 
 def finite_difference(reading: Reading, dt: float | None = None) -> FiniteDifference:
@@ -1276,21 +1334,23 @@ def finite_difference(reading: Reading, dt: float | None = None) -> FiniteDiffer
     return FiniteDifference(reading=reading, dt=dt)
 
 
-def data_field(name: str, start: int = 0, *, clip: Clip = None) -> DataField:
-    """Rows ``[start:]`` of the ``MjData`` field ``name``, flattened: see :class:`DataField`.
+def data_field(
+    name: str, start: int = 0, stop: int | None = None, *, index: Index = None, clip: Clip = None
+) -> DataField:
+    """Rows ``[start:stop]`` of the ``MjData`` field ``name``, flattened: see :class:`DataField`.
 
     Example:
-        >>> data_field("qfrc_actuator", 6).start
-        6
+        >>> data_field("qpos", 0, 1).stop
+        1
     """
-    return DataField(name=name, start=start, clip=clip)
+    return DataField(name=name, start=start, stop=stop, index=index, clip=clip)
 
 
-def mass_centre(*, clip: Clip = None) -> MassCentre:
+def mass_centre(*, index: Index = None, clip: Clip = None) -> MassCentre:
     """The model's centre of mass: see :class:`MassCentre`.
 
     Example:
         >>> mass_centre().kind
         'mass_centre'
     """
-    return MassCentre(clip=clip)
+    return MassCentre(index=index, clip=clip)
