@@ -202,10 +202,11 @@ def _subtree_lin_vel(
     # 1 / max(mjMINVAL, subtree mass); ``bodies`` is the subtree in id order, ``merges`` (child, parent) positions
     velocity = _point_velocity(arrays["cvel"][:, bodies], arrays["xipos"][:, bodies], arrays["subtree_com"][:, roots])
     momentum = velocity * arrays["model.body_mass"][:, bodies, None]
+    sums = [momentum[:, i] for i in range(len(bodies))]
     for child, parent in merges:
-        momentum[:, parent] += momentum[:, child]
+        sums[parent] = sums[parent] + sums[child]
     scale = 1 / arrays["model.body_subtreemass"][:, body].clip(_MINVAL, None)
-    return momentum[:, 0] * scale[:, None]
+    return sums[0] * scale[:, None]
 
 
 def _mass_centre(arrays: Mapping[str, Array]) -> Array:
