@@ -486,8 +486,11 @@ def test_bad_arguments_are_rejected_by_name(kwargs: dict[str, Any], error: type[
 
 
 def test_unknown_env_ids_are_rejected() -> None:
-    with pytest.raises(ValueError, match="env_id"):
+    # neither a preset nor a model: the message names the presets, the closest one, and the way to a model of one's own
+    with pytest.raises(ValueError, match=r"neither a Gymnasium preset .*'Hopper-v5'.*Your own robot"):
         BatchedMujocoEnv("CartPole-v1", 2)
+    with pytest.raises(ValueError, match=r"did you mean 'Hopper-v5'\?"):
+        BatchedMujocoEnv("Hoper-v5", 2)
 
 
 # ------------------------------------------------------------------------------------- specs

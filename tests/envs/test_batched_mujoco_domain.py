@@ -289,7 +289,7 @@ def test_an_env_never_given_values_expands_no_model_field() -> None:
     assert {"body_mass", "body_inertia", "geom_friction", "opt.gravity"} <= written
     for name in (*written, *derived):
         assert env.batch.expanded(name) is None, name
-    assert env._env_models is None and env._mass_weights is None
+    assert env._env_models is None
     # writing friction expands friction only
     env.set_domain({"geom_friction_scale": _ones(env, "geom_friction_scale")})
     assert env.batch.expanded("geom_friction") is not None

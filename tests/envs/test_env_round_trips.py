@@ -176,11 +176,11 @@ def test_a_batched_copy_has_its_own_threads_and_simulation() -> None:
         assert twin.num_threads == 2 and twin.batch.nthread == 2 and twin.batch is not env.batch
         assert twin.model is not env.model
         assert not np.shares_memory(twin.batch.state, env.batch.state)
-        # the observation plan reads the copy's own state rows and buffers (views of them, not copies)
+        # the readings read the copy's own state rows and buffers (views of them, not copies)
         assert all(
             np.shares_memory(source, twin.batch.state)
             or any(np.shares_memory(source, buffer) for buffer, _ in twin._readers)
-            for _, source, _ in twin._observation_plan
+            for source in twin._arrays.values()
         )
         twin.close()
     env.close()

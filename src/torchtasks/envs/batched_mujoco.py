@@ -35,18 +35,28 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, Transform
 
 from torchtasks._checks import check_positive_int
+from torchtasks._did_you_mean import did_you_mean
 from torchtasks._optional import missing_extra
 from torchtasks._torchrl import container_env
 
 try:
     import mujoco
-    from mujoco.batch import Batch
+    from mujoco.batch import _STATE_FIELDS, Batch
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
 
 from torchtasks.domain.fields import DomainField
-from torchtasks.envs.gymnasium_v5 import LocomotionEnvRecord, ModelFacts, gymnasium_config, locomotion_record
+from torchtasks.envs.gymnasium_v5 import (
+    LOCOMOTION_ENVS,
+    LocomotionEnvRecord,
+    ModelFacts,
+    gymnasium_config,
+    gymnasium_declaration,
+    locomotion_record,
+)
+from torchtasks.envs.mujoco_declaration import Actions, FreeJointRanges, Resets, declare
 from torchtasks.envs.mujoco_domain import BatchDomain, FieldKind
+from torchtasks.envs.readings import Resolved
 
 __all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
 
@@ -86,12 +96,18 @@ _REBUILT = (
     "_readers",
     "_contact_forces",
     "_scratch",
-    "_observation_plan",
-    "_entry_sources",
-    "_position",
-    "_mass_weights",
     "_domain",
     "_env_models",
+    "_arrays",
+    "_model_fields",
+    "_last_action",
+    "_affine",
+    "_differences",
+    "_previous",
+    "_sizes",
+    "_time",
+    "_half_timestep",
+    "_stage",
 )
 
 
@@ -115,49 +131,108 @@ def _default_threads() -> int:
         return os.cpu_count() or 1
 
 
-class BatchedMujocoEnv(EnvBase):
-    """Step ``num_envs`` Gymnasium MuJoCo v5 locomotion envs in one process with native threads.
+def _flat(array: np.ndarray, n: int) -> np.ndarray:
+    return array.reshape(n, -1)
 
-    One ``mujoco.MjModel`` (Gymnasium's, for ``env_id`` and ``gym_kwargs``) and one ``mujoco.batch.Batch`` of
-    ``num_envs`` simulations of it (``env.batch``). A step sets ``ctrl = action`` (not clipped, as Gymnasium),
-    advances every env by ``frame_skip`` substeps in one ``Batch.step`` call on ``num_threads`` threads and computes
-    Gymnasium v5's observation for all envs: equal to Gymnasium's bit for bit on the same states. It writes
-    ``"observation"`` and the task state (``"x_velocity"``, ``"qpos"``, ... of
-    :func:`~torchtasks.envs.locomotion.locomotion_state_layout`), float64 ``[num_envs, size]``. It pays no reward and
-    ends no episode (put the locomotion task's :class:`~torchtasks.transforms.TaskTransform` on it, or use
-    ``gymnasium_env(env_id, num_envs=N)``), except a broken step (a non-finite action, a diverged state): that env
-    ends, with ``"broken"`` set, a finite state and a ``RuntimeWarning`` (:class:`ZeroBrokenStepReward` pays 0 for
-    it). Resets draw Gymnasium's initial states from one generator per env, for the masked envs only.
-    ``state_dict()`` holds the generators and the running episodes: a load continues them bit for bit (in a
-    ``TransformedEnv``, a :class:`~torchtasks.transforms.BaseEnvState` saves it with the transforms); copies and
-    pickles are independent envs in the same state. As a :class:`~torchtasks.domain.DomainEnv` it gives each env its
-    own physics (:meth:`set_domain`). Details: the docs page "The batched MuJoCo env".
+
+def _looks_like_id(text: str) -> bool:
+    """Whether ``text`` reads as a Gymnasium id (``Name-v5``) rather than a file or MJCF."""
+    return not text.lstrip().startswith("<") and "-v" in text and not os.path.exists(text) and "." not in text
+
+
+def _fields(part: Resolved) -> tuple[str, ...]:
+    """The MjData fields a reading reads, its finite difference's inner reading's included."""
+    return part.fields + (() if part.difference_of is None else _fields(part.difference_of))
+
+
+def _model_fields(part: Resolved) -> tuple[str, ...]:
+    """The per-env model fields a reading reads, its finite difference's inner reading's included."""
+    return part.model_fields + (() if part.difference_of is None else _model_fields(part.difference_of))
+
+
+def _reads(part: Resolved, field: str) -> bool:
+    return field in _fields(part)
+
+
+def _free_joint_draw(rng: np.random.Generator, ranges: FreeJointRanges) -> np.ndarray:
+    """A free joint's draws: position offsets (3), yaw (1), linear and angular velocity offsets (3 each)."""
+    out = np.zeros(10)
+    for columns, pairs in (
+        (slice(0, 3), ranges.position),
+        (slice(3, 4), None if ranges.yaw is None else (ranges.yaw,)),
+        (slice(4, 7), ranges.linear_velocity),
+        (slice(7, 10), ranges.angular_velocity),
+    ):
+        if pairs is not None:
+            low, high = np.array(pairs, dtype=np.float64).T
+            out[columns] = rng.uniform(low, high)
+    return out
+
+
+def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise Hamilton products ``a * b`` of ``[k, 4]`` quaternions (w, x, y, z), as ``mju_mulQuat``."""
+    w1, x1, y1, z1 = a.T
+    w2, x2, y2, z2 = b.T
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        axis=1,
+    )
+
+
+class BatchedMujocoEnv(EnvBase):
+    """Step ``num_envs`` simulations of any MuJoCo model in one process, one ``mujoco.batch`` call per step.
+
+    ``model`` is a ``mujoco.MjModel``, an ``mujoco.MjSpec``, an MJCF file or string, or a Gymnasium MuJoCo v5
+    locomotion id (``"Hopper-v5"``: the Gymnasium preset, a declaration of this env equal to Gymnasium bit for
+    bit, with ``**gym_kwargs``). A step writes ``ctrl = offset + scale * action`` (:class:`Actions`), advances every
+    env ``frame_skip`` substeps in one ``Batch.step`` call on ``num_threads`` threads, and computes every declared
+    entry for all envs at once from the bound ``(num_envs, ...)`` arrays: ``observation`` (one ``"observation"``
+    vector, or a dict of entries) and ``state`` (the task-state entries a task reads), each a list of
+    :mod:`~torchtasks.envs.readings`. It pays no reward and ends no episode (put a task's
+    :class:`~torchtasks.transforms.TaskTransform` on it), except a broken step (a non-finite action, a diverged
+    state): that env ends, with ``"broken"`` set, a finite state and a ``RuntimeWarning``
+    (:class:`ZeroBrokenStepReward` pays 0 for it). Resets draw from one generator per env (:class:`Resets`), for
+    the masked envs only; ``"reset_qpos"``/``"reset_qvel"`` (float64 ``[num_envs, nq|nv]``) in the reset
+    tensordict start the masked envs from those states instead. ``state_dict()`` holds the generators and the
+    running episodes (a load continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them
+    in a ``TransformedEnv``); copies and pickles are independent envs in the same state. As a
+    :class:`~torchtasks.domain.DomainEnv` it gives each env its own physics (:meth:`set_domain`). Details: the docs
+    pages "Your own robot" and "The batched MuJoCo env".
 
     Args:
-        env_id: one of :data:`~torchtasks.envs.locomotion.SUPPORTED_ENV_IDS`.
-        num_envs: number of environments.
+        model: the model, or a Gymnasium id (then ``observation`` ... ``stage`` are the preset's).
+        num_envs: number of simulations.
+        observation: a reading, a list of readings (one ``"observation"`` entry) or ``{key: readings}``.
+        state: ``{key: readings}``: the task-state entries (float64 ``[num_envs, size]`` each).
+        actions: :class:`Actions` (default: the action is the control).
+        resets: :class:`Resets` (default: ``qpos0`` and zero velocities).
+        frame_skip, control_timestep: substeps per step, or the step in seconds (default: one substep).
+        stage: ``"velocity"`` (readings of the returned state, as dm_control) or ``"step"`` (as ``mj_step`` leaves
+            ``MjData``: derived fields of the last substep, as Gymnasium).
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
-        device: device of the output tensors (the simulation runs on the CPU); ``env.to(device)`` moves them.
-        num_threads: threads that step the envs (the calling thread included); default: the CPUs this process may
-            use, at most ``num_envs``.
-        task_state_keys: the task-state entries to write, in order (default: the env record's ``state_keys``, what
-            :func:`~torchtasks.envs.locomotion.locomotion_task` reads).
-        **gym_kwargs: the env's Gymnasium keyword arguments, validated as by
-            :func:`~torchtasks.envs.locomotion.locomotion_task`. Rendering is not supported.
+        device: device of the output tensors (the simulation runs on the CPU).
+        num_threads: threads that step the envs; default: the CPUs this process may use, at most ``num_envs``.
+        task_state_keys, **gym_kwargs: a Gymnasium id's task-state entries and keyword arguments.
 
     Example:
-        >>> from torchtasks.envs import BatchedMujocoEnv
-        >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0)
+        >>> from torchtasks.envs import BatchedMujocoEnv, readings
+        >>> xml = '''<mujoco><worldbody><body name="pole"><joint name="hinge"/>
+        ...   <geom type="capsule" fromto="0 0 0 0 0 1" size="0.05"/></body></worldbody>
+        ...   <actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>'''
+        >>> env = BatchedMujocoEnv(xml, 4, observation={"angle": readings.joint_pos("hinge")},
+        ...                        state={"tip_height": readings.body_pos("pole")}, frame_skip=5, seed=0)
         >>> rollout = env.rollout(3)
-        >>> rollout["next", "observation"].shape, rollout["next", "qpos"].dtype
-        (torch.Size([2, 3, 11]), torch.float64)
-        >>> nominal, heavy = (BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0) for _ in range(2))
-        >>> heavy.set_domain({"body_mass_scale": torch.tensor([1.0, 1.5], dtype=torch.float64)})  # env 1: 1.5 x
-        >>> still = lambda td: td.set("action", torch.zeros(2, 3))
-        >>> same = nominal.rollout(20, still)["next", "qpos"] == heavy.rollout(20, still)["next", "qpos"]
-        >>> bool(same[0].all()), bool(same[1].all())
-        (True, False)
-        >>> for e in (env, nominal, heavy): e.close()
+        >>> rollout["next", "angle"].shape, rollout["next", "tip_height"].dtype
+        (torch.Size([4, 3, 1]), torch.float64)
+        >>> hopper = BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0)
+        >>> hopper.rollout(3)["next", "observation"].shape
+        torch.Size([2, 3, 11])
+        >>> for e in (env, hopper): e.close()
     """
 
     batch_locked = True
@@ -166,9 +241,16 @@ class BatchedMujocoEnv(EnvBase):
 
     def __init__(
         self,
-        env_id: str,
+        model: Any,
         num_envs: int,
         *,
+        observation: Any = None,
+        state: Any = None,
+        actions: Actions | None = None,
+        resets: Resets | None = None,
+        frame_skip: int | None = None,
+        control_timestep: float | None = None,
+        stage: str = "velocity",
         seed: int | None = None,
         device: torch.device | str | None = None,
         num_threads: int | None = None,
@@ -178,69 +260,107 @@ class BatchedMujocoEnv(EnvBase):
     ) -> None:
         # _checked: the keywords already validated by gymnasium_config and the facts of a Gymnasium env made with
         # them (gymnasium_env passes the ones it read, so that one Gymnasium env is made and the keywords checked once)
-        record = locomotion_record(env_id)
-        config = gymnasium_config(env_id, gym_kwargs) if _checked is None else _checked[0]
         num_envs = check_positive_int(num_envs, "num_envs")
         num_threads = min(
             _default_threads() if num_threads is None else check_positive_int(num_threads, "num_threads"), num_envs
         )
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise TypeError(f"seed must be an int or None, got {seed!r}")
-        if config.get("render_mode") is not None:
-            raise ValueError(f"BatchedMujocoEnv does not render; got render_mode={config['render_mode']!r}")
+        env_id = model if isinstance(model, str) and model in LOCOMOTION_ENVS else None
+        if env_id is not None:
+            if frame_skip is not None:  # Gymnasium's keyword of the same name
+                gym_kwargs["frame_skip"] = frame_skip
+            given = {"observation": observation, "state": state, "actions": actions, "resets": resets}
+            given.update(control_timestep=control_timestep, stage=None if stage == "velocity" else stage)
+            passed = sorted(name for name, value in given.items() if value is not None)
+            if passed:
+                raise TypeError(
+                    f"{env_id} is a Gymnasium preset declared by torchtasks: it takes Gymnasium's keyword arguments "
+                    f"(and task_state_keys), not {passed}; for a declaration of your own pass a model"
+                )
+            config = gymnasium_config(env_id, gym_kwargs) if _checked is None else _checked[0]
+            if config.get("render_mode") is not None:
+                raise ValueError(f"BatchedMujocoEnv does not render; got render_mode={config['render_mode']!r}")
+            record = locomotion_record(env_id)
+            facts = ModelFacts.make(env_id, gym_kwargs) if _checked is None else _checked[1]
+            keys = _check_state_keys(record.state_keys if task_state_keys is None else task_state_keys, record)
+            declaration = gymnasium_declaration(record, config, facts, keys)
+        else:
+            if gym_kwargs or task_state_keys is not None or _checked is not None:
+                unexpected = sorted(gym_kwargs) + (["task_state_keys"] if task_state_keys is not None else [])
+                raise TypeError(
+                    f"BatchedMujocoEnv got unexpected keyword argument(s) {unexpected}: they are the keywords of a "
+                    f"Gymnasium id (one of {list(LOCOMOTION_ENVS)}); a model of your own takes observation=, "
+                    "state=, actions=, resets=, frame_skip= or control_timestep=, stage="
+                )
+            if isinstance(model, str) and _looks_like_id(model):
+                raise ValueError(
+                    f"model {model!r} is neither a Gymnasium preset (one of {list(LOCOMOTION_ENVS)}"
+                    f"{did_you_mean(model, list(LOCOMOTION_ENVS))}) nor a model file; for your own robot pass an "
+                    "MjModel, an MjSpec, an MJCF file or string (docs: 'Your own robot')"
+                )
+            declaration = declare(
+                model,
+                observation=observation,
+                state=state,
+                actions=actions,
+                resets=resets,
+                frame_skip=frame_skip,
+                control_timestep=control_timestep,
+                stage=stage,  # type: ignore[arg-type]
+            )
         super().__init__(device=device, batch_size=torch.Size([num_envs]))
+        #: the Gymnasium id of a preset, else None
         self.env_id = env_id
         self.num_envs = num_envs
         self.num_threads = num_threads
-        self.gym_kwargs = dict(gym_kwargs)
+        self.gym_kwargs = dict(gym_kwargs) if env_id is not None else {}
+        #: the declaration the env runs (model, readings, actions, resets, substeps)
+        self.declaration = declaration
         #: the task-state entries written at every reset and step, in order
-        self.task_state_keys = _check_state_keys(
-            record.state_keys if task_state_keys is None else task_state_keys, record
-        )
+        self.task_state_keys = tuple(declaration.state)
         #: whether some env of the last step was broken (a host fact; ZeroBrokenStepReward skips its work without)
         self.last_step_broken = False
-        self._record = record
-        self._config = config
-
-        facts = ModelFacts.make(env_id, gym_kwargs) if _checked is None else _checked[1]
-        self.model: mujoco.MjModel = facts.model
-        self.frame_skip = facts.frame_skip
-        self.dt = facts.dt
-        self.init_qpos = facts.init_qpos.copy()
-        self.init_qvel = facts.init_qvel.copy()
-        self.state_layout = record.state_layout(facts, self.task_state_keys)
-        self.reset_noise_scale = float(config["reset_noise_scale"])
+        self.model: mujoco.MjModel = declaration.model
+        self.frame_skip = declaration.frame_skip
+        self.dt = declaration.dt
+        keyframe = declaration.resets.keyframe
+        #: the default state of a reset, before its draws (``qpos0`` and zeros, or the keyframe's)
+        self.init_qpos = np.array(self.model.qpos0 if keyframe < 0 else self.model.key_qpos[keyframe])
+        self.init_qvel = np.zeros(self.model.nv) if keyframe < 0 else np.array(self.model.key_qvel[keyframe])
         self._closed = False
         self._setup_batch()
-        if self._observation_size != facts.observation_size:  # a Gymnasium version that observes differently
+        #: ``{key: size}`` of the task-state entries, in order
+        self.state_layout = {key: self._sizes[key] for key in declaration.state}
+        if env_id is not None and self._sizes["observation"] != facts.observation_size:
             raise RuntimeError(
-                f"{env_id}: the batched observation has {self._observation_size} entries but Gymnasium's has "
+                f"{env_id}: the batched observation has {self._sizes['observation']} entries but Gymnasium's has "
                 f"{facts.observation_size}; this Gymnasium version is not supported by BatchedMujocoEnv"
             )
-        self._make_specs(facts)
+        self._make_specs()
         self.np_random: list[np.random.Generator] = []
         self._set_seed(seed)
 
     # ------------------------------------------------------------------ set-up
     def _setup_batch(self) -> None:
-        """Make the batch, bind the arrays the env reads and plan the observation as copies from them.
+        """Make the batch, bind the arrays the readings read, and size every entry.
 
-        ``qpos``, ``qvel``, ``time`` and ``ctrl`` are live views of the batch's state rows; the derived fields
-        (``xpos``, ``cinert``, ...) are copied after every call into buffers of the env's own (``_readers``), so that
-        a partial reset leaves the others' values and a checkpoint can restore them; ``cfrc_ext`` is computed here.
+        State fields (``qpos``, ``qvel``, ``time``, ``ctrl``, ...) are live views of the batch's state rows; derived
+        fields (``xpos``, ``sensordata``, ...) are copied after every call into buffers of the env's own, so that a
+        partial reset leaves the others' values and a checkpoint can restore them.
         """
-        record, config, model, n = self._record, self._config, self.model, self.num_envs
-        # The contact forces need the contacts of each env's last substep, which only a persistent batch (one MjData
-        # per simulation, copied whole by get_data) keeps. Without them one MjData per thread serves all simulations:
-        # it stays in cache, and a step between Python work is faster (HalfCheetah x64 with a collector's worth of
-        # tensor work between steps: 2.21 against 2.44 ms, medians of 5, 2026-11-27).
-        contacts = "cfrc_ext" in self.task_state_keys or any(
-            part.source == "cfrc_ext" for part in record.observation_parts(config)
-        )
-        self.batch = batch = Batch(model, n, self.num_threads, persistent=contacts)
+        declaration, model, n = self.declaration, self.model, self.num_envs
+        after_step = declaration.contact_forces == "after_step"
+        # Gymnasium's contact forces need the contacts of each env's last substep, which only a persistent batch (one
+        # MjData per simulation, copied whole by get_data) keeps. Without them one MjData per thread serves all
+        # simulations: it stays in cache, and a step between Python work is faster (HalfCheetah x64 with a
+        # collector's worth of tensor work between steps: 2.21 against 2.44 ms, medians of 5, 2026-11-27).
+        parts = [part for parts in declaration.entries().values() for part in parts]
+        needs_contacts = after_step and any(_reads(part, "cfrc_ext") for part in parts)
+        self.batch = batch = Batch(model, n, self.num_threads, persistent=needs_contacts)
         if batch.nstate != mujoco.mj_stateSize(model, _INTEGRATION_STATE):  # what the checkpoints save as rows
             raise RuntimeError(
-                f"BatchedMujocoEnv({self.env_id}): mujoco.batch state rows of {batch.nstate} values are not "
+                f"BatchedMujocoEnv({declaration.name}): mujoco.batch state rows of {batch.nstate} values are not "
                 f"mjSTATE_INTEGRATION ({mujoco.mj_stateSize(model, _INTEGRATION_STATE)}); this MuJoCo is not supported"
             )
         self._qpos, self._qvel, self._clock, self._ctrl = (batch.bind(f) for f in ("qpos", "qvel", "time", "ctrl"))
@@ -249,84 +369,69 @@ class BatchedMujocoEnv(EnvBase):
         for part in (self._clock, self._qpos, self._qvel):
             if not np.shares_memory(part, self._physics):
                 raise RuntimeError(
-                    f"BatchedMujocoEnv({self.env_id}): mujoco.batch state rows do not start with [time, qpos, qvel]; "
-                    "this MuJoCo is not supported"
+                    f"BatchedMujocoEnv({declaration.name}): mujoco.batch state rows do not start with [time, qpos, "
+                    "qvel]; this MuJoCo is not supported"
                 )
         self._warnings = batch.warning[:, :, _WARNING_NUMBER]
         self._time = np.zeros(n)
         self._half_timestep = 0.5 * float(model.opt.timestep)
+        self._stage = int(mujoco.mjtStage.mjSTAGE_VEL) if declaration.stage == "velocity" else 0
         #: the domain fields and the per-env values set so far (model fields expanded only once written)
-        self._domain = BatchDomain(model, batch, f"BatchedMujocoEnv({self.env_id})")
+        self._domain = BatchDomain(model, batch, f"BatchedMujocoEnv({declaration.name})")
         #: each env's model for mj_rnePostConstraint (the shared one until its per-env fields are written); None: all
         #: envs have the shared model
         self._env_models: list[mujoco.MjModel] | None = None
         #: (buffer, source): buffer[ids] = source[ids] after every call on simulations ids (source: a bound output;
-        #: None for the contact forces, computed into their buffer)
+        #: None for Gymnasium's contact forces, computed into their buffer)
         self._readers: list[tuple[np.ndarray, np.ndarray | None]] = []
-        #: the contact forces, which Batch leaves at 0: mj_rnePostConstraint per env (see _read_outputs)
         self._contact_forces: np.ndarray | None = None
         self._scratch: mujoco.MjData | None = None
-
-        def reader(attribute: str, index: tuple[Any, ...] = ()) -> np.ndarray:
-            source = batch.bind(attribute)[(slice(None), *index)]
+        #: the arrays readings compute from: MjData fields by name (state fields live, outputs the env's buffers)
+        self._arrays: dict[str, np.ndarray] = {"qpos": self._qpos, "qvel": self._qvel, "time": self._clock}
+        state_fields = set(_STATE_FIELDS)
+        for name in sorted({name for part in parts for name in _fields(part)}):
+            if name in self._arrays:
+                continue
+            if name in state_fields:
+                self._arrays[name] = batch.bind(name)
+                continue
+            source = batch.bind(name)
             buffer = np.zeros(source.shape)
-            if attribute == "cfrc_ext":
+            if name == "cfrc_ext" and after_step:
                 self._contact_forces, self._scratch = buffer, mujoco.MjData(model)
-            self._readers.append((buffer, None if attribute == "cfrc_ext" else source))
-            return buffer
-
-        # one array per MjData field that the task state or the observation reads
-        arrays = {"qpos": self._qpos, "qvel": self._qvel}
-
-        def array(attribute: str) -> np.ndarray:
-            if attribute not in arrays:
-                arrays[attribute] = reader(attribute)
-            return arrays[attribute]
-
-        def flat(values: np.ndarray, base: np.ndarray) -> np.ndarray:
-            # a copy would freeze the plan at set-up: every source must stay a view of what the calls write
-            flat_values = values.reshape(n, -1)
-            if not np.shares_memory(flat_values, base):
-                raise RuntimeError(f"BatchedMujocoEnv({self.env_id}): a planned read is not a view of its array")
-            return flat_values
-
-        # the task-state entries, as views of the bound arrays or buffers (the velocities are computed)
-        self._entry_sources: dict[str, np.ndarray | None] = {
-            key: None if key in record.velocity_keys else flat(array(key), array(key)) for key in self.task_state_keys
+                self._readers.append((buffer, None))
+            else:
+                self._readers.append((buffer, source))
+            self._arrays[name] = buffer
+        self._model_fields = sorted({name for part in parts for name in _model_fields(part)})
+        #: the last action of each env (zeros after a reset), for last_action readings and checkpoints
+        self._last_action = np.zeros((n, model.nu))
+        self._affine = not ((declaration.action_scale == 1.0).all() and (declaration.action_offset == 0.0).all())
+        #: the finite differences: their readings and each one's value at the previous reset or step
+        self._differences: list[Resolved] = []
+        for part in parts:
+            if part.difference_of is not None and part not in self._differences:
+                self._differences.append(part)
+        self._previous = [np.zeros((n, int(np.prod(part.shape)))) for part in self._differences]
+        self._sizes = {
+            key: sum(int(np.prod(part.shape)) for part in parts) for key, parts in declaration.entries().items()
         }
-        # the forward position that Gymnasium finite-differences into x_velocity (and y_velocity): qpos[0] (Swimmer:
-        # qpos[0:2]), the main body's xpos[:2] or the centre of mass (from xipos, weighted by the body masses)
-        self._mass_weights: np.ndarray | None = None
-        if record.forward_position == "main_body":
-            self._position: np.ndarray = reader("xpos", (model.body(config["main_body"]).id, slice(0, 2)))
-        elif record.forward_position == "mass_centre":
-            self._position = reader("xipos")
-            self._mass_weights = np.asarray(model.body_mass, dtype=np.float64)
-        else:
-            self._position = arrays["qpos"][:, : len(record.velocity_keys)]
-        self._previous_position = np.zeros_like(self._forward_position())
 
-        #: (columns, source view, clip bounds or None): the observation is their concatenation
-        self._observation_plan: list[tuple[slice, np.ndarray, tuple[float, float] | None]] = []
-        start = 0
-        for part in record.observation_parts(config):
-            source = flat(array(part.source)[:, part.start :], array(part.source))
-            self._observation_plan.append((slice(start, start + source.shape[1]), source, part.clip))
-            start += source.shape[1]
-        self._observation_size = start
-
-    def _make_specs(self, facts: ModelFacts) -> None:
-        n, device = self.num_envs, self.device
+    def _make_specs(self) -> None:
+        n, device, declaration = self.num_envs, self.device, self.declaration
         batch = torch.Size([n])
-        entries = {"observation": Unbounded(shape=(n, self._observation_size), dtype=torch.float64, device=device)}
-        for key, size in self.state_layout.items():
-            entries[key] = Unbounded(shape=(n, size), dtype=torch.float64, device=device)
+        entries: dict[str, Any] = {
+            key: Unbounded(shape=(n, size), dtype=torch.float64, device=device) for key, size in self._sizes.items()
+        }
         entries[BROKEN_KEY] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
         self.observation_spec = Composite(entries, shape=batch, device=device)
-        # Gymnasium's action space: the actuators' ctrlrange as float32
-        low = torch.as_tensor(facts.action_low.astype(np.float32)).expand(n, -1)
-        high = torch.as_tensor(facts.action_high.astype(np.float32)).expand(n, -1)
-        self.action_spec = Bounded(low=low, high=high, shape=low.shape, dtype=torch.float32, device=device)
+        nu = self.model.nu
+        if declaration.action_low is None:
+            self.action_spec = Unbounded(shape=(n, nu), dtype=torch.float32, device=device)
+        else:
+            low = torch.as_tensor(declaration.action_low.astype(np.float32)).expand(n, -1)
+            high = torch.as_tensor(declaration.action_high.astype(np.float32)).expand(n, -1)
+            self.action_spec = Bounded(low=low, high=high, shape=low.shape, dtype=torch.float32, device=device)
         self.reward_spec = Unbounded(shape=(n, 1), dtype=torch.float64, device=device)
         self.done_spec = Composite(
             {
@@ -336,14 +441,15 @@ class BatchedMujocoEnv(EnvBase):
             shape=batch,
             device=device,
         )
-        self._action_shape = torch.Size([n, self.model.nu])
+        self._action_shape = torch.Size([n, nu])
 
     # ------------------------------------------------------------------ simulation
     def _read_outputs(self, ids: np.ndarray | None, post_constraint: bool) -> None:
         """Copy the derived fields of simulations ``ids`` (None: all) out of the batch into the env's buffers.
 
-        With ``post_constraint`` the contact forces are ``mj_rnePostConstraint``'s (what Gymnasium computes after
-        a step), else those ``mj_forward`` left (what Gymnasium's reset observes).
+        Gymnasium's contact forces (a preset that observes them) are ``mj_rnePostConstraint``'s with
+        ``post_constraint`` (what Gymnasium computes after a step), else those ``mj_forward`` left (what
+        Gymnasium's reset observes: none).
         """
         for buffer, source in self._readers:
             if source is None:
@@ -355,14 +461,12 @@ class BatchedMujocoEnv(EnvBase):
         forces = self._contact_forces
         if forces is None:
             return
-        # The one Python loop over envs in a step (Ant, Humanoid): Batch has no batched mj_rnePostConstraint and
-        # leaves cfrc_ext at 0, and the contact forces need the contacts and constraint forces of each env's last
-        # substep, which only its whole MjData holds. get_data copies it (persistent batch) and the forces are
-        # computed on the copy: ~10 us per env on an idle machine (Ant/Humanoid x6, 2026-11-27); at x64 on a loaded
-        # 2-core machine 2.1 ms of a 17 ms Ant step (2.2 of 22 ms Humanoid), about 12%.
-        # With per-env physics each env's forces are computed with its own model (self._env_models). Of the fields
-        # offered today cfrc_ext reads none (contacts and constraint forces are MjData's; gravity only enters cacc
-        # and cfrc_int), but the call is given the model the simulation ran on, whatever a field kind may add.
+        # The one Python loop over envs in a step, for Gymnasium's Ant and Humanoid only: their contact forces are
+        # those of an mj_rnePostConstraint called after mj_step on the whole MjData, which Batch has no batched call
+        # for (a model's own force sensors compute them in the last substep's forward pass instead, in the batch,
+        # and differ). get_data copies each env's MjData (persistent batch) and the forces are computed on the copy:
+        # ~10 us per env on an idle machine (Ant/Humanoid x6, 2026-11-27); at x64 on a loaded 2-core machine 2.1 ms
+        # of a 17 ms Ant step (2.2 of 22 ms Humanoid), about 12%.
         model, models, batch, scratch = self.model, self._env_models, self.batch, self._scratch
         for i in range(self.num_envs) if ids is None else ids.tolist():
             batch.get_data(i, scratch)
@@ -375,21 +479,30 @@ class BatchedMujocoEnv(EnvBase):
         self.batch.reset(ids)  # mj_resetData and mj_forward
         self._read_outputs(ids, post_constraint=True)
 
+    def _inputs(self) -> dict[str, np.ndarray]:
+        """The arrays readings compute from: the bound fields, per-env model fields and the last action."""
+        arrays = dict(self._arrays)
+        n = self.num_envs
+        for name in self._model_fields:
+            values = self.batch.expanded(name)
+            if values is None:
+                shared = np.asarray(
+                    getattr(self.model.opt, name[4:]) if name.startswith("opt.") else getattr(self.model, name)
+                )
+                values = np.broadcast_to(shared, (n, *shared.shape))
+            arrays["model." + name] = values
+        arrays["action"] = self._last_action
+        return arrays
+
     # ------------------------------------------------------------------ outputs
-    def _outputs(self, velocity: np.ndarray | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
-        """Fresh tensors on ``self.device``: the observation, the task-state entries, the flags (and a zero reward).
+    def _outputs(self, differences: list[np.ndarray] | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
+        """Fresh tensors on ``self.device``: every entry, the flags (and a zero reward).
 
-        ``velocity`` (``[num_envs, len(velocity_keys)]``, or None after a reset: zeros) holds the velocities.
-
-        ``broken`` (the envs of a broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
+        ``differences`` holds each finite difference's value (None after a reset: zeros); ``broken`` (the envs of a
+        broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
         """
         n = self.num_envs
-        observation = np.empty((n, self._observation_size))
-        for columns, source, bounds in self._observation_plan:
-            if bounds is None:
-                observation[:, columns] = source
-            else:
-                np.clip(source, bounds[0], bounds[1], out=observation[:, columns])
+        arrays = self._inputs()
         # the device is read at every call: env.to(device) moves the outputs of the next step
         device = self.device
         if device is None or device.type == "cpu":
@@ -399,15 +512,17 @@ class BatchedMujocoEnv(EnvBase):
             def to_torch(array: np.ndarray) -> torch.Tensor:
                 return torch.from_numpy(array).to(device, non_blocking=True)
 
-        out: dict[str, torch.Tensor] = {"observation": to_torch(observation)}
-        velocity_keys = self._record.velocity_keys
-        for key in self.state_layout:
-            if key in velocity_keys:
-                column = velocity_keys.index(key)
-                value = np.zeros((n, 1)) if velocity is None else velocity[:, column : column + 1]
-            else:
-                value = self._entry_sources[key].copy()
-            out[key] = to_torch(value)
+        out: dict[str, torch.Tensor] = {}
+        for key, parts in self.declaration.entries().items():
+            values = []
+            for part in parts:
+                if part.difference_of is None:
+                    values.append(_flat(part.compute(arrays), n))
+                elif differences is None:
+                    values.append(np.zeros((n, self._previous[self._differences.index(part)].shape[1])))
+                else:
+                    values.append(differences[self._differences.index(part)])
+            out[key] = to_torch(values[0] if len(values) == 1 else np.concatenate(values, axis=1))
         flags = np.zeros((n, 1), dtype=bool) if broken is None else broken.reshape(n, 1)
         out[BROKEN_KEY] = to_torch(flags)
         out["terminated"] = to_torch(flags.copy())
@@ -417,14 +532,10 @@ class BatchedMujocoEnv(EnvBase):
             out["reward"] = to_torch(np.zeros((n, 1)))
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
 
-    def _forward_position(self) -> np.ndarray:
-        """What Gymnasium finite-differences: ``qpos[:1]`` (Swimmer ``[:2]``), Ant's ``xpos[:2]``, the mass centre."""
-        if self._mass_weights is None:
-            return self._position.copy()
-        weights = self._mass_weights
-        if weights.ndim == 2:  # per-env masses (set_domain)
-            return (np.einsum("nb,nbj->nj", weights, self._position) / weights.sum(axis=1, keepdims=True))[:, :2]
-        return (np.einsum("b,nbj->nj", weights, self._position) / weights.sum())[:, :2]
+    def _differenced(self) -> list[np.ndarray]:
+        """The current value of each finite difference's reading, ``[num_envs, size]``."""
+        arrays = self._inputs()
+        return [_flat(part.difference_of.compute(arrays), self.num_envs) for part in self._differences]
 
     def _check_action(self, action: object) -> np.ndarray:
         if not isinstance(action, torch.Tensor):
@@ -447,14 +558,23 @@ class BatchedMujocoEnv(EnvBase):
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         self._check_open()
-        ctrl = self._check_action(tensordict.get("action", None))
-        skipped = None if np.isfinite(ctrl).all() else ~np.isfinite(ctrl).all(axis=1)
+        action = self._check_action(tensordict.get("action", None))
+        skipped = None if np.isfinite(action).all() else ~np.isfinite(action).all(axis=1)
         stepped = None if skipped is None else np.flatnonzero(~skipped)
         if stepped is None:
-            np.copyto(self._ctrl, ctrl)
+            np.copyto(self._last_action, action)
         else:  # a skipped env keeps its controls, as it keeps its state
+            self._last_action[stepped] = action[stepped]
+        if self._affine:
+            declaration = self.declaration
+            ctrl = declaration.action_offset + declaration.action_scale * self._last_action
+        else:
+            ctrl = self._last_action
+        if stepped is None:
+            np.copyto(self._ctrl, ctrl)
+        else:
             self._ctrl[stepped] = ctrl[stepped]
-        self.batch.step(stepped, self.frame_skip)
+        self.batch.step(stepped, self.frame_skip, self._stage)
         self._read_outputs(stepped, post_constraint=True)
         restarted = None
         if not np.isfinite(self._physics).all():  # not caught by MuJoCo's own checks: restart it as MuJoCo would
@@ -470,26 +590,57 @@ class BatchedMujocoEnv(EnvBase):
             broken |= restarted
         if skipped is not None:
             broken |= skipped
-        position = self._forward_position()
-        velocity = (position - self._previous_position) / self.dt
-        np.copyto(self._previous_position, position)
+        differences = []
+        for previous, now in zip(self._previous, self._differenced(), strict=True):
+            differences.append((now - previous) / self.dt)
+            np.copyto(previous, now)
         any_broken = bool(broken.any())
         self.__dict__["last_step_broken"] = any_broken
         if not any_broken:
-            return self._outputs(velocity, None, reward=True)
+            return self._outputs(differences, None, reward=True)
         invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
         diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
         warnings.warn(
-            f"BatchedMujocoEnv({self.env_id}): episodes ended by a broken step (terminated=True, broken=True, "
-            f"reward 0): non-finite action in envs {invalid}, diverged state in envs {diverged}",
+            f"BatchedMujocoEnv({self.declaration.name}): episodes ended by a broken step (terminated=True, "
+            f"broken=True, reward 0): non-finite action in envs {invalid}, diverged state in envs {diverged}",
             RuntimeWarning,
             stacklevel=2,
         )
-        velocity[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
-        return self._outputs(velocity, broken, reward=True)
+        for difference in differences:
+            difference[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
+        return self._outputs(differences, broken, reward=True)
+
+    def _given_states(self, tensordict: TensorDictBase | None, ids: np.ndarray) -> dict[str, np.ndarray]:
+        """The ``"reset_qpos"``/``"reset_qvel"`` rows of the reset envs ``ids`` (checked), by field."""
+        given: dict[str, np.ndarray] = {}
+        if tensordict is None:
+            return given
+        for field, size in (("qpos", self.model.nq), ("qvel", self.model.nv)):
+            value = tensordict.get(f"reset_{field}", None)
+            if value is None:
+                continue
+            if (
+                not isinstance(value, torch.Tensor)
+                or value.dtype != torch.float64
+                or value.shape
+                != (
+                    self.num_envs,
+                    size,
+                )
+            ):
+                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+                raise ValueError(
+                    f"reset_{field} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, "
+                    f"n{field[1]}), got {got}"
+                )
+            rows = value.detach().cpu().numpy()[ids]
+            if not np.isfinite(rows).all():
+                raise ValueError(f"reset_{field} must be finite in the rows of the envs reset")
+            given[field] = rows
+        return given
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
-        """Gymnasium v5's ``reset`` of the masked envs (all without a mask): ``mj_resetData``, noise, ``mj_forward``."""
+        """Reset the masked envs (all without a mask) to a drawn state (:class:`Resets`) or a given one."""
         self._check_open()
         reset = None if tensordict is None else tensordict.get("_reset", None)
         ids = None if reset is None else np.flatnonzero(reset.reshape(self.num_envs).cpu().numpy())
@@ -497,27 +648,49 @@ class BatchedMujocoEnv(EnvBase):
             ids = None
         if ids is None or ids.size:
             rows = slice(None) if ids is None else ids
-            model, scale = self.model, self.reset_noise_scale
-            generators = self.np_random if ids is None else [self.np_random[i] for i in ids.tolist()]
-            # the other Python loop over envs: each reset env draws from its own generator, qpos then qvel noise
-            normal = self._record.velocity_noise == "normal"
-            noise = [
-                (
-                    rng.uniform(low=-scale, high=scale, size=model.nq),
-                    scale * rng.standard_normal(model.nv)
-                    if normal
-                    else rng.uniform(low=-scale, high=scale, size=model.nv),
-                )
-                for rng in generators
-            ]
-            self.batch.reset(ids, stage=mujoco.mjtStage.mjSTAGE_NONE)  # mj_resetData
-            self._qpos[rows] = self.init_qpos + np.array([qpos for qpos, _ in noise])
-            self._qvel[rows] = self.init_qvel + np.array([qvel for _, qvel in noise])
+            all_ids = np.arange(self.num_envs) if ids is None else ids
+            given = self._given_states(tensordict, all_ids)
+            resets = self.declaration.resets
+            self.batch.reset(ids, keyframe=resets.keyframe, stage=mujoco.mjtStage.mjSTAGE_NONE)  # mj_resetData
+            if not given:
+                self._draw(all_ids, rows)
+            for field, values in given.items():
+                (self._qpos if field == "qpos" else self._qvel)[rows] = values
             self.batch.forward(ids)
             self._read_outputs(ids, post_constraint=False)
             self._time[rows] = self._clock[rows]
-            self._previous_position[rows] = self._forward_position()[rows]
+            self._last_action[rows] = 0.0
+            for previous, now in zip(self._previous, self._differenced(), strict=True):
+                previous[rows] = now[rows]
         return self._outputs(None, None, reward=False)
+
+    def _draw(self, ids: np.ndarray, rows: slice | np.ndarray) -> None:
+        """Draw the reset envs' initial states from their generators and write them over the default state."""
+        resets = self.declaration.resets
+        if not resets.noise and resets.free_joint is None:
+            return
+        # the other Python loop over envs: each reset env draws from its own generator, in the declared order (so
+        # an env's draws do not depend on which other envs reset); the draws are then applied as arrays
+        generators = [self.np_random[i] for i in ids.tolist()]
+        draws = [[noise.draw(rng, columns.size) for _, columns, noise in resets.noise] for rng in generators]
+        targets = {"qpos": self._qpos, "qvel": self._qvel}
+        for k, (target, columns, noise) in enumerate(resets.noise):
+            values = np.array([draw[k] for draw in draws])
+            array, cells = targets[target], np.ix_(ids, columns)
+            if noise.mode == "add":
+                array[cells] = array[cells] + values
+            else:
+                array[cells] = array[cells] * (1.0 + values)
+        if resets.free_joint is not None:
+            qpos_adr, dof_adr, ranges = resets.free_joint
+            free = np.array([_free_joint_draw(rng, ranges) for rng in generators])  # [k, 10]
+            position = self._qpos[rows, qpos_adr : qpos_adr + 3] + free[:, 0:3]
+            yaw = free[:, 3]
+            turn = np.stack([np.cos(yaw / 2), np.zeros_like(yaw), np.zeros_like(yaw), np.sin(yaw / 2)], axis=1)
+            quaternion = _quaternion_product(turn, self._qpos[rows, qpos_adr + 3 : qpos_adr + 7])
+            self._qpos[rows, qpos_adr : qpos_adr + 3] = position
+            self._qpos[rows, qpos_adr + 3 : qpos_adr + 7] = quaternion
+            self._qvel[rows, dof_adr : dof_adr + 6] = self._qvel[rows, dof_adr : dof_adr + 6] + free[:, 4:10]
 
     def _set_seed(self, seed: int | None) -> None:
         children = np.random.SeedSequence(None if seed is None else int(seed)).spawn(self.num_envs)
@@ -590,9 +763,9 @@ class BatchedMujocoEnv(EnvBase):
     def _follow_domain(self, kinds: set[FieldKind], ids: np.ndarray | None) -> None:
         """Update what the env keeps of the model beside the batch, for the envs ``ids`` whose ``kinds`` were written.
 
-        Ant and Humanoid: each env's model, for its contact forces (:meth:`_read_outputs`). Humanoid: the body masses
-        that weigh the mass centre, and the position the next step's velocity is differenced from (with the new
-        masses, as Gymnasium's step reads ``body_mass`` before and after the step).
+        Gymnasium's Ant and Humanoid: each env's model, for its contact forces (:meth:`_read_outputs`). A finite
+        difference of a reading of the fields written (Humanoid's mass centre reads the masses): the value the next
+        step differences from, with the new fields (as Gymnasium's step reads ``body_mass`` before and after it).
         """
         if not kinds:
             return
@@ -605,10 +778,13 @@ class BatchedMujocoEnv(EnvBase):
                 models = self._env_models = [self.model] * self.num_envs
             for i in range(self.num_envs) if ids is None else ids.tolist():
                 models[i] = self.batch.get_model(i, None if models[i] is self.model else models[i])
-        if self._mass_weights is not None and any(kind.model_field == "body_mass" for kind in kinds):
-            self._mass_weights = np.array(self.batch.expanded("body_mass"))
+        written = {name for kind in kinds for name in (kind.model_field, *kind.scaled_with)}
+        followed = [k for k, part in enumerate(self._differences) if written & set(_model_fields(part))]
+        if followed:
             rows = slice(None) if ids is None else ids
-            self._previous_position[rows] = self._forward_position()[rows]
+            now = self._differenced()
+            for k in followed:
+                self._previous[k][rows] = now[k][rows]
 
     # ------------------------------------------------------------------ checkpoints
     def get_extra_state(self) -> dict[str, Any]:
@@ -653,11 +829,17 @@ class BatchedMujocoEnv(EnvBase):
         binary = np.empty(mujoco.mj_sizeModel(self.model), dtype=np.uint8)
         mujoco.mj_saveModel(self.model, None, binary)
         return {
-            "env_id": self.env_id,
+            "env_id": self.declaration.name,
             "num_envs": self.num_envs,
             "frame_skip": self.frame_skip,
             "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
         }
+
+    def _previous_values(self) -> np.ndarray:
+        """The finite differences' previous values side by side, ``[num_envs, total size]``."""
+        if not self._previous:
+            return np.zeros((self.num_envs, 0))
+        return np.concatenate(self._previous, axis=1)
 
     def _running_episodes(self) -> dict[str, Any]:
         """Everything the next step or partial reset reads besides its input, as tensors (copies)."""
@@ -669,14 +851,15 @@ class BatchedMujocoEnv(EnvBase):
             "integration_state": torch.from_numpy(self.batch.state.copy()),
             "warnings": torch.from_numpy(self._warnings.astype(np.int64)),
             "time": torch.from_numpy(self._time.copy()),
-            "previous_position": torch.from_numpy(np.array(self._previous_position)),
+            "previous_position": torch.from_numpy(self._previous_values()),
+            "last_action": torch.from_numpy(self._last_action.copy()),
             "gathered": [torch.from_numpy(array.copy()) for array in gathered],
             _DOMAIN_KEY: self._domain.saved(),
         }
 
     def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
         """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
-        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY} != set(_RUNNING_KEYS):
+        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, "last_action"} != set(_RUNNING_KEYS):
             got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
             raise ValueError(
                 f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)} (and {_DOMAIN_KEY!r}), got {got}"
@@ -697,6 +880,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"got {running['gathered']!r}"
             )
         names = ["integration_state", "warnings", "time", "previous_position"]
+        names += ["last_action"] if "last_action" in running else []
         pairs = [(name, running[name], mine[name]) for name in names]
         pairs += [
             (f"gathered[{i}]", a, b) for i, (a, b) in enumerate(zip(running["gathered"], mine["gathered"], strict=True))
@@ -723,7 +907,12 @@ class BatchedMujocoEnv(EnvBase):
         self.batch.state[:] = running["integration_state"].cpu().numpy()
         self._warnings[:] = running["warnings"].cpu().numpy()
         self._time = running["time"].cpu().numpy().copy()
-        self._previous_position = running["previous_position"].cpu().numpy().copy()
+        previous = running["previous_position"].cpu().numpy()
+        start = 0
+        for values in self._previous:
+            values[:] = previous[:, start : start + values.shape[1]]
+            start += values.shape[1]
+        self._last_action[:] = running["last_action"].cpu().numpy() if "last_action" in running else 0.0
         for (array, _), values in zip(self._readers, running["gathered"][1:], strict=True):
             array[:] = values.cpu().numpy()
 
@@ -758,7 +947,7 @@ class BatchedMujocoEnv(EnvBase):
 
     def __repr__(self) -> str:
         return (
-            f"{type(self).__name__}(env_id={self.env_id!r}, num_envs={self.num_envs}, "
+            f"{type(self).__name__}({self.declaration.name}, num_envs={self.num_envs}, "
             f"num_threads={self.num_threads}, frame_skip={self.frame_skip}, device={self.device})"
         )
 

@@ -50,6 +50,8 @@ except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.gymnasium_v5 (the Gymnasium MuJoCo v5 records)", _error) from _error
 
 from torchtasks.envs._mujoco_log import quiet_model_loading, route_mujoco_warnings
+from torchtasks.envs.mujoco_declaration import MujocoDeclaration, Noise, ResolvedResets
+from torchtasks.envs.readings import Reading, body_pos, data_field, finite_difference, mass_centre
 
 __all__ = [
     "LOCOMOTION_ENVS",
@@ -58,6 +60,7 @@ __all__ = [
     "ObservationPart",
     "SafetyVelocityRecord",
     "gymnasium_config",
+    "gymnasium_declaration",
     "locomotion_record",
     "make_v5_env",
 ]
@@ -597,3 +600,72 @@ def gymnasium_config(env_id: str, gym_kwargs: Mapping[str, Any]) -> dict[str, An
         raise TypeError(f"terminate_when_unhealthy must be a bool, got {config['terminate_when_unhealthy']!r}")
     check_positive_int(config["frame_skip"], "frame_skip")
     return config
+
+
+def _forward_position(record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts) -> list[Reading]:
+    """The readings Gymnasium finite-differences into each of the record's velocities, one per coordinate."""
+    coordinates = range(len(record.velocity_keys))
+    if record.forward_position == "main_body":
+        body = facts.model.body(config["main_body"]).name
+        return [body_pos(body, index=(i,)) for i in coordinates]
+    if record.forward_position == "mass_centre":
+        return [mass_centre(index=(i,)) for i in coordinates]
+    return [data_field("qpos", i, i + 1) for i in coordinates]
+
+
+def gymnasium_declaration(
+    record: LocomotionEnvRecord, config: Mapping[str, Any], facts: ModelFacts, keys: tuple[str, ...]
+) -> MujocoDeclaration:
+    """The Gymnasium v5 env of ``record`` and ``config`` as a declaration of the batched MuJoCo env.
+
+    Its observation is Gymnasium's (``qpos`` without the skipped positions, ``qvel`` clipped where Gymnasium clips
+    it, the extras the keywords select), its task state the entries ``keys`` (velocities finite-differenced from
+    the record's forward position, ``qpos``, ``qvel``, ``cfrc_ext``), its resets Gymnasium's (``init_qpos`` plus
+    uniform noise on every ``qpos`` coordinate, then ``qvel`` noise), the readings taken as ``mj_step`` leaves
+    ``MjData`` and the contact forces an ``mj_rnePostConstraint`` after the step.
+
+    Example:
+        >>> from torchtasks.envs.gymnasium_v5 import ModelFacts, gymnasium_config, gymnasium_declaration
+        >>> from torchtasks.envs.gymnasium_v5 import locomotion_record
+        >>> record = locomotion_record("Hopper-v5")
+        >>> config = gymnasium_config("Hopper-v5", {})
+        >>> declaration = gymnasium_declaration(record, config, ModelFacts.make("Hopper-v5", {}), record.state_keys)
+        >>> declaration.frame_skip, list(declaration.state), declaration.stage
+        (4, ['x_velocity', 'qpos', 'qvel'], 'step')
+    """
+    model = facts.model
+    if not (np.array_equal(facts.init_qpos, model.qpos0) and not facts.init_qvel.any()):
+        raise RuntimeError(f"{record.env_id}: Gymnasium's initial state is not qpos0 and zero velocities")
+    observation = tuple(
+        data_field(part.source, part.start, clip=part.clip) for part in record.observation_parts(config)
+    )
+    positions = _forward_position(record, config, facts)
+    state: dict[str, tuple[Reading, ...]] = {}
+    for key in keys:
+        if key in record.velocity_keys:
+            state[key] = (finite_difference(positions[record.velocity_keys.index(key)]),)
+        else:
+            state[key] = (data_field(key),)
+    scale = float(config["reset_noise_scale"])
+    resets = ResolvedResets(
+        keyframe=-1,
+        noise=(
+            ("qpos", np.arange(model.nq), Noise("uniform", scale)),
+            ("qvel", np.arange(model.nv), Noise(record.velocity_noise, scale)),
+        ),
+        free_joint=None,
+    )
+    return MujocoDeclaration(
+        name=record.env_id,
+        model=model,
+        frame_skip=facts.frame_skip,
+        observation_readings={"observation": observation},
+        state_readings=state,
+        action_scale=np.ones(model.nu),
+        action_offset=np.zeros(model.nu),
+        action_low=facts.action_low,
+        action_high=facts.action_high,
+        resets=resets,
+        stage="step",
+        contact_forces="after_step",
+    )
