@@ -82,11 +82,33 @@ BENCHMARK_MISSING = (
     "does not exist. Run the command above to produce it.\n```"
 )
 
+#: the line of api.md that the table of reading kinds replaces (generated from ``READING_KINDS``)
+READING_KINDS_MARKER = "<!-- the table of reading kinds, generated from READING_KINDS -->"
+
 logger = logging.getLogger(__name__)
 
 
+def reading_kinds_table() -> str:
+    """A Markdown table of every reading kind: its constructor, its class and the first paragraph of the class's
+    docstring (its value, shape and frame). Generated from ``torchtasks.envs.readings.READING_KINDS``, one table
+    read by the env, the tests and these docs."""
+    import inspect
+
+    from torchtasks.envs.readings import READING_KINDS
+
+    rows = ["| reading | class | value, shape and frame |", "| --- | --- | --- |"]
+    for kind, cls in READING_KINDS.items():
+        summary = " ".join(inspect.getdoc(cls).split("\n\n", 1)[0].split()).replace("|", "\\|")
+        rows.append(
+            f"| {{py:func}}`~torchtasks.envs.readings.{kind}` | {{py:class}}`~torchtasks.envs.readings.{cls.__name__}` "
+            f"| {summary} |"
+        )
+    return "\n".join(rows)
+
+
 def _adapt_sources(app: Sphinx, docname: str, source: list[str]) -> None:
-    """Leave out toctree entries of missing optional pages and a missing benchmark table."""
+    """Leave out toctree entries of missing optional pages and a missing benchmark table; fill in the table of
+    reading kinds of the API reference."""
     if docname == root_doc:
         for page in OPTIONAL_PAGES:
             # a dependency on the page (even a missing one) re-reads the index when the page appears
@@ -94,6 +116,10 @@ def _adapt_sources(app: Sphinx, docname: str, source: list[str]) -> None:
             if not (DOCS / f"{page}.md").exists():
                 logger.info("docs/%s.md does not exist yet: left out of the table of contents", page)
                 source[0] = "\n".join(line for line in source[0].split("\n") if line.strip() != page)
+    elif docname == "api":
+        if READING_KINDS_MARKER not in source[0]:
+            raise RuntimeError(f"docs/api.md must hold the line {READING_KINDS_MARKER!r}: the table of reading kinds")
+        source[0] = source[0].replace(READING_KINDS_MARKER, reading_kinds_table())
     elif docname == "benchmarks":
         # a dependency on the table (even a missing one) rebuilds this page when the table changes
         app.env.note_dependency(str(BENCHMARK_TABLE))

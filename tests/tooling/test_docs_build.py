@@ -7,6 +7,7 @@ autodoc, so a docstring that breaks the reStructuredText of the API reference fa
 
 from __future__ import annotations
 
+import importlib.util
 import re
 import subprocess
 import sys
@@ -28,6 +29,7 @@ PAGES = (
     "parity",
     "benchmarks",
     "api",
+    "own_robot",
 )
 
 #: objects the API reference must document (a sample from every module it covers)
@@ -44,6 +46,11 @@ API_OBJECTS = (
     "torchtasks.envs.PendulumEnv",
     "torchtasks.envs.swing_up_task",
     "torchtasks.envs.locomotion.gymnasium_env",
+    "torchtasks.envs.readings.body_lin_vel",
+    "torchtasks.envs.readings.BodyLinVel",
+    "torchtasks.envs.mujoco_declaration.Resets",
+    "torchtasks.envs.mujoco_declaration.declare",
+    "torchtasks.envs.models.model_path",
     "torchtasks.parity.check_parity",
     "torchtasks.cli.main",
 )
@@ -80,3 +87,12 @@ def test_docs_build_without_warnings(tmp_path: Path) -> None:
     documented = set(re.findall(r'<dt class="sig sig-object py" id="([^"]+)"', api))
     missing = [name for name in API_OBJECTS if name not in documented]
     assert not missing, f"the API reference does not document {missing}"
+    # the table of reading kinds (docs/conf.py, from READING_KINDS): a row per kind with its shape
+    table = api.split("value, shape and frame", 1)[1].split("</table>", 1)[0]
+    rows = re.findall(r"<tr[^>]*>(.*?)</tr>", table, flags=re.DOTALL)
+    kinds = [re.sub(r"<[^>]+>", "", row).split()[0] for row in rows]
+    if importlib.util.find_spec("mujoco") is not None:
+        from torchtasks.envs.readings import READING_KINDS
+
+        assert kinds == [f"{kind}()" for kind in READING_KINDS], kinds
+        assert all("shape" in row for row in rows), "a reading kind's row does not state its shape"

@@ -217,7 +217,8 @@ class BatchedMujocoEnv(EnvBase):
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
         device: device of the output tensors (the simulation runs on the CPU).
         num_threads: threads that step the envs; default: the CPUs this process may use, at most ``num_envs``.
-        task_state_keys, **gym_kwargs: a Gymnasium id's task-state entries and keyword arguments.
+        task_state_keys: a Gymnasium id's task-state entries.
+        **gym_kwargs: a Gymnasium id's keyword arguments.
 
     Example:
         >>> from torchtasks.envs import BatchedMujocoEnv, readings

@@ -468,8 +468,9 @@ def declare(
     Example:
         >>> from torchtasks.envs import readings
         >>> from torchtasks.envs.mujoco_declaration import declare
-        >>> xml = ('<mujoco><worldbody><body name="pole"><joint name="hinge"/><geom type="capsule" size="0.1" fromto="0 0 0 0 0 1"/>'
-        ...        '</body></worldbody><actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>')
+        >>> xml = ('<mujoco><worldbody><body name="pole"><joint name="hinge"/>'
+        ...        '<geom type="capsule" size="0.1" fromto="0 0 0 0 0 1"/></body></worldbody>'
+        ...        '<actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>')
         >>> declaration = declare(xml, observation=readings.joint_pos(), frame_skip=2)
         >>> declaration.frame_skip, list(declaration.observation), declaration.action_low
         (2, ['observation'], array([-1.]))
