@@ -210,3 +210,34 @@ def test_the_mo_example_refuses_a_wrong_count_before_any_work(
     err = capsys.readouterr().err
     assert "Traceback" not in err and err.splitlines()[-1].endswith("so a weight vector needs 3 weights; got 1,0.1")
     assert not output.exists()
+
+
+# ------------------------------------------------------------------ own_robot_ppo.py: a config refused before any work
+def test_the_own_robot_example_refuses_a_bad_flag_before_any_work(
+    monkeypatch: pytest.MonkeyPatch, capsys, tmp_path: Path
+) -> None:
+    """``--num-envs 0`` (and a non-positive learning rate): one error line naming the flag, exit status 2, no
+    traceback, no env built, no output folder made."""
+    pytest.importorskip("mujoco")
+    import torchtasks.envs as envs
+
+    def no_env(*args: object, **kwargs: object) -> None:
+        raise AssertionError("an env was built before the flags were checked")
+
+    monkeypatch.setattr(envs, "BatchedMujocoEnv", no_env)
+    script = "own_robot_ppo.py"
+    for flags, message in (
+        (["--num-envs", "0"], "--num-envs must be at least 1, got 0"),
+        (["--learning-rate", "-1"], "--learning-rate must be a positive number, got -1.0"),
+    ):
+        output = tmp_path / "out"
+        monkeypatch.syspath_prepend(str(EXAMPLES))
+        monkeypatch.setattr(sys, "argv", [str(EXAMPLES / script), *flags, "--output", str(output)])
+        torchrl_logger = logging.getLogger("torchrl")
+        monkeypatch.setattr(torchrl_logger, "level", torchrl_logger.level)  # the script quiets TorchRL's logger
+        with pytest.raises(SystemExit) as exit_info:
+            runpy.run_path(str(EXAMPLES / script), run_name="__main__")
+        assert exit_info.value.code == 2
+        err = capsys.readouterr().err
+        assert "Traceback" not in err and err.splitlines()[-1].endswith(f"error: {message}"), err
+        assert not output.exists()

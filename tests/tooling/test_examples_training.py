@@ -4,7 +4,7 @@
 policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
 ``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py``,
 ``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
-and frictions, evaluated on a grid of models) and ``examples/train_multi_objective_ppo.py`` (PPO with
+and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped) and ``examples/train_multi_objective_ppo.py`` (PPO with
 one critic per reward group on ``mo-halfcheetah-v5``, a front over weight vectors) are run as scripts,
 as a user would, from a fresh empty directory with their default outputs (``runs/<example name>/``;
 :func:`run_quick` also checks that nothing else appears there). The quick runs take a few seconds
@@ -139,6 +139,32 @@ def test_locomotion_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "locomotion_ppo_curve.png").stat().st_size > 0
         assert "locomotion_ppo_curve.png (1 seed)" in result.stdout
+
+
+def test_own_robot_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
+    """PPO on the shipped quadruped (BatchedMujocoEnv of an MJCF file, a task on named readings): every code path."""
+    pytest.importorskip("mujoco")
+    result = run_example("own_robot_ppo.py", tmp_path, "--seed", "3")
+    output = tmp_path / "runs" / "own_robot_ppo" / "quick"  # the default --output of a --quick run
+    record = json.loads((output / "own_robot_ppo_seed3.json").read_text())
+    assert record["seed"] == 3 and record["model"] == "quadruped" and record["method"] == "PPO"
+    assert [point["frames"] for point in record["curve"]] == [200, 400] == [200, record["total_frames"]]
+    for point in record["curve"]:  # 4 envs x 50 steps: episodes end only by a fall (the time limit is 500 steps)
+        assert point["seconds"] > 0 and point["loss_critic"] >= 0
+        if point["episodes"]:
+            assert point["failure_rate"] == 1.0
+            # the reward is the product of the factors upright in [0, 1] and move in [1/6, 1]: below each of them
+            assert 0 <= point["train_return"] <= min(point["train_return/upright"], point["train_return/move"])
+    (evaluation,) = record["eval_curve"]  # the deterministic evaluation at the end: 2 envs, up to 500 steps each
+    assert evaluation["frames"] == 400 and 1 <= evaluation["episode_length_mean"] <= 500
+    assert 0 <= evaluation["return_mean"] <= min(evaluation["return_mean/upright"], evaluation["return_mean/move"])
+    assert math.isfinite(evaluation["forward_velocity_mean"])
+    assert record["final_eval_return"] == evaluation["return_mean"] == record["first_eval_return"]
+    assert record["frames_per_second"] > 0 and record["machine_end"]["load_1min"] >= 0
+    assert "seed 3: 400 frames in" in result.stdout
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "own_robot_ppo_curve.png").stat().st_size > 0
+        assert "own_robot_ppo_curve.png (1 seed)" in result.stdout
 
 
 def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None:
