@@ -28,9 +28,9 @@ Set-up (:class:`OwnRobotPPOConfig`):
   normalised with the statistics of that moment) for 500 steps in ``eval_envs`` envs from fixed initial states;
   ``episode_statistics`` of it, and the mean forward velocity over all its frames.
 
-Why the quadruped and not the shipped arm: at 64 envs the quadruped runs at about 7,000 frames/s with random actions in the collector
-on 2 cores, and a random policy falls within about a second; within a few minutes of PPO it learns to stay up and
-move forward, which the returns and the episode lengths show plainly.
+Why the quadruped and not the shipped arm: at 64 envs the quadruped runs at about 7,000 frames/s with random
+actions in the collector on 2 cores, and a random policy falls within about a second; within a few minutes of PPO
+it learns to stay up and move forward, which the returns and the episode lengths show plainly.
 
 Outputs in ``--output`` (default ``runs/own_robot_ppo``): ``own_robot_ppo_seed<N>.json`` (config, machine load at
 start and end, a ``curve`` with one point per batch: frames, seconds, the mean return and length of the training

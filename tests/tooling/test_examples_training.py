@@ -4,7 +4,8 @@
 policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
 ``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py``,
 ``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
-and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped) and ``examples/train_multi_objective_ppo.py`` (PPO with
+and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped)
+and ``examples/train_multi_objective_ppo.py`` (PPO with
 one critic per reward group on ``mo-halfcheetah-v5``, a front over weight vectors) are run as scripts,
 as a user would, from a fresh empty directory with their default outputs (``runs/<example name>/``;
 :func:`run_quick` also checks that nothing else appears there). The quick runs take a few seconds
