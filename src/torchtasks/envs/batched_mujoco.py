@@ -591,8 +591,9 @@ class BatchedMujocoEnv(EnvBase):
         if skipped is not None:
             broken |= skipped
         differences = []
-        for previous, now in zip(self._previous, self._differenced(), strict=True):
-            differences.append((now - previous) / self.dt)
+        for part, previous, now in zip(self._differences, self._previous, self._differenced(), strict=True):
+            # a finite difference divides by its own dt where it gives one, else by the env's control timestep
+            differences.append((now - previous) / (self.dt if part.dt is None else part.dt))
             np.copyto(previous, now)
         any_broken = bool(broken.any())
         self.__dict__["last_step_broken"] = any_broken
