@@ -390,7 +390,8 @@ def _resolve_resets(model: mujoco.MjModel, resets: Resets) -> ResolvedResets:
         noise.append(("qvel", np.arange(model.nv), resets.qvel_noise))
     for name, each in resets.joint_noise.items():
         joint = object_id(model, "joint", name, "Resets joint_noise")
-        if model.jnt_type[joint] not in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+        # ints on both sides: ``x in (enum, ...)`` compares enum == numpy int, which pybind11's enums answer False
+        if int(model.jnt_type[joint]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise ValueError(f"Resets joint_noise: joint {name!r} is not a hinge or slide joint (use free_joint)")
         noise.append(("qpos", np.array([model.jnt_qposadr[joint]]), each))
     free = None
