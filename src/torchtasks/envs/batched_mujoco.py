@@ -616,7 +616,7 @@ class BatchedMujocoEnv(EnvBase):
         given: dict[str, np.ndarray] = {}
         if tensordict is None:
             return given
-        for field, size in (("qpos", self.model.nq), ("qvel", self.model.nv)):
+        for field, size, count in (("qpos", self.model.nq, "nq"), ("qvel", self.model.nv, "nv")):
             value = tensordict.get(f"reset_{field}", None)
             if value is None:
                 continue
@@ -632,7 +632,7 @@ class BatchedMujocoEnv(EnvBase):
                 got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
                 raise ValueError(
                     f"reset_{field} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, "
-                    f"n{field[1]}), got {got}"
+                    f"the model's {count}), got {got}"
                 )
             rows = value.detach().cpu().numpy()[ids]
             if not np.isfinite(rows).all():
@@ -830,7 +830,10 @@ class BatchedMujocoEnv(EnvBase):
         binary = np.empty(mujoco.mj_sizeModel(self.model), dtype=np.uint8)
         mujoco.mj_saveModel(self.model, None, binary)
         return {
-            "env_id": self.declaration.name,
+            # a Gymnasium id, or None for a model of the user's: not its file's path, so that a checkpoint loads into
+            # an env of the same model read from another place (another checkout, machine or MjSpec); the compiled
+            # model's hash tells models apart
+            "env_id": self.env_id,
             "num_envs": self.num_envs,
             "frame_skip": self.frame_skip,
             "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
