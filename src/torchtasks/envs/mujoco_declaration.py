@@ -403,7 +403,10 @@ def _resolve_resets(model: mujoco.MjModel, resets: Resets) -> ResolvedResets:
 
 def _control_steps(model: mujoco.MjModel, frame_skip: object, control_timestep: object) -> int:
     if frame_skip is not None and control_timestep is not None:
-        raise ValueError("give frame_skip or control_timestep, not both")
+        raise ValueError(
+            f"give frame_skip (substeps per step) or control_timestep (seconds per step), not both; got "
+            f"frame_skip={frame_skip!r} and control_timestep={control_timestep!r}"
+        )
     if control_timestep is None:
         if frame_skip is None:
             return 1
@@ -469,8 +472,9 @@ def declare(
     Example:
         >>> from torchtasks.envs import readings
         >>> from torchtasks.envs.mujoco_declaration import declare
-        >>> xml = ('<mujoco><worldbody><body name="pole"><joint name="hinge"/><geom type="capsule" size="0.1" fromto="0 0 0 0 0 1"/>'
-        ...        '</body></worldbody><actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>')
+        >>> xml = ('<mujoco><worldbody><body name="pole"><joint name="hinge"/>'
+        ...        '<geom type="capsule" size="0.1" fromto="0 0 0 0 0 1"/></body></worldbody>'
+        ...        '<actuator><motor joint="hinge" ctrlrange="-1 1"/></actuator></mujoco>')
         >>> declaration = declare(xml, observation=readings.joint_pos(), frame_skip=2)
         >>> declaration.frame_skip, list(declaration.observation), declaration.action_low
         (2, ['observation'], array([-1.]))
