@@ -24,7 +24,6 @@ from __future__ import annotations
 import copy
 import pickle
 import re
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,10 +37,10 @@ pytest.importorskip("gymnasium")
 
 import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
-
-from model_files import dm_control_suite_xml, gymnasium_asset  # noqa: E402
 from test_batched_mujoco_domain import reference_model  # noqa: E402
 from test_readings import _cases, _spec, _with_contact_sensor  # noqa: E402
+
+from model_files import dm_control_suite_xml, gymnasium_asset  # noqa: E402
 from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
 from torchtasks.envs import readings as R  # noqa: E402
 from torchtasks.envs.models import model_path  # noqa: E402
@@ -179,7 +178,10 @@ def draw_reset(model: mujoco.MjModel, data: mujoco.MjData, resets: Resets, rng: 
             turned = np.zeros(4)
             mujoco.mju_mulQuat(turned, np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)]), data.qpos[q + 3 : q + 7])
             data.qpos[q + 3 : q + 7] = turned
-        for pairs, columns in ((ranges.linear_velocity, slice(v, v + 3)), (ranges.angular_velocity, slice(v + 3, v + 6))):
+        for pairs, columns in (
+            (ranges.linear_velocity, slice(v, v + 3)),
+            (ranges.angular_velocity, slice(v + 3, v + 6)),
+        ):
             if pairs is not None:
                 low, high = np.array(pairs).T
                 data.qvel[columns] += rng.uniform(low, high)
@@ -378,3 +380,545 @@ def test_trajectories_and_every_reading_equal_per_env_mjdata_bit_for_bit(name: s
             assert_readings(comparison, twin, out, context, everyone)
     assert not out["broken"].any()
     env.close()
+
+
+# ------------------------------------------------------------------------------ resets
+def _mask(*rows: int, n: int = NUM_ENVS) -> torch.Tensor:
+    mask = torch.zeros(n, 1, dtype=torch.bool)
+    mask[list(rows)] = True
+    return mask
+
+
+def _running(env: BatchedMujocoEnv) -> dict[str, Any]:
+    """The env's running episodes (every simulation's mjSTATE_INTEGRATION row, buffers, last actions), copied."""
+    return copy.deepcopy(env.state_dict()["_extra_state"]["running_episodes"])
+
+
+def _assert_rows_equal(before: dict[str, Any], after: dict[str, Any], rows: list[int]) -> None:
+    """The running episodes of envs ``rows`` are the same in both (every per-env tensor, row by row)."""
+    for key in ("integration_state", "warnings", "time", "previous_position", "last_action"):
+        torch.testing.assert_close(after[key][rows], before[key][rows], rtol=0, atol=0, msg=key)
+    for k, (a, b) in enumerate(zip(after["gathered"], before["gathered"], strict=True)):
+        torch.testing.assert_close(a[rows], b[rows], rtol=0, atol=0, msg=f"gathered[{k}]")
+
+
+def test_a_keyframe_start_is_the_keyframe_and_partial_resets_leave_the_others_untouched() -> None:
+    model = mujoco.MjModel.from_xml_path(str(model_path("quadruped")))
+    key = model.key("home")
+    env = BatchedMujocoEnv(
+        model_path("quadruped"),
+        NUM_ENVS,
+        observation={"qpos": R.joint_pos(), "qvel": R.joint_vel(), "ctrl": R.actuator_ctrl()},
+        state={"speed": R.finite_difference(R.body_pos("torso")), "action": R.last_action()},
+        resets=Resets(keyframe="home", qvel_noise=Noise("uniform", 0.1)),
+        frame_skip=4,
+        seed=1,
+    )
+    out = env.reset()
+    for i in range(NUM_ENVS):
+        np.testing.assert_array_equal(out["qpos"][i].numpy(), key.qpos)
+        np.testing.assert_array_equal(out["ctrl"][i].numpy(), key.ctrl)
+    assert (out["qvel"] != 0).all() and (out["qvel"] - torch.from_numpy(key.qvel)).abs().max() <= 0.1
+    for _ in range(3):
+        out = env.step(env.full_action_spec.rand().update(out))["next"]
+    before = _running(env)
+    after_reset = env.reset(TensorDict({"_reset": _mask(0, 2)}, [NUM_ENVS]))
+    after = _running(env)
+    _assert_rows_equal(before, after, [1, 3])
+    for i in (0, 2):
+        np.testing.assert_array_equal(after_reset["qpos"][i].numpy(), key.qpos)
+        np.testing.assert_array_equal(after_reset["ctrl"][i].numpy(), key.ctrl)
+        assert (after_reset["action"][i] == 0).all() and (after_reset["speed"][i] == 0).all()
+        assert after["time"][i] == 0
+    assert (after["time"][[1, 3]] > 0).all()
+    # an empty mask resets nothing
+    env.reset(TensorDict({"_reset": _mask()}, [NUM_ENVS]))
+    _assert_rows_equal(after, _running(env), list(range(NUM_ENVS)))
+    env.close()
+
+
+def test_reset_draws_equal_the_generators_definition_and_have_the_declared_moments() -> None:
+    """Each distribution and mode on hinge joints, qvel noise and the free joint's ranges, env by env; then moments."""
+    n, seed = 600, 11
+    joints = {
+        "FL_hip_joint": Noise("uniform", 0.2),
+        "FR_thigh_joint": Noise("normal", 0.1),
+        "RL_calf_joint": Noise("uniform", 0.3, mode="scale"),
+        "RR_calf_joint": Noise("normal", 0.05, mode="scale"),
+    }
+    ranges = FreeJointRanges(
+        position=((-1.0, 1.0), (-0.5, 0.5), (0.1, 0.2)),
+        yaw=(-3.0, 2.0),
+        linear_velocity=((-0.2, 0.2), (0.0, 0.0), (-0.1, 0.3)),
+        angular_velocity=((-0.3, 0.3), (-0.1, 0.1), (0.5, 0.6)),
+    )
+    resets = Resets(keyframe="home", qvel_noise=Noise("normal", 0.5), joint_noise=joints, free_joint=ranges)
+    env = BatchedMujocoEnv(
+        model_path("quadruped"), n, observation={"qpos": R.joint_pos(), "qvel": R.joint_vel()}, resets=resets, seed=seed
+    )
+    out = env.reset()
+    model = env.model
+    reference, data = generators(seed, n), mujoco.MjData(model)
+    qpos, qvel = out["qpos"].numpy(), out["qvel"].numpy()
+    for i in range(n):
+        draw_reset(model, data, resets, reference[i])
+        np.testing.assert_array_equal(qpos[i], data.qpos, err_msg=f"env {i}")
+        np.testing.assert_array_equal(qvel[i], data.qvel, err_msg=f"env {i}")
+    key = model.key("home")
+    for name, noise in joints.items():
+        adr = model.joint(name).qposadr[0]
+        default = key.qpos[adr]
+        offset = qpos[:, adr] - default if noise.mode == "add" else qpos[:, adr] / default - 1.0
+        std = noise.scale / np.sqrt(3) if noise.distribution == "uniform" else noise.scale
+        assert abs(offset.mean()) < 5 * std / np.sqrt(n), name
+        assert abs(offset.std() / std - 1) < 0.15, name
+        if noise.distribution == "uniform":
+            assert np.abs(offset).max() <= noise.scale * (1 + 1e-12), name
+    position = qpos[:, :3] - key.qpos[:3]
+    for axis, (low, high) in enumerate(ranges.position):
+        assert low <= position[:, axis].min() and position[:, axis].max() <= high
+        assert abs(position[:, axis].mean() - (low + high) / 2) < 5 * (high - low) / np.sqrt(12 * n)
+    # the orientation: the keyframe's rotated about world z by the yaw drawn (key quat is upright: a pure yaw)
+    quaternion = qpos[:, 3:7]
+    assert np.allclose(key.qpos[3:7], [1, 0, 0, 0])
+    np.testing.assert_allclose(quaternion[:, 1:3], 0.0, atol=1e-15)
+    yaw = 2 * np.arctan2(quaternion[:, 3], quaternion[:, 0])
+    assert -3.0 <= yaw.min() and yaw.max() <= 2.0 and abs(yaw.mean() + 0.5) < 0.15
+    velocity = qvel[:, :6] - key.qvel[:6]  # the key's qvel is zero, plus the qvel noise drawn before the ranges
+    assert np.abs(velocity).max() > 0.3  # the normal qvel noise is there too
+    env.close()
+
+
+def test_the_yaw_turns_a_tilted_default_about_the_world_z_axis() -> None:
+    xml = """<mujoco><worldbody><body name="box" pos="0 0 1" quat="0.9 0.3 0.2 0.1"><freejoint name="root"/>
+      <geom type="box" size=".1 .2 .3"/></body></worldbody>
+      <actuator><motor joint="root" gear="0 0 1 0 0 0"/></actuator></mujoco>"""
+    ranges = FreeJointRanges(yaw=(-3.0, 3.0))
+    env = BatchedMujocoEnv(xml, 8, observation=R.body_quat("box"), resets=Resets(free_joint=ranges), seed=3)
+    out = env.reset()["observation"].numpy()
+    default = env.model.qpos0[3:7]
+    for i, rng in enumerate(generators(3, 8)):
+        yaw = rng.uniform(-3.0, 3.0)
+        turned, other = np.zeros(4), np.zeros(4)
+        mujoco.mju_mulQuat(turned, np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]), default)
+        mujoco.mju_mulQuat(other, default, np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]))
+        normalised = turned / np.linalg.norm(turned)
+        np.testing.assert_allclose(out[i], normalised, rtol=0, atol=1e-15)
+        assert not np.allclose(out[i], other / np.linalg.norm(other))  # not about the body's own z axis
+    env.close()
+
+
+# ------------------------------------------------------------------------------ resets to given states
+def _given_env(model: Path | None = None, **kwargs: Any) -> tuple[BatchedMujocoEnv, Twin, Comparison]:
+    case = CASES["shipped quadruped (velocity)"]
+    twin = Twin.of(case)
+    comparison = every_reading(twin)
+    env = BatchedMujocoEnv(
+        case.source() if model is None else model,
+        NUM_ENVS,
+        observation=comparison.readings,
+        state=state_readings(twin.nominal),
+        actions=case.actions,
+        resets=case.resets,
+        stage=case.stage,
+        seed=case.seed,
+        **{"frame_skip": case.frame_skip, **kwargs},
+    )
+    return env, twin, comparison
+
+
+@pytest.fixture(scope="module")
+def given_env() -> tuple[BatchedMujocoEnv, Twin, Comparison]:
+    env, twin, comparison = _given_env()
+    yield env, twin, comparison
+    env.close()
+
+
+def _states(model: mujoco.MjModel, rng: np.random.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    """States near the keyframe (a normalised orientation), as a demonstration would give them."""
+    qpos = np.tile(model.key("home").qpos, (NUM_ENVS, 1)) + rng.uniform(-0.1, 0.1, (NUM_ENVS, model.nq))
+    qpos[:, 3:7] /= np.linalg.norm(qpos[:, 3:7], axis=1, keepdims=True)
+    qvel = rng.normal(0.0, 0.5, (NUM_ENVS, model.nv))
+    return torch.from_numpy(qpos), torch.from_numpy(qvel)
+
+
+def test_a_reset_to_given_states_starts_there_with_every_reading_consistent(given_env) -> None:
+    env, twin, comparison = given_env
+    rng = np.random.default_rng(5)
+    out = env.reset()
+    twin.rngs = generators(twin.case.seed, NUM_ENVS)
+    env.set_seed(twin.case.seed)
+    out = env.reset()
+    twin.reset(list(range(NUM_ENVS)))
+    twin.previous = differenced(twin)
+    low, high = env.action_spec.space.low[0].numpy(), env.action_spec.space.high[0].numpy()
+
+    def step() -> TensorDict:
+        action = torch.from_numpy(rng.uniform(low, high, (NUM_ENVS, env.model.nu)).astype(np.float32))
+        result = env.step(TensorDict({"action": action}, [NUM_ENVS]))["next"]
+        twin.step(action.double().numpy())
+        assert_differences(twin, result, env.dt, "step", [])
+        return result
+
+    for _ in range(3):
+        out = step()
+    before = _running(env)
+    qpos, qvel = _states(env.model, rng)
+    qpos[1] = float("nan")  # rows of envs not reset are not read
+    reset = [0, 2]
+    out = env.reset(TensorDict({"_reset": _mask(*reset), "reset_qpos": qpos, "reset_qvel": qvel}, [NUM_ENVS]))
+    _assert_rows_equal(before, _running(env), [1, 3])
+    for i in reset:
+        model, data = twin.models[i], twin.datas[i]
+        mujoco.mj_resetDataKeyframe(model, data, model.key("home").id)
+        data.qpos[:], data.qvel[:] = qpos[i].numpy(), qvel[i].numpy()
+        mujoco.mj_forward(model, data)
+        twin.actions[i] = 0.0
+        np.testing.assert_array_equal(out["qpos"][i].numpy(), qpos[i].numpy())
+        np.testing.assert_array_equal(out["qvel"][i].numpy(), qvel[i].numpy())
+    assert_readings(comparison, twin, out, "given states", reset)
+    now = differenced(twin)
+    for key in now:
+        assert (out[key][reset] == 0).all(), key
+        twin.previous[key][reset] = now[key][reset]
+    for step_index in range(2):
+        out = step()  # the finite differences from the given states
+        assert_state(env, twin, out, f"after given states {step_index}", list(range(NUM_ENVS)))
+        assert_readings(comparison, twin, out, f"after given states {step_index}", list(range(NUM_ENVS)))
+    # without reset_qvel: the reset's default velocities (the keyframe's), no draws
+    out = env.reset(TensorDict({"_reset": _mask(3), "reset_qpos": qpos}, [NUM_ENVS]))
+    np.testing.assert_array_equal(out["qpos"][3].numpy(), qpos[3].numpy())
+    np.testing.assert_array_equal(out["qvel"][3].numpy(), env.model.key("home").qvel)
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="TorchRL's TransformedEnv._reset passes the base env only the '_reset' entries and the state_spec's: "
+    "reset_qpos/reset_qvel are dropped and the env draws a reset instead (a design decision: declaring them in "
+    "state_spec changes every spec)",
+)
+def test_a_reset_to_given_states_works_in_a_transformed_env(given_env) -> None:
+    from torchrl.envs import StepCounter, TransformedEnv
+
+    env = given_env[0]
+    transformed = TransformedEnv(env, StepCounter())
+    transformed.reset()
+    qpos, qvel = _states(env.model, np.random.default_rng(6))
+    out = transformed.reset(TensorDict({"_reset": _mask(1), "reset_qpos": qpos, "reset_qvel": qvel}, [NUM_ENVS]))
+    np.testing.assert_array_equal(out["qpos"][1].numpy(), qpos[1].numpy())
+    np.testing.assert_array_equal(out["qvel"][1].numpy(), qvel[1].numpy())
+    assert not torch.equal(out["qpos"][0], qpos[0])
+
+
+def test_bad_given_states_are_refused_and_change_nothing(given_env) -> None:
+    env = given_env[0]
+    env.reset()
+    qpos, qvel = _states(env.model, np.random.default_rng(7))
+    nq, nv = env.model.nq, env.model.nv
+    bad_row = qvel.clone()
+    bad_row[2, 4] = float("inf")
+    cases = [
+        (
+            {"reset_qpos": qpos.float()},
+            rf"reset_qpos must be a float64 tensor of shape \[4, {nq}\] \(num_envs, the model's nq\), got "
+            rf"torch.float32 \[4, {nq}\]",
+        ),
+        ({"reset_qpos": qpos[:, :-1]}, rf"reset_qpos must be a float64 tensor of shape \[4, {nq}\] .*\[4, {nq - 1}\]"),
+        ({"reset_qpos": qpos, "reset_qvel": qvel[:, None]}, rf"reset_qvel .*\[4, {nv}\] .*got torch.float64 \[4, 1, "),
+        ({"reset_qpos": qpos, "reset_qvel": bad_row}, r"reset_qvel must be finite in the rows of the envs reset"),
+    ]
+    for entries, match in cases:
+        before = _running(env)
+        with pytest.raises(ValueError, match=match):
+            env.reset(TensorDict({"_reset": _mask(1, 2), **entries}, [NUM_ENVS]))
+        _assert_rows_equal(before, _running(env), list(range(NUM_ENVS)))
+
+
+# ------------------------------------------------------------------------------ run state
+def _actions(env: BatchedMujocoEnv, steps: int, seed: int) -> list[torch.Tensor]:
+    rng = np.random.default_rng(seed)
+    low, high = env.action_spec.space.low[0].numpy(), env.action_spec.space.high[0].numpy()
+    return [torch.from_numpy(rng.uniform(low, high, (NUM_ENVS, env.model.nu)).astype(np.float32)) for _ in range(steps)]
+
+
+def _run(env: BatchedMujocoEnv, actions: list[torch.Tensor], reset_at: int | None = None) -> list[TensorDict]:
+    """Step ``env`` through ``actions`` (a partial reset of envs 1 and 2 before step ``reset_at``): the outputs."""
+    outs = []
+    for k, action in enumerate(actions):
+        if k == reset_at:
+            outs.append(env.reset(TensorDict({"_reset": _mask(1, 2)}, [NUM_ENVS])))
+        outs.append(env.step(TensorDict({"action": action}, [NUM_ENVS]))["next"])
+    return outs
+
+
+def _assert_same_outputs(a: list[TensorDict], b: list[TensorDict]) -> None:
+    assert len(a) == len(b)
+    for k, (x, y) in enumerate(zip(a, b, strict=True)):
+        assert set(x.keys()) == set(y.keys())
+        for key in x.keys():
+            torch.testing.assert_close(x[key], y[key], rtol=0, atol=0, msg=f"output {k} {key}")
+
+
+def test_a_loaded_state_dict_continues_bit_for_bit_and_another_declaration_refuses_it(
+    given_env, tmp_path: Path
+) -> None:
+    env = given_env[0]
+    env.set_seed(3)
+    env.set_domain(
+        {"gravity": torch.tensor([[0.0, 0.0, -9.0]] * NUM_ENVS, dtype=torch.float64)}, torch.tensor(MID_MASK)
+    )
+    env.reset()
+    _run(env, _actions(env, 4, 0))
+    saved = copy.deepcopy(env.state_dict())
+    # the same declaration on the same model read from another place (a copy of the file: another checkout)
+    moved = tmp_path / "moved_quadruped.xml"
+    moved.write_text(model_path("quadruped").read_text())
+    fresh = _given_env(model=moved, num_threads=1)[0]
+    fresh.set_seed(99)
+    fresh.reset()
+    fresh.load_state_dict(saved)
+    actions = _actions(env, 8, 1)  # the partial reset draws from the restored generators
+    _assert_same_outputs(_run(fresh, actions, reset_at=3), _run(env, actions, reset_at=3))
+    fresh.close()
+    others = {
+        "another model": (
+            lambda: BatchedMujocoEnv(model_path("arm"), NUM_ENVS, observation=R.joint_pos()),
+            r"the saved running episodes are of another simulation \(frame_skip, model_sha256 differ\)",
+        ),
+        "another frame_skip": (
+            lambda: _given_env(frame_skip=None, control_timestep=0.01)[0],
+            r"the saved running episodes are of another simulation \(frame_skip differ\)",
+        ),
+        "other readings": (
+            lambda: BatchedMujocoEnv(
+                model_path("quadruped"),
+                NUM_ENVS,
+                observation=R.joint_pos(),
+                resets=Resets(keyframe="home"),
+                frame_skip=4,
+            ),
+            r"'gathered' must be a list of 1 tensors for this env",
+        ),
+    }
+    for label, (make, match) in others.items():
+        other = make()
+        other.reset()
+        _run(other, _actions(other, 2, 2))
+        before = copy.deepcopy(other.state_dict())
+        with pytest.raises(ValueError, match=match):
+            other.load_state_dict(saved)
+        after = other.state_dict()
+        _assert_rows_equal(
+            before["_extra_state"]["running_episodes"], after["_extra_state"]["running_episodes"], list(range(NUM_ENVS))
+        )
+        assert before["_extra_state"]["bit_generators"] == after["_extra_state"]["bit_generators"], label
+        other.close()
+
+
+def test_copies_and_pickles_are_independent_envs_in_the_same_state() -> None:
+    """A user model whose contact forces need the added sensor (walker: no sensor of its own)."""
+    env = BatchedMujocoEnv(
+        dm_control_suite_xml("walker.xml"),
+        NUM_ENVS,
+        observation={"forces": R.contact_force(), "action": R.last_action()},
+        state={"speed": R.finite_difference(R.subtree_com("torso")), "qpos": R.joint_pos()},
+        resets=Resets(qvel_noise=Noise("normal", 0.2)),
+        frame_skip=3,
+        seed=4,
+    )
+    assert "torchtasks_contact_forces" in [env.model.sensor(s).name for s in range(env.model.nsensor)]
+    env.reset()
+    _run(env, _actions(env, 20, 0))
+    copies = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    actions = _actions(env, 6, 1)
+    expected = _run(env, actions, reset_at=2)
+    assert any((out["forces"] != 0).any() for out in expected)
+    saved = copy.deepcopy(env.state_dict())
+    for each in copies:
+        _assert_same_outputs(_run(each, actions, reset_at=2), expected)
+        _run(each, _actions(env, 3, 2), reset_at=1)  # the copy moves on: the original does not
+    after = env.state_dict()
+    _assert_rows_equal(
+        saved["_extra_state"]["running_episodes"], after["_extra_state"]["running_episodes"], list(range(NUM_ENVS))
+    )
+    for each in (env, *copies):
+        each.close()
+
+
+def _parallel_quadruped() -> BatchedMujocoEnv:
+    return BatchedMujocoEnv(
+        model_path("quadruped"),
+        2,
+        observation={"qpos": R.joint_pos(), "forces": R.contact_force("torso")},
+        actions=Actions(scale=0.3, offset="home"),
+        resets=Resets(keyframe="home", joint_noise={"FL_calf_joint": Noise("uniform", 0.1)}),
+        frame_skip=4,
+        seed=0,
+    )
+
+
+@pytest.mark.multiprocess
+def test_a_parallel_env_of_batched_envs_steps(fork_start_method) -> None:
+    from torchrl.envs import ParallelEnv
+
+    parallel = ParallelEnv(2, _parallel_quadruped)
+    try:
+        rollout = parallel.rollout(3)
+        assert rollout["next", "qpos"].shape == (2, 2, 3, 19)
+        assert rollout["next", "qpos"].isfinite().all()
+    finally:
+        parallel.close()
+
+
+# ------------------------------------------------------------------------------ broken steps
+def test_a_nan_action_row_ends_that_env_and_the_others_continue_bit_for_bit() -> None:
+    case = CASES["dm_control walker"]
+    twin = Twin.of(case)
+    env = BatchedMujocoEnv(
+        case.source(),
+        NUM_ENVS,
+        observation={"qpos": R.joint_pos(), "qvel": R.joint_vel()},
+        actions=case.actions,
+        resets=case.resets,
+        frame_skip=case.frame_skip,
+        stage=case.stage,
+        seed=case.seed,
+    )
+    env.reset()
+    twin.reset(list(range(NUM_ENVS)))
+    for k, action in enumerate(_actions(env, 6, 0)):
+        if k == 3:
+            action[2, 1] = float("nan")
+            frozen = twin.datas[2].qpos.copy(), twin.datas[2].qvel.copy()
+            with pytest.warns(RuntimeWarning, match=r"non-finite action in envs \[2\]"):
+                out = env.step(TensorDict({"action": action}, [NUM_ENVS]))["next"]
+            for i in (0, 1, 3):  # the reference steps the others
+                twin.datas[i].ctrl[:] = twin.offset + twin.scale * action[i].double().numpy()
+                for _ in range(case.frame_skip):
+                    mujoco.mj_step(twin.models[i], twin.datas[i])
+                mujoco.mj_step1(twin.models[i], twin.datas[i])
+            assert out["broken"][:, 0].tolist() == [False, False, True, False]
+            assert out["terminated"][:, 0].tolist() == [False, False, True, False]
+            assert out["done"][:, 0].tolist() == [False, False, True, False]
+            np.testing.assert_array_equal(out["qpos"][2].numpy(), frozen[0])  # the broken env did not move
+            assert all(value.isfinite().all() for value in out.values() if value.is_floating_point())
+            env.reset(TensorDict({"_reset": _mask(2)}, [NUM_ENVS]))
+            twin.reset([2])
+            continue
+        out = env.step(TensorDict({"action": action}, [NUM_ENVS]))["next"]
+        twin.step(action.double().numpy())
+        assert not out["broken"].any()
+        assert_state(env, twin, out, f"step {k}", list(range(NUM_ENVS)))
+    env.close()
+
+
+# ------------------------------------------------------------------------------ bad input
+def test_bad_declarations_are_refused_naming_the_argument(tmp_path: Path) -> None:
+    quadruped, obs = model_path("quadruped"), R.joint_pos()
+    broken = tmp_path / "broken.xml"
+    broken.write_text('<mujoco><worldbody><body><geom type="box" size="1"/><joint/></body></worldbody></mujoco>')
+    walker = mujoco.MjModel.from_xml_path(str(dm_control_suite_xml("walker.xml")))
+
+    def env(model: Any = quadruped, **kwargs: Any) -> Callable[[], Any]:
+        kwargs.setdefault("observation", obs)
+        return lambda: BatchedMujocoEnv(model, 2, **kwargs)
+
+    cases = [
+        (
+            env(observation=R.joint_pos("FL_calf_jont")),
+            r"joint_pos joints: the model has no joint 'FL_calf_jont'; "
+            r"did you mean 'FL_calf_joint'",
+        ),
+        (
+            env(observation=R.body_lin_vel("torsoo")),
+            r"body_lin_vel body: the model has no body 'torsoo'; did you mean "
+            r"'torso'\?",
+        ),
+        (
+            env(observation=R.sensor("imu_gyr")),
+            r"sensor name: the model has no sensor 'imu_gyr'; did you mean 'imu_gyro'",
+        ),
+        (
+            env(observation=R.actuator_ctrl("FL_hipp")),
+            r"actuator_ctrl actuators: .*no actuator 'FL_hipp'; did you "
+            r"mean 'FL_hip'",
+        ),
+        (env(observation=R.site_pos("imuu")), r"site_pos site: the model has no site 'imuu'; did you mean 'imu'\?"),
+        (env(resets=Resets(keyframe="hom")), r"Resets keyframe: the model has no keyframe 'hom'; did you mean 'home'"),
+        (env(actions=Actions(offset="hom")), r"actions offset: the model has no keyframe 'hom'; did you mean 'home'"),
+        (
+            env(resets=Resets(joint_noise={"FL_calf_jont": Noise("uniform", 0.1)})),
+            r"Resets joint_noise: the model has no joint 'FL_calf_jont'; did you mean 'FL_calf_joint'",
+        ),
+        (
+            env(resets=Resets(joint_noise={"root": Noise("uniform", 0.1)})),
+            r"Resets joint_noise: joint 'root' is not a hinge or slide joint \(use free_joint\)",
+        ),
+        (
+            env(resets=Resets(free_joint=FreeJointRanges(joint="FL_calf_joint"))),
+            r"Resets free_joint: joint 'FL_calf_joint' is not a free joint",
+        ),
+        (
+            env(dm_control_suite_xml("walker.xml"), resets=Resets(free_joint=FreeJointRanges(yaw=(0, 1)))),
+            r"Resets free_joint: the model has no free joint",
+        ),
+        (
+            env(walker, observation=R.contact_force()),
+            r"a reading needs contact forces.*this MjModel has none\. Give "
+            r"the model as a file, an MJCF string or an MjSpec",
+        ),
+        (env(broken), rf"the model '{re.escape(str(broken))}' does not compile: Error: size 1 must be positive"),
+        (
+            env(tmp_path / "absent.xml"),
+            rf"model must be .* the path of a model file; no file "
+            rf"'{re.escape(str(tmp_path / 'absent.xml'))}'",
+        ),
+        (
+            env(frame_skip=2, control_timestep=0.02),
+            r"give frame_skip \(substeps per step\) or control_timestep "
+            r"\(seconds per step\), not both; got frame_skip=2 and control_timestep=0.02",
+        ),
+        (
+            env(control_timestep=0.012),
+            r"control_timestep must be a positive multiple of the model's timestep 0.005, "
+            r"got 0.012",
+        ),
+        (env(frame_skip=0), r"frame_skip must be a positive int \(substeps per step\), got 0"),
+        (env(actions=Actions(scale=0.0)), r"actions scale must be > 0 for every actuator, got 0.0"),
+        (env(actions=Actions(scale=[1.0] * 11 + [-1.0])), r"actions scale must be > 0 for every actuator, got \[1.0"),
+        (
+            env(actions=Actions(scale=[1.0] * 3)),
+            r"actions scale must be a number or 12 numbers \(one per actuator\), "
+            r"got \[1.0, 1.0, 1.0\]",
+        ),
+        (env(actions=Actions(offset=[0.0] * 13)), r"actions offset must be a number or 12 numbers"),
+        (
+            env(dm_control_suite_xml("quadruped.xml"), actions=Actions(offset="qpos0")),
+            r"actions offset='qpos0' takes each actuator's joint position, but actuator 'lift_front_left' does not "
+            r"drive a hinge or slide joint",
+        ),
+        (env(stage="acceleration"), r"stage must be 'velocity' or 'step', got 'acceleration'"),
+    ]
+    for make, match in cases:
+        with pytest.raises(ValueError, match=match):
+            make()
+    type_cases = [
+        (
+            env(xml_file="x.xml"),
+            r"BatchedMujocoEnv got unexpected keyword argument\(s\) \['xml_file'\]: they are the "
+            r"keywords of a Gymnasium id",
+        ),
+        (env(task_state_keys=["qpos"]), r"unexpected keyword argument\(s\) \['task_state_keys'\]"),
+        (
+            env("Hopper-v5", observation=obs, resets=Resets()),
+            r"Hopper-v5 is a Gymnasium preset declared by torchtasks: "
+            r"it takes Gymnasium's keyword arguments \(and task_state_keys\), not \['observation', 'resets'\]",
+        ),
+        (
+            env("Hopper-v5", observation=None, control_timestep=0.008, stage="step"),
+            r"Hopper-v5 is a Gymnasium preset .*not \['control_timestep', 'stage'\]",
+        ),
+    ]
+    for make, match in type_cases:
+        with pytest.raises(TypeError, match=match):
+            make()
