@@ -687,8 +687,10 @@ class BatchedMujocoEnv(EnvBase):
         resets = self.declaration.resets
         if not resets.noise and resets.free_joint is None:
             return
-        # the other Python loop over envs: each reset env draws from its own generator, in the declared order (so
-        # an env's draws do not depend on which other envs reset); the draws are then applied as arrays
+        # The other Python loop over envs, over the reset ones: each draws from its own generator, in the declared
+        # order, so an env's draws do not depend on which other envs reset (and Gymnasium's per-env draws are
+        # reproduced); the draws are then applied as arrays. Measured 2026-12-02 (load ~2): 2.5-5 us per env, 12 of
+        # 311 us for one quadruped env's reset, 158 of 1,867 us for 64, Hopper 306 of 1,134 us for 64.
         generators = [self.np_random[i] for i in ids.tolist()]
         draws = [[noise.draw(rng, columns.size) for _, columns, noise in resets.noise] for rng in generators]
         targets = {"qpos": self._qpos, "qvel": self._qvel}
