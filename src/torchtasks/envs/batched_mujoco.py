@@ -105,6 +105,7 @@ _REBUILT = (
     "_differences",
     "_previous",
     "_sizes",
+    "_plan",
     "_time",
     "_half_timestep",
     "_stage",
@@ -351,13 +352,18 @@ class BatchedMujocoEnv(EnvBase):
         """
         declaration, model, n = self.declaration, self.model, self.num_envs
         after_step = declaration.contact_forces == "after_step"
-        # Gymnasium's contact forces need the contacts of each env's last substep, which only a persistent batch (one
-        # MjData per simulation, copied whole by get_data) keeps. Without them one MjData per thread serves all
-        # simulations: it stays in cache, and a step between Python work is faster (HalfCheetah x64 with a
-        # collector's worth of tensor work between steps: 2.21 against 2.44 ms, medians of 5, 2026-11-27).
         parts = [part for parts in declaration.entries().values() for part in parts]
+        # A persistent batch keeps one MjData per simulation. Gymnasium's contact forces need it (the contacts of
+        # each env's last substep, copied whole by get_data), and readings of the returned state (stage "velocity")
+        # come for free with it: its next step continues from the stages computed after the last (mujoco.batch's
+        # docs). Shipped quadruped x64, env in a Collector over the Batch.step floor, interleaved, 2 runs of 3
+        # repeats under load ~2: persistent 0.76 and 0.72, one MjData per thread 0.54 and 0.65 (2026-12-02).
+        # Without either, one MjData per thread serves all simulations: it stays in cache, and a step between Python
+        # work is faster (HalfCheetah x64 with a collector's worth of tensor work between steps: 2.21 against 2.44 ms,
+        # medians of 5, 2026-11-27).
         needs_contacts = after_step and any(_reads(part, "cfrc_ext") for part in parts)
-        self.batch = batch = Batch(model, n, self.num_threads, persistent=needs_contacts)
+        persistent = needs_contacts or declaration.stage == "velocity"
+        self.batch = batch = Batch(model, n, self.num_threads, persistent=persistent)
         if batch.nstate != mujoco.mj_stateSize(model, _INTEGRATION_STATE):  # what the checkpoints save as rows
             raise RuntimeError(
                 f"BatchedMujocoEnv({declaration.name}): mujoco.batch state rows of {batch.nstate} values are not "
@@ -413,6 +419,11 @@ class BatchedMujocoEnv(EnvBase):
             if part.difference_of is not None and part not in self._differences:
                 self._differences.append(part)
         self._previous = [np.zeros((n, int(np.prod(part.shape)))) for part in self._differences]
+        #: every entry as its parts: (reading, None) or (finite difference, its index in _differences)
+        self._plan = [
+            (key, [(part, self._differences.index(part) if part.difference_of is not None else None) for part in parts])
+            for key, parts in declaration.entries().items()
+        ]
         self._sizes = {
             key: sum(int(np.prod(part.shape)) for part in parts) for key, parts in declaration.entries().items()
         }
@@ -495,14 +506,20 @@ class BatchedMujocoEnv(EnvBase):
         return arrays
 
     # ------------------------------------------------------------------ outputs
-    def _outputs(self, differences: list[np.ndarray] | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
+    def _outputs(
+        self,
+        differences: list[np.ndarray] | None,
+        broken: np.ndarray | None,
+        reward: bool,
+        arrays: dict[str, np.ndarray] | None = None,
+    ) -> TensorDictBase:
         """Fresh tensors on ``self.device``: every entry, the flags (and a zero reward).
 
         ``differences`` holds each finite difference's value (None after a reset: zeros); ``broken`` (the envs of a
         broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
         """
         n = self.num_envs
-        arrays = self._inputs()
+        arrays = self._inputs() if arrays is None else arrays
         # the device is read at every call: env.to(device) moves the outputs of the next step
         device = self.device
         if device is None or device.type == "cpu":
@@ -513,15 +530,15 @@ class BatchedMujocoEnv(EnvBase):
                 return torch.from_numpy(array).to(device, non_blocking=True)
 
         out: dict[str, torch.Tensor] = {}
-        for key, parts in self.declaration.entries().items():
+        for key, parts in self._plan:
             values = []
-            for part in parts:
-                if part.difference_of is None:
+            for part, difference in parts:
+                if difference is None:
                     values.append(_flat(part.compute(arrays), n))
                 elif differences is None:
-                    values.append(np.zeros((n, self._previous[self._differences.index(part)].shape[1])))
+                    values.append(np.zeros_like(self._previous[difference]))
                 else:
-                    values.append(differences[self._differences.index(part)])
+                    values.append(differences[difference])
             out[key] = to_torch(values[0] if len(values) == 1 else np.concatenate(values, axis=1))
         flags = np.zeros((n, 1), dtype=bool) if broken is None else broken.reshape(n, 1)
         out[BROKEN_KEY] = to_torch(flags)
@@ -532,9 +549,9 @@ class BatchedMujocoEnv(EnvBase):
             out["reward"] = to_torch(np.zeros((n, 1)))
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
 
-    def _differenced(self) -> list[np.ndarray]:
+    def _differenced(self, arrays: dict[str, np.ndarray] | None = None) -> list[np.ndarray]:
         """The current value of each finite difference's reading, ``[num_envs, size]``."""
-        arrays = self._inputs()
+        arrays = self._inputs() if arrays is None else arrays
         return [_flat(part.difference_of.compute(arrays), self.num_envs) for part in self._differences]
 
     def _check_action(self, action: object) -> np.ndarray:
@@ -590,15 +607,16 @@ class BatchedMujocoEnv(EnvBase):
             broken |= restarted
         if skipped is not None:
             broken |= skipped
+        arrays = self._inputs()
         differences = []
-        for part, previous, now in zip(self._differences, self._previous, self._differenced(), strict=True):
+        for part, previous, now in zip(self._differences, self._previous, self._differenced(arrays), strict=True):
             # a finite difference divides by its own dt where it gives one, else by the env's control timestep
             differences.append((now - previous) / (self.dt if part.dt is None else part.dt))
             np.copyto(previous, now)
         any_broken = bool(broken.any())
         self.__dict__["last_step_broken"] = any_broken
         if not any_broken:
-            return self._outputs(differences, None, reward=True)
+            return self._outputs(differences, None, reward=True, arrays=arrays)
         invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
         diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
         warnings.warn(
@@ -609,7 +627,7 @@ class BatchedMujocoEnv(EnvBase):
         )
         for difference in differences:
             difference[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
-        return self._outputs(differences, broken, reward=True)
+        return self._outputs(differences, broken, reward=True, arrays=arrays)
 
     def _given_states(self, tensordict: TensorDictBase | None, ids: np.ndarray) -> dict[str, np.ndarray]:
         """The ``"reset_qpos"``/``"reset_qvel"`` rows of the reset envs ``ids`` (checked), by field."""
@@ -670,8 +688,10 @@ class BatchedMujocoEnv(EnvBase):
         resets = self.declaration.resets
         if not resets.noise and resets.free_joint is None:
             return
-        # the other Python loop over envs: each reset env draws from its own generator, in the declared order (so
-        # an env's draws do not depend on which other envs reset); the draws are then applied as arrays
+        # The other Python loop over envs, over the reset ones: each draws from its own generator, in the declared
+        # order, so an env's draws do not depend on which other envs reset (and Gymnasium's per-env draws are
+        # reproduced); the draws are then applied as arrays. Measured 2026-12-02 (load ~2): 2.5-5 us per env, 12 of
+        # 311 us for one quadruped env's reset, 158 of 1,867 us for 64, Hopper 306 of 1,134 us for 64.
         generators = [self.np_random[i] for i in ids.tolist()]
         draws = [[noise.draw(rng, columns.size) for _, columns, noise in resets.noise] for rng in generators]
         targets = {"qpos": self._qpos, "qvel": self._qvel}
