@@ -591,23 +591,62 @@ def test_a_reset_to_given_states_starts_there_with_every_reading_consistent(give
     np.testing.assert_array_equal(out["qvel"][3].numpy(), env.model.key("home").qvel)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="TorchRL's TransformedEnv._reset passes the base env only the '_reset' entries and the state_spec's: "
-    "reset_qpos/reset_qvel are dropped and the env draws a reset instead (a design decision: declaring them in "
-    "state_spec changes every spec)",
-)
-def test_a_reset_to_given_states_works_in_a_transformed_env(given_env) -> None:
+def test_states_queued_for_the_next_reset_start_there_in_a_transformed_env(given_env) -> None:
+    """set_reset_states: the way to given starts wherever TorchRL resets (a TransformedEnv passes the base env only
+    its reset and state entries, so reset_qpos in env.reset's tensordict would not reach the base env there)."""
     from torchrl.envs import StepCounter, TransformedEnv
 
     env = given_env[0]
     transformed = TransformedEnv(env, StepCounter())
-    transformed.reset()
+    root = transformed.reset()
     qpos, qvel = _states(env.model, np.random.default_rng(6))
-    out = transformed.reset(TensorDict({"_reset": _mask(1), "reset_qpos": qpos, "reset_qvel": qvel}, [NUM_ENVS]))
-    np.testing.assert_array_equal(out["qpos"][1].numpy(), qpos[1].numpy())
+    env.set_reset_states(qpos, qvel, mask=torch.tensor([False, True, True, False]))
+    transformed.step(root.set("action", torch.zeros(NUM_ENVS, env.model.nu)))  # a step is not a reset: it waits
+    out = transformed.reset(TensorDict({"_reset": _mask(0, 1)}, [NUM_ENVS]))
+    np.testing.assert_array_equal(out["qpos"][1].numpy(), qpos[1].numpy())  # queued: starts there
     np.testing.assert_array_equal(out["qvel"][1].numpy(), qvel[1].numpy())
-    assert not torch.equal(out["qpos"][0], qpos[0])
+    assert not torch.equal(out["qpos"][0], qpos[0])  # not queued: drew
+    # env 2's state still waits, through a checkpoint, and is consumed by its reset only
+    twin = _given_env()[0]
+    twin.load_state_dict(env.state_dict())
+    for each in (env, twin):
+        first = each.reset(TensorDict({"_reset": _mask(2)}, [NUM_ENVS]))
+        np.testing.assert_array_equal(first["qpos"][2].numpy(), qpos[2].numpy())
+        again = each.reset(TensorDict({"_reset": _mask(2)}, [NUM_ENVS]))
+        assert not torch.equal(again["qpos"][2], qpos[2])
+    # without qvel: the reset's default velocities (the keyframe's)
+    env.set_reset_states(qpos, mask=torch.tensor([False, False, False, True]))
+    out = env.reset(TensorDict({"_reset": _mask(3)}, [NUM_ENVS]))
+    np.testing.assert_array_equal(out["qvel"][3].numpy(), env.model.key("home").qvel)
+    twin.close()
+
+
+def test_bad_queued_states_are_refused_and_queue_nothing(given_env) -> None:
+    env = given_env[0]
+    qpos, qvel = _states(env.model, np.random.default_rng(8))
+    bad = qpos.clone()
+    bad[1, 0] = float("nan")
+    cases = [
+        ((qpos.float(),), {}, r"set_reset_states: qpos must be a float64 tensor of shape \[4, \d+\] .*float32"),
+        (
+            (qpos, qvel[:, :2]),
+            {},
+            r"set_reset_states: qvel must be a float64 tensor of shape .*got torch.float64 \[4, 2\]",
+        ),
+        ((bad,), {}, r"set_reset_states: qpos must be finite in the rows of the envs in mask"),
+        (
+            (qpos,),
+            {"mask": torch.ones(4)},
+            r"mask must be a bool tensor of shape \[4\] \(num_envs\), got torch.float32",
+        ),
+    ]
+    for args, kwargs, match in cases:
+        with pytest.raises(ValueError, match=match):
+            env.set_reset_states(*args, **kwargs)
+        assert not env._queued.any()
+    env.set_reset_states(bad, mask=torch.tensor([True, False, True, True]))  # rows outside mask are not read
+    env.set_reset_states(qpos, mask=torch.zeros(4, dtype=torch.bool))
+    env.reset()  # consumes what was queued
 
 
 def test_bad_given_states_are_refused_and_change_nothing(given_env) -> None:

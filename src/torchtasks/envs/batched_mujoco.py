@@ -79,6 +79,9 @@ _WARNING_NUMBER = 1
 _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 #: the entries of the running-episode state (``state_dict()["_extra_state"]["running_episodes"]``)
 _RUNNING_KEYS = ("model", "integration_state", "warnings", "time", "previous_position", "gathered")
+#: entries of the running episodes that checkpoints written before the env had them lack: the last actions, the
+#: states queued for the next resets (set_reset_states; NaN rows: none)
+_OPTIONAL_RUNNING_KEYS = ("last_action", "queued_qpos", "queued_qvel")
 #: the entry of the per-env physics (the values of every domain field ever set), absent from checkpoints written
 #: before the env had one (they load as nominal physics)
 _DOMAIN_KEY = "domain"
@@ -106,6 +109,9 @@ _REBUILT = (
     "_previous",
     "_sizes",
     "_plan",
+    "_queued",
+    "_queued_qpos",
+    "_queued_qvel",
     "_time",
     "_half_timestep",
     "_stage",
@@ -199,9 +205,10 @@ class BatchedMujocoEnv(EnvBase):
     state): that env ends, with ``"broken"`` set, a finite state and a ``RuntimeWarning``
     (:class:`ZeroBrokenStepReward` pays 0 for it). Resets draw from one generator per env (:class:`Resets`), for
     the masked envs only; ``"reset_qpos"``/``"reset_qvel"`` (float64 ``[num_envs, nq|nv]``) in the reset
-    tensordict start the masked envs from those states instead. ``state_dict()`` holds the generators and the
-    running episodes (a load continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them
-    in a ``TransformedEnv``); copies and pickles are independent envs in the same state. As a
+    tensordict start the masked envs from those states instead (:meth:`set_reset_states` queues them for the next
+    reset wherever TorchRL resets). ``state_dict()`` holds the generators and the running episodes (a load
+    continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them in a ``TransformedEnv``);
+    copies and pickles are independent envs in the same state. As a
     :class:`~torchtasks.domain.DomainEnv` it gives each env its own physics (:meth:`set_domain`). Details: the docs
     pages "Your own robot" and "The batched MuJoCo env".
 
@@ -410,6 +417,10 @@ class BatchedMujocoEnv(EnvBase):
                 self._readers.append((buffer, source))
             self._arrays[name] = buffer
         self._model_fields = sorted({name for part in parts for name in _model_fields(part)})
+        #: states queued by set_reset_states for each env's next reset (NaN rows: none; qvel NaN: the default's)
+        self._queued = np.zeros(n, dtype=bool)
+        self._queued_qpos = np.full((n, model.nq), np.nan)
+        self._queued_qvel = np.full((n, model.nv), np.nan)
         #: the last action of each env (zeros after a reset), for last_action readings and checkpoints
         self._last_action = np.zeros((n, model.nu))
         self._affine = not ((declaration.action_scale == 1.0).all() and (declaration.action_offset == 0.0).all())
@@ -658,6 +669,68 @@ class BatchedMujocoEnv(EnvBase):
             given[field] = rows
         return given
 
+    def set_reset_states(
+        self, qpos: torch.Tensor, qvel: torch.Tensor | None = None, mask: torch.Tensor | None = None
+    ) -> None:
+        """Start the next reset of each env of ``mask`` from the state given here, instead of a drawn one.
+
+        The way to reset to given states wherever TorchRL resets the env (a Collector's partial resets, a
+        ``TransformedEnv``): the states wait, per env, for that env's next reset, which consumes them. A running
+        episode is not touched. ``"reset_qpos"``/``"reset_qvel"`` entries in the tensordict given to the env's own
+        ``reset`` do the same for the envs it resets (TorchRL's ``TransformedEnv`` passes the base env only its
+        reset and state entries, so there use this method or a transform's ``_reset_env_preprocess``).
+
+        Args:
+            qpos: float64 ``[num_envs, nq]``; the rows of the envs in ``mask`` must be finite.
+            qvel: float64 ``[num_envs, nv]``, or ``None``: the reset's default velocities (zeros or the keyframe's).
+            mask: bool ``[num_envs]``, the envs to queue states for; ``None``: all.
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.envs import BatchedMujocoEnv, readings
+            >>> xml = '''<mujoco><worldbody><body><joint name="hinge"/><geom size="0.1"/></body></worldbody>
+            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+            >>> env = BatchedMujocoEnv(xml, 3, observation=readings.joint_pos("hinge"), seed=0)
+            >>> qpos = torch.tensor([[0.5], [1.0], [1.5]], dtype=torch.float64)
+            >>> env.set_reset_states(qpos, mask=torch.tensor([False, True, True]))
+            >>> env.reset()["observation"][:, 0].tolist()  # env 0 draws (no noise declared: qpos0)
+            [0.0, 1.0, 1.5]
+            >>> env.reset()["observation"][:, 0].tolist()  # consumed: the next reset draws again
+            [0.0, 0.0, 0.0]
+        """
+        envs = np.ones(self.num_envs, dtype=bool) if mask is None else self._checked_mask(mask, "mask")
+        rows = {}
+        for name, value, size in (("qpos", qpos, self.model.nq), ("qvel", qvel, self.model.nv)):
+            if value is None:
+                continue
+            if (
+                not isinstance(value, torch.Tensor)
+                or value.dtype != torch.float64
+                or value.shape
+                != (
+                    self.num_envs,
+                    size,
+                )
+            ):
+                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+                raise ValueError(
+                    f"set_reset_states: {name} must be a float64 tensor of shape [{self.num_envs}, {size}] "
+                    f"(num_envs, the model's n{name[1]}), got {got}"
+                )
+            values = value.detach().cpu().numpy()
+            if not np.isfinite(values[envs]).all():
+                raise ValueError(f"set_reset_states: {name} must be finite in the rows of the envs in mask")
+            rows[name] = values
+        self._queued[envs] = True
+        self._queued_qpos[envs] = rows["qpos"][envs]
+        self._queued_qvel[envs] = rows["qvel"][envs] if "qvel" in rows else np.nan
+
+    def _checked_mask(self, mask: object, argument: str) -> np.ndarray:
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool or mask.shape != (self.num_envs,):
+            got = f"{mask.dtype} {list(mask.shape)}" if isinstance(mask, torch.Tensor) else repr(mask)
+            raise ValueError(f"{argument} must be a bool tensor of shape [{self.num_envs}] (num_envs), got {got}")
+        return mask.cpu().numpy().copy()
+
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         """Reset the masked envs (all without a mask) to a drawn state (:class:`Resets`) or a given one."""
         self._check_open()
@@ -671,10 +744,22 @@ class BatchedMujocoEnv(EnvBase):
             given = self._given_states(tensordict, all_ids)
             resets = self.declaration.resets
             self.batch.reset(ids, keyframe=resets.keyframe, stage=mujoco.mjtStage.mjSTAGE_NONE)  # mj_resetData
-            if not given:
-                self._draw(all_ids, rows)
-            for field, values in given.items():
-                (self._qpos if field == "qpos" else self._qvel)[rows] = values
+            if given:  # the reset tensordict's states, for every env reset
+                for field, values in given.items():
+                    (self._qpos if field == "qpos" else self._qvel)[all_ids] = values
+            else:  # the states set_reset_states queued, for the envs it queued them for; the others draw
+                queued = self._queued[all_ids]
+                drawn = all_ids[~queued] if queued.any() else all_ids
+                if drawn.size:
+                    self._draw(drawn, rows if drawn is all_ids else drawn)
+                if queued.any():
+                    started = all_ids[queued]
+                    self._qpos[started] = self._queued_qpos[started]
+                    velocities = started[np.isfinite(self._queued_qvel[started]).all(axis=1)]
+                    self._qvel[velocities] = self._queued_qvel[velocities]
+            self._queued[all_ids] = False
+            self._queued_qpos[all_ids] = np.nan
+            self._queued_qvel[all_ids] = np.nan
             self.batch.forward(ids)
             self._read_outputs(ids, post_constraint=False)
             self._time[rows] = self._clock[rows]
@@ -877,13 +962,17 @@ class BatchedMujocoEnv(EnvBase):
             "time": torch.from_numpy(self._time.copy()),
             "previous_position": torch.from_numpy(self._previous_values()),
             "last_action": torch.from_numpy(self._last_action.copy()),
+            "queued_qpos": torch.from_numpy(self._queued_qpos.copy()),
+            "queued_qvel": torch.from_numpy(self._queued_qvel.copy()),
             "gathered": [torch.from_numpy(array.copy()) for array in gathered],
             _DOMAIN_KEY: self._domain.saved(),
         }
 
     def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
         """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
-        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, "last_action"} != set(_RUNNING_KEYS):
+        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, *_OPTIONAL_RUNNING_KEYS} != set(
+            _RUNNING_KEYS
+        ):
             got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
             raise ValueError(
                 f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)} (and {_DOMAIN_KEY!r}), got {got}"
@@ -904,7 +993,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"got {running['gathered']!r}"
             )
         names = ["integration_state", "warnings", "time", "previous_position"]
-        names += ["last_action"] if "last_action" in running else []
+        names += [name for name in _OPTIONAL_RUNNING_KEYS if name in running]
         pairs = [(name, running[name], mine[name]) for name in names]
         pairs += [
             (f"gathered[{i}]", a, b) for i, (a, b) in enumerate(zip(running["gathered"], mine["gathered"], strict=True))
@@ -937,6 +1026,9 @@ class BatchedMujocoEnv(EnvBase):
             values[:] = previous[:, start : start + values.shape[1]]
             start += values.shape[1]
         self._last_action[:] = running["last_action"].cpu().numpy() if "last_action" in running else 0.0
+        for name, array in (("queued_qpos", self._queued_qpos), ("queued_qvel", self._queued_qvel)):
+            array[:] = running[name].cpu().numpy() if name in running else np.nan
+        self._queued[:] = np.isfinite(self._queued_qpos).all(axis=1)
         for (array, _), values in zip(self._readers, running["gathered"][1:], strict=True):
             array[:] = values.cpu().numpy()
 
