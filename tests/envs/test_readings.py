@@ -670,8 +670,8 @@ def test_bad_arguments_are_refused_when_declared() -> None:
         ),
         (
             TypeError,
-            r"index must be None or a sequence of element positions \(ints\), got 2",
-            lambda: R.body_pos("t", index=2),
+            r"index must be None, an int or a sequence of element positions \(ints\), got 2.0",
+            lambda: R.body_pos("t", index=2.0),
         ),
         (
             TypeError,

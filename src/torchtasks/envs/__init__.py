@@ -25,6 +25,10 @@ _LOCOMOTION = (
 #: access for the same reason
 _BATCHED_MUJOCO = ("BatchedMujocoEnv", "ZeroBrokenStepReward")
 
+#: how a batched env of one's own model acts and resets (torchtasks.envs.mujoco_declaration), imported on first
+#: access for the same reason; the readings are the module torchtasks.envs.readings
+_DECLARATION = ("Actions", "FreeJointRanges", "Noise", "Resets")
+
 #: MO-Gymnasium's MuJoCo v5 envs as presets with a vector reward (torchtasks.envs.multi_objective), imported on
 #: first access for the same reason
 _MULTI_OBJECTIVE = ("MULTI_OBJECTIVE_ENV_IDS", "multi_objective_env", "multi_objective_record", "multi_objective_task")
@@ -36,6 +40,7 @@ __all__ = [
     "swing_up_task",
     *_LOCOMOTION,
     *_BATCHED_MUJOCO,
+    *_DECLARATION,
     *_MULTI_OBJECTIVE,
 ]
 
@@ -49,6 +54,10 @@ def __getattr__(name: str) -> Any:
         from torchtasks.envs import batched_mujoco
 
         return getattr(batched_mujoco, name)
+    if name in _DECLARATION:
+        from torchtasks.envs import mujoco_declaration
+
+        return getattr(mujoco_declaration, name)
     if name in _MULTI_OBJECTIVE:
         from torchtasks.envs import multi_objective
 

@@ -79,6 +79,9 @@ _WARNING_NUMBER = 1
 _INTEGRATION_STATE = int(mujoco.mjtState.mjSTATE_INTEGRATION)
 #: the entries of the running-episode state (``state_dict()["_extra_state"]["running_episodes"]``)
 _RUNNING_KEYS = ("model", "integration_state", "warnings", "time", "previous_position", "gathered")
+#: entries of the running episodes that checkpoints written before the env had them lack: the last actions, the
+#: states queued for the next resets (set_reset_states; NaN rows: none)
+_OPTIONAL_RUNNING_KEYS = ("last_action", "queued_qpos", "queued_qvel")
 #: the entry of the per-env physics (the values of every domain field ever set), absent from checkpoints written
 #: before the env had one (they load as nominal physics)
 _DOMAIN_KEY = "domain"
@@ -105,6 +108,10 @@ _REBUILT = (
     "_differences",
     "_previous",
     "_sizes",
+    "_plan",
+    "_queued",
+    "_queued_qpos",
+    "_queued_qvel",
     "_time",
     "_half_timestep",
     "_stage",
@@ -198,9 +205,10 @@ class BatchedMujocoEnv(EnvBase):
     state): that env ends, with ``"broken"`` set, a finite state and a ``RuntimeWarning``
     (:class:`ZeroBrokenStepReward` pays 0 for it). Resets draw from one generator per env (:class:`Resets`), for
     the masked envs only; ``"reset_qpos"``/``"reset_qvel"`` (float64 ``[num_envs, nq|nv]``) in the reset
-    tensordict start the masked envs from those states instead. ``state_dict()`` holds the generators and the
-    running episodes (a load continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them
-    in a ``TransformedEnv``); copies and pickles are independent envs in the same state. As a
+    tensordict start the masked envs from those states instead (:meth:`set_reset_states` queues them for the next
+    reset wherever TorchRL resets). ``state_dict()`` holds the generators and the running episodes (a load
+    continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them in a ``TransformedEnv``);
+    copies and pickles are independent envs in the same state. As a
     :class:`~torchtasks.domain.DomainEnv` it gives each env its own physics (:meth:`set_domain`). Details: the docs
     pages "Your own robot" and "The batched MuJoCo env".
 
@@ -352,13 +360,18 @@ class BatchedMujocoEnv(EnvBase):
         """
         declaration, model, n = self.declaration, self.model, self.num_envs
         after_step = declaration.contact_forces == "after_step"
-        # Gymnasium's contact forces need the contacts of each env's last substep, which only a persistent batch (one
-        # MjData per simulation, copied whole by get_data) keeps. Without them one MjData per thread serves all
-        # simulations: it stays in cache, and a step between Python work is faster (HalfCheetah x64 with a
-        # collector's worth of tensor work between steps: 2.21 against 2.44 ms, medians of 5, 2026-11-27).
         parts = [part for parts in declaration.entries().values() for part in parts]
+        # A persistent batch keeps one MjData per simulation. Gymnasium's contact forces need it (the contacts of
+        # each env's last substep, copied whole by get_data), and readings of the returned state (stage "velocity")
+        # come for free with it: its next step continues from the stages computed after the last (mujoco.batch's
+        # docs). Shipped quadruped x64, env in a Collector over the Batch.step floor, interleaved, 2 runs of 3
+        # repeats under load ~2: persistent 0.76 and 0.72, one MjData per thread 0.54 and 0.65 (2026-12-02).
+        # Without either, one MjData per thread serves all simulations: it stays in cache, and a step between Python
+        # work is faster (HalfCheetah x64 with a collector's worth of tensor work between steps: 2.21 against 2.44 ms,
+        # medians of 5, 2026-11-27).
         needs_contacts = after_step and any(_reads(part, "cfrc_ext") for part in parts)
-        self.batch = batch = Batch(model, n, self.num_threads, persistent=needs_contacts)
+        persistent = needs_contacts or declaration.stage == "velocity"
+        self.batch = batch = Batch(model, n, self.num_threads, persistent=persistent)
         if batch.nstate != mujoco.mj_stateSize(model, _INTEGRATION_STATE):  # what the checkpoints save as rows
             raise RuntimeError(
                 f"BatchedMujocoEnv({declaration.name}): mujoco.batch state rows of {batch.nstate} values are not "
@@ -405,6 +418,10 @@ class BatchedMujocoEnv(EnvBase):
                 self._readers.append((buffer, source))
             self._arrays[name] = buffer
         self._model_fields = sorted({name for part in parts for name in _model_fields(part)})
+        #: states queued by set_reset_states for each env's next reset (NaN rows: none; qvel NaN: the default's)
+        self._queued = np.zeros(n, dtype=bool)
+        self._queued_qpos = np.full((n, model.nq), np.nan)
+        self._queued_qvel = np.full((n, model.nv), np.nan)
         #: the last action of each env (zeros after a reset), for last_action readings and checkpoints
         self._last_action = np.zeros((n, model.nu))
         self._affine = not ((declaration.action_scale == 1.0).all() and (declaration.action_offset == 0.0).all())
@@ -414,6 +431,11 @@ class BatchedMujocoEnv(EnvBase):
             if part.difference_of is not None and part not in self._differences:
                 self._differences.append(part)
         self._previous = [np.zeros((n, int(np.prod(part.shape)))) for part in self._differences]
+        #: every entry as its parts: (reading, None) or (finite difference, its index in _differences)
+        self._plan = [
+            (key, [(part, self._differences.index(part) if part.difference_of is not None else None) for part in parts])
+            for key, parts in declaration.entries().items()
+        ]
         self._sizes = {
             key: sum(int(np.prod(part.shape)) for part in parts) for key, parts in declaration.entries().items()
         }
@@ -496,14 +518,20 @@ class BatchedMujocoEnv(EnvBase):
         return arrays
 
     # ------------------------------------------------------------------ outputs
-    def _outputs(self, differences: list[np.ndarray] | None, broken: np.ndarray | None, reward: bool) -> TensorDictBase:
+    def _outputs(
+        self,
+        differences: list[np.ndarray] | None,
+        broken: np.ndarray | None,
+        reward: bool,
+        arrays: dict[str, np.ndarray] | None = None,
+    ) -> TensorDictBase:
         """Fresh tensors on ``self.device``: every entry, the flags (and a zero reward).
 
         ``differences`` holds each finite difference's value (None after a reset: zeros); ``broken`` (the envs of a
         broken step, or None) is written as ``"broken"``, ``"terminated"`` and ``"done"``.
         """
         n = self.num_envs
-        arrays = self._inputs()
+        arrays = self._inputs() if arrays is None else arrays
         # the device is read at every call: env.to(device) moves the outputs of the next step
         device = self.device
         if device is None or device.type == "cpu":
@@ -514,15 +542,15 @@ class BatchedMujocoEnv(EnvBase):
                 return torch.from_numpy(array).to(device, non_blocking=True)
 
         out: dict[str, torch.Tensor] = {}
-        for key, parts in self.declaration.entries().items():
+        for key, parts in self._plan:
             values = []
-            for part in parts:
-                if part.difference_of is None:
+            for part, difference in parts:
+                if difference is None:
                     values.append(_flat(part.compute(arrays), n))
                 elif differences is None:
-                    values.append(np.zeros((n, self._previous[self._differences.index(part)].shape[1])))
+                    values.append(np.zeros_like(self._previous[difference]))
                 else:
-                    values.append(differences[self._differences.index(part)])
+                    values.append(differences[difference])
             out[key] = to_torch(values[0] if len(values) == 1 else np.concatenate(values, axis=1))
         flags = np.zeros((n, 1), dtype=bool) if broken is None else broken.reshape(n, 1)
         out[BROKEN_KEY] = to_torch(flags)
@@ -533,9 +561,9 @@ class BatchedMujocoEnv(EnvBase):
             out["reward"] = to_torch(np.zeros((n, 1)))
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
 
-    def _differenced(self) -> list[np.ndarray]:
+    def _differenced(self, arrays: dict[str, np.ndarray] | None = None) -> list[np.ndarray]:
         """The current value of each finite difference's reading, ``[num_envs, size]``."""
-        arrays = self._inputs()
+        arrays = self._inputs() if arrays is None else arrays
         return [_flat(part.difference_of.compute(arrays), self.num_envs) for part in self._differences]
 
     def _check_action(self, action: object) -> np.ndarray:
@@ -591,14 +619,16 @@ class BatchedMujocoEnv(EnvBase):
             broken |= restarted
         if skipped is not None:
             broken |= skipped
+        arrays = self._inputs()
         differences = []
-        for previous, now in zip(self._previous, self._differenced(), strict=True):
-            differences.append((now - previous) / self.dt)
+        for part, previous, now in zip(self._differences, self._previous, self._differenced(arrays), strict=True):
+            # a finite difference divides by its own dt where it gives one, else by the env's control timestep
+            differences.append((now - previous) / (self.dt if part.dt is None else part.dt))
             np.copyto(previous, now)
         any_broken = bool(broken.any())
         self.__dict__["last_step_broken"] = any_broken
         if not any_broken:
-            return self._outputs(differences, None, reward=True)
+            return self._outputs(differences, None, reward=True, arrays=arrays)
         invalid = [] if skipped is None else np.flatnonzero(skipped).tolist()
         diverged = np.flatnonzero(broken if skipped is None else broken & ~skipped).tolist()
         warnings.warn(
@@ -609,14 +639,14 @@ class BatchedMujocoEnv(EnvBase):
         )
         for difference in differences:
             difference[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
-        return self._outputs(differences, broken, reward=True)
+        return self._outputs(differences, broken, reward=True, arrays=arrays)
 
     def _given_states(self, tensordict: TensorDictBase | None, ids: np.ndarray) -> dict[str, np.ndarray]:
         """The ``"reset_qpos"``/``"reset_qvel"`` rows of the reset envs ``ids`` (checked), by field."""
         given: dict[str, np.ndarray] = {}
         if tensordict is None:
             return given
-        for field, size in (("qpos", self.model.nq), ("qvel", self.model.nv)):
+        for field, size, count in (("qpos", self.model.nq, "nq"), ("qvel", self.model.nv, "nv")):
             value = tensordict.get(f"reset_{field}", None)
             if value is None:
                 continue
@@ -632,13 +662,75 @@ class BatchedMujocoEnv(EnvBase):
                 got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
                 raise ValueError(
                     f"reset_{field} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, "
-                    f"n{field[1]}), got {got}"
+                    f"the model's {count}), got {got}"
                 )
             rows = value.detach().cpu().numpy()[ids]
             if not np.isfinite(rows).all():
                 raise ValueError(f"reset_{field} must be finite in the rows of the envs reset")
             given[field] = rows
         return given
+
+    def set_reset_states(
+        self, qpos: torch.Tensor, qvel: torch.Tensor | None = None, mask: torch.Tensor | None = None
+    ) -> None:
+        """Start the next reset of each env of ``mask`` from the state given here, instead of a drawn one.
+
+        The way to reset to given states wherever TorchRL resets the env (a Collector's partial resets, a
+        ``TransformedEnv``): the states wait, per env, for that env's next reset, which consumes them. A running
+        episode is not touched. ``"reset_qpos"``/``"reset_qvel"`` entries in the tensordict given to the env's own
+        ``reset`` do the same for the envs it resets (TorchRL's ``TransformedEnv`` passes the base env only its
+        reset and state entries, so there use this method or a transform's ``_reset_env_preprocess``).
+
+        Args:
+            qpos: float64 ``[num_envs, nq]``; the rows of the envs in ``mask`` must be finite.
+            qvel: float64 ``[num_envs, nv]``, or ``None``: the reset's default velocities (zeros or the keyframe's).
+            mask: bool ``[num_envs]``, the envs to queue states for; ``None``: all.
+
+        Example:
+            >>> import torch
+            >>> from torchtasks.envs import BatchedMujocoEnv, readings
+            >>> xml = '''<mujoco><worldbody><body><joint name="hinge"/><geom size="0.1"/></body></worldbody>
+            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+            >>> env = BatchedMujocoEnv(xml, 3, observation=readings.joint_pos("hinge"), seed=0)
+            >>> qpos = torch.tensor([[0.5], [1.0], [1.5]], dtype=torch.float64)
+            >>> env.set_reset_states(qpos, mask=torch.tensor([False, True, True]))
+            >>> env.reset()["observation"][:, 0].tolist()  # env 0 draws (no noise declared: qpos0)
+            [0.0, 1.0, 1.5]
+            >>> env.reset()["observation"][:, 0].tolist()  # consumed: the next reset draws again
+            [0.0, 0.0, 0.0]
+        """
+        envs = np.ones(self.num_envs, dtype=bool) if mask is None else self._checked_mask(mask, "mask")
+        rows = {}
+        for name, value, size in (("qpos", qpos, self.model.nq), ("qvel", qvel, self.model.nv)):
+            if value is None:
+                continue
+            if (
+                not isinstance(value, torch.Tensor)
+                or value.dtype != torch.float64
+                or value.shape
+                != (
+                    self.num_envs,
+                    size,
+                )
+            ):
+                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+                raise ValueError(
+                    f"set_reset_states: {name} must be a float64 tensor of shape [{self.num_envs}, {size}] "
+                    f"(num_envs, the model's n{name[1]}), got {got}"
+                )
+            values = value.detach().cpu().numpy()
+            if not np.isfinite(values[envs]).all():
+                raise ValueError(f"set_reset_states: {name} must be finite in the rows of the envs in mask")
+            rows[name] = values
+        self._queued[envs] = True
+        self._queued_qpos[envs] = rows["qpos"][envs]
+        self._queued_qvel[envs] = rows["qvel"][envs] if "qvel" in rows else np.nan
+
+    def _checked_mask(self, mask: object, argument: str) -> np.ndarray:
+        if not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool or mask.shape != (self.num_envs,):
+            got = f"{mask.dtype} {list(mask.shape)}" if isinstance(mask, torch.Tensor) else repr(mask)
+            raise ValueError(f"{argument} must be a bool tensor of shape [{self.num_envs}] (num_envs), got {got}")
+        return mask.cpu().numpy().copy()
 
     def _reset(self, tensordict: TensorDictBase | None = None, **kwargs: Any) -> TensorDictBase:
         """Reset the masked envs (all without a mask) to a drawn state (:class:`Resets`) or a given one."""
@@ -653,10 +745,22 @@ class BatchedMujocoEnv(EnvBase):
             given = self._given_states(tensordict, all_ids)
             resets = self.declaration.resets
             self.batch.reset(ids, keyframe=resets.keyframe, stage=mujoco.mjtStage.mjSTAGE_NONE)  # mj_resetData
-            if not given:
-                self._draw(all_ids, rows)
-            for field, values in given.items():
-                (self._qpos if field == "qpos" else self._qvel)[rows] = values
+            if given:  # the reset tensordict's states, for every env reset
+                for field, values in given.items():
+                    (self._qpos if field == "qpos" else self._qvel)[all_ids] = values
+            else:  # the states set_reset_states queued, for the envs it queued them for; the others draw
+                queued = self._queued[all_ids]
+                drawn = all_ids[~queued] if queued.any() else all_ids
+                if drawn.size:
+                    self._draw(drawn, rows if drawn is all_ids else drawn)
+                if queued.any():
+                    started = all_ids[queued]
+                    self._qpos[started] = self._queued_qpos[started]
+                    velocities = started[np.isfinite(self._queued_qvel[started]).all(axis=1)]
+                    self._qvel[velocities] = self._queued_qvel[velocities]
+            self._queued[all_ids] = False
+            self._queued_qpos[all_ids] = np.nan
+            self._queued_qvel[all_ids] = np.nan
             self.batch.forward(ids)
             self._read_outputs(ids, post_constraint=False)
             self._time[rows] = self._clock[rows]
@@ -670,8 +774,10 @@ class BatchedMujocoEnv(EnvBase):
         resets = self.declaration.resets
         if not resets.noise and resets.free_joint is None:
             return
-        # the other Python loop over envs: each reset env draws from its own generator, in the declared order (so
-        # an env's draws do not depend on which other envs reset); the draws are then applied as arrays
+        # The other Python loop over envs, over the reset ones: each draws from its own generator, in the declared
+        # order, so an env's draws do not depend on which other envs reset (and Gymnasium's per-env draws are
+        # reproduced); the draws are then applied as arrays. Measured 2026-12-02 (load ~2): 2.5-5 us per env, 12 of
+        # 311 us for one quadruped env's reset, 158 of 1,867 us for 64, Hopper 306 of 1,134 us for 64.
         generators = [self.np_random[i] for i in ids.tolist()]
         draws = [[noise.draw(rng, columns.size) for _, columns, noise in resets.noise] for rng in generators]
         targets = {"qpos": self._qpos, "qvel": self._qvel}
@@ -830,7 +936,10 @@ class BatchedMujocoEnv(EnvBase):
         binary = np.empty(mujoco.mj_sizeModel(self.model), dtype=np.uint8)
         mujoco.mj_saveModel(self.model, None, binary)
         return {
-            "env_id": self.declaration.name,
+            # a Gymnasium id, or None for a model of the user's: not its file's path, so that a checkpoint loads into
+            # an env of the same model read from another place (another checkout, machine or MjSpec); the compiled
+            # model's hash tells models apart
+            "env_id": self.env_id,
             "num_envs": self.num_envs,
             "frame_skip": self.frame_skip,
             "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
@@ -854,13 +963,17 @@ class BatchedMujocoEnv(EnvBase):
             "time": torch.from_numpy(self._time.copy()),
             "previous_position": torch.from_numpy(self._previous_values()),
             "last_action": torch.from_numpy(self._last_action.copy()),
+            "queued_qpos": torch.from_numpy(self._queued_qpos.copy()),
+            "queued_qvel": torch.from_numpy(self._queued_qvel.copy()),
             "gathered": [torch.from_numpy(array.copy()) for array in gathered],
             _DOMAIN_KEY: self._domain.saved(),
         }
 
     def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
         """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
-        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, "last_action"} != set(_RUNNING_KEYS):
+        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, *_OPTIONAL_RUNNING_KEYS} != set(
+            _RUNNING_KEYS
+        ):
             got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
             raise ValueError(
                 f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)} (and {_DOMAIN_KEY!r}), got {got}"
@@ -881,7 +994,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"got {running['gathered']!r}"
             )
         names = ["integration_state", "warnings", "time", "previous_position"]
-        names += ["last_action"] if "last_action" in running else []
+        names += [name for name in _OPTIONAL_RUNNING_KEYS if name in running]
         pairs = [(name, running[name], mine[name]) for name in names]
         pairs += [
             (f"gathered[{i}]", a, b) for i, (a, b) in enumerate(zip(running["gathered"], mine["gathered"], strict=True))
@@ -914,6 +1027,9 @@ class BatchedMujocoEnv(EnvBase):
             values[:] = previous[:, start : start + values.shape[1]]
             start += values.shape[1]
         self._last_action[:] = running["last_action"].cpu().numpy() if "last_action" in running else 0.0
+        for name, array in (("queued_qpos", self._queued_qpos), ("queued_qvel", self._queued_qvel)):
+            array[:] = running[name].cpu().numpy() if name in running else np.nan
+        self._queued[:] = np.isfinite(self._queued_qpos).all(axis=1)
         for (array, _), values in zip(self._readers, running["gathered"][1:], strict=True):
             array[:] = values.cpu().numpy()
 

@@ -390,6 +390,7 @@ def _resolve_resets(model: mujoco.MjModel, resets: Resets) -> ResolvedResets:
         noise.append(("qvel", np.arange(model.nv), resets.qvel_noise))
     for name, each in resets.joint_noise.items():
         joint = object_id(model, "joint", name, "Resets joint_noise")
+        # ints on both sides: ``x in (enum, ...)`` compares enum == numpy int, which pybind11's enums answer False
         if int(model.jnt_type[joint]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
             raise ValueError(f"Resets joint_noise: joint {name!r} is not a hinge or slide joint (use free_joint)")
         noise.append(("qpos", np.array([model.jnt_qposadr[joint]]), each))
@@ -402,7 +403,10 @@ def _resolve_resets(model: mujoco.MjModel, resets: Resets) -> ResolvedResets:
 
 def _control_steps(model: mujoco.MjModel, frame_skip: object, control_timestep: object) -> int:
     if frame_skip is not None and control_timestep is not None:
-        raise ValueError("give frame_skip or control_timestep, not both")
+        raise ValueError(
+            f"give frame_skip (substeps per step) or control_timestep (seconds per step), not both; got "
+            f"frame_skip={frame_skip!r} and control_timestep={control_timestep!r}"
+        )
     if control_timestep is None:
         if frame_skip is None:
             return 1

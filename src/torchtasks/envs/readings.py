@@ -284,8 +284,10 @@ def _check_clip(clip: object) -> tuple[float, float] | None:
 def _check_index(index: object) -> tuple[int, ...] | None:
     if index is None:
         return None
+    if isinstance(index, (int, np.integer)) and not isinstance(index, bool):
+        index = (index,)  # one element: body_pos("torso", index=2) is the height
     if isinstance(index, (str, bytes)) or not isinstance(index, Sequence):
-        raise TypeError(f"index must be None or a sequence of element positions (ints), got {index!r}")
+        raise TypeError(f"index must be None, an int or a sequence of element positions (ints), got {index!r}")
     for position in index:
         if isinstance(position, bool) or not isinstance(position, (int, np.integer)):
             raise TypeError(f"index must be a sequence of element positions (ints), got {index!r}")
