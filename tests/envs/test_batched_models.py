@@ -520,9 +520,8 @@ def _given_env(model: Path | None = None, **kwargs: Any) -> tuple[BatchedMujocoE
         state=state_readings(twin.nominal),
         actions=case.actions,
         resets=case.resets,
-        stage=case.stage,
         seed=case.seed,
-        **{"frame_skip": case.frame_skip, **kwargs},
+        **{"frame_skip": case.frame_skip, "stage": case.stage, **kwargs},
     )
     return env, twin, comparison
 
@@ -722,7 +721,7 @@ def test_a_loaded_state_dict_continues_bit_for_bit_and_another_declaration_refus
     others = {
         "another model": (
             lambda: BatchedMujocoEnv(model_path("arm"), NUM_ENVS, observation=R.joint_pos()),
-            r"the saved running episodes are of another simulation \(frame_skip, model_sha256 differ\)",
+            r"the saved running episodes are of another simulation \(declaration, frame_skip, model_sha256 differ\)",
         ),
         "another frame_skip": (
             lambda: _given_env(frame_skip=None, control_timestep=0.01)[0],
@@ -736,7 +735,11 @@ def test_a_loaded_state_dict_continues_bit_for_bit_and_another_declaration_refus
                 resets=Resets(keyframe="home"),
                 frame_skip=4,
             ),
-            r"'gathered' must be a list of 1 tensors for this env",
+            r"the saved running episodes are of another simulation \(declaration differ\)",
+        ),
+        "another stage": (
+            lambda: _given_env(stage="step")[0],  # the case's is "velocity"
+            r"the saved running episodes are of another simulation \(declaration differ\)",
         ),
     }
     for label, (make, match) in others.items():

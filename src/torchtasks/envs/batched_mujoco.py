@@ -943,7 +943,26 @@ class BatchedMujocoEnv(EnvBase):
             "num_envs": self.num_envs,
             "frame_skip": self.frame_skip,
             "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
+            # a model of the user's: what the env reads, how it acts and resets (a preset's id and keywords say it)
+            **({} if self.env_id is not None else {"declaration": self._declaration_facts()}),
         }
+
+    def _declaration_facts(self) -> str:
+        """The declaration's readings, action map, resets and stage, as text (compared by a load)."""
+        declaration, resets = self.declaration, self.declaration.resets
+        noise = [(target, columns.tolist(), each) for target, columns, each in resets.noise]
+        return repr(
+            {
+                "observation": dict(declaration.observation_readings),
+                "state": dict(declaration.state_readings),
+                "action_scale": declaration.action_scale.tolist(),
+                "action_offset": declaration.action_offset.tolist(),
+                "reset_keyframe": resets.keyframe,
+                "reset_noise": noise,
+                "free_joint": resets.free_joint,
+                "stage": declaration.stage,
+            }
+        )
 
     def _previous_values(self) -> np.ndarray:
         """The finite differences' previous values side by side, ``[num_envs, total size]``."""
