@@ -25,6 +25,7 @@ import copy
 import hashlib
 import os
 import warnings
+import weakref
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -116,6 +117,21 @@ _REBUILT = (
     "_half_timestep",
     "_stage",
 )
+
+
+#: every batch of this process's envs, and, in a child forked from it, the parent's batches kept alive: a batch's
+#: worker threads are not copied by fork, and destroying an inherited batch (when the child's garbage collector frees
+#: a copy of the parent's env, e.g. the env a ParallelEnv built for its specs) waits for those threads forever
+_LIVE_BATCHES: weakref.WeakSet[Batch] = weakref.WeakSet()
+_INHERITED_BATCHES: list[Batch] = []
+
+
+def _keep_inherited_batches() -> None:
+    _INHERITED_BATCHES.extend(_LIVE_BATCHES)
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_keep_inherited_batches)
 
 
 def _check_state_keys(task_state_keys: object, record: LocomotionEnvRecord) -> tuple[str, ...]:
@@ -372,6 +388,7 @@ class BatchedMujocoEnv(EnvBase):
         needs_contacts = after_step and any(_reads(part, "cfrc_ext") for part in parts)
         persistent = needs_contacts or declaration.stage == "velocity"
         self.batch = batch = Batch(model, n, self.num_threads, persistent=persistent)
+        _LIVE_BATCHES.add(batch)
         if batch.nstate != mujoco.mj_stateSize(model, _INTEGRATION_STATE):  # what the checkpoints save as rows
             raise RuntimeError(
                 f"BatchedMujocoEnv({declaration.name}): mujoco.batch state rows of {batch.nstate} values are not "
