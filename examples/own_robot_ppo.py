@@ -56,7 +56,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' modules
 
 import torch
-from _cli import duration, frame_bar, time_unit
+from _cli import duration, frame_bar
 from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
 from tensordict.nn import AddStateIndependentNormalScale
 from torchrl.collectors import Collector
@@ -71,9 +71,8 @@ from torchrl.envs import (
 )
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, normalised, training_returns
+from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, normalised, plot, training_returns
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.envs import BatchedMujocoEnv, ZeroBrokenStepReward, readings
 from torchtasks.envs.models import model_path
 from torchtasks.envs.mujoco_declaration import Actions, FreeJointRanges, Noise, Resets
@@ -265,6 +264,8 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
     iterations = math.ceil(config.total_frames / config.frames_per_batch)
     record: dict[str, Any] = {
         "model": MODEL,
+        "env_id": f"the shipped {MODEL}",  # the plot's subject
+        "max_steps": MAX_STEPS,
         "method": "PPO",
         "config": asdict(config),
         "seed": seed,
@@ -346,60 +347,6 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
         machine_end=machine_info(),
     )
     return record
-
-
-def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
-    """Plot every run's training and evaluation returns against frames and wall time; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
-        return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.ticker import EngFormatter
-
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
-    seconds_per_unit, unit = time_unit(max(record["total_seconds"] for record in records))
-    for index, record in enumerate(sorted(records, key=lambda record: record["seed"])):
-        color = f"C{index}"
-        train_points = [point for point in record["curve"] if point["train_return"] is not None]
-        for axis, key, scale in ((axes[0], "frames", 1.0), (axes[1], "seconds", 1 / seconds_per_unit)):
-            axis.plot(
-                [point[key] * scale for point in train_points],
-                [point["train_return"] for point in train_points],
-                color=color,
-                marker=".",
-                label=f"seed {record['seed']}, training episodes",
-            )
-            axis.plot(
-                [point[key] * scale for point in record["eval_curve"]],
-                [point["return_mean"] for point in record["eval_curve"]],
-                color=color,
-                linestyle="--",
-                marker="x",
-                label=f"seed {record['seed']}, deterministic evaluation",
-            )
-    axes[0].xaxis.set_major_formatter(EngFormatter())
-    axes[0].set_xlabel("env frames")
-    axes[1].set_xlabel(f"wall-clock time [{unit}]")
-    axes[0].set_ylabel(f"mean episode return (at most {MAX_STEPS})")
-    axes[0].legend(fontsize="small")
-    for axis in axes:
-        axis.grid(alpha=0.3)
-    config = records[0]["config"]
-    figure.suptitle(
-        f"PPO on the shipped {records[0]['model']} (BatchedMujocoEnv, "
-        f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch)"
-    )
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
 
 
 def main() -> None:

@@ -505,7 +505,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     axes[0].xaxis.set_major_formatter(EngFormatter())
     axes[0].set_xlabel("env frames")
     axes[1].set_xlabel(f"wall-clock time [{unit}]")
-    axes[0].set_ylabel("mean episode return (1000 steps)")
+    axes[0].set_ylabel(f"mean episode return ({records[0].get('max_steps', 1000)} steps)")
     axes[0].legend(fontsize="small")
     for axis in axes:
         axis.grid(alpha=0.3)

@@ -76,7 +76,12 @@ _SECTIONS = (
 #: ``{module: (submodules, extra)}``; ``torchtasks list`` reads their descriptions from the source
 _LAZY = {
     "torchtasks.envs": (
-        ("torchtasks.envs.locomotion", "torchtasks.envs.batched_mujoco", "torchtasks.envs.multi_objective"),
+        (
+            "torchtasks.envs.locomotion",
+            "torchtasks.envs.batched_mujoco",
+            "torchtasks.envs.mujoco_declaration",
+            "torchtasks.envs.multi_objective",
+        ),
         "mujoco",
     )
 }

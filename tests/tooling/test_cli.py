@@ -511,7 +511,7 @@ print("CHECK", main(["check", "HalfCheetah-v5"]))
         assert name in envs, name
     for name in ("gymnasium_env", "BatchedMujocoEnv", "ZeroBrokenStepReward"):
         assert envs[name].startswith("[needs the 'mujoco' extra] "), name
-    assert envs["BatchedMujocoEnv"].endswith("locomotion envs in one process with native threads.")
+    assert envs["BatchedMujocoEnv"].endswith("any MuJoCo model in one process, one mujoco.batch call per step.")
     assert "[needs the 'mujoco' extra]" not in envs["PendulumEnv"]
     assert re.search(r"^  gymnasium_env .*\[needs the 'mujoco' extra\]", out, flags=re.MULTILINE)  # the CI's grep
     assert "HalfCheetah-v5" in out
