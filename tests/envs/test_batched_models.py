@@ -626,7 +626,12 @@ def test_bad_queued_states_are_refused_and_queue_nothing(given_env) -> None:
     bad = qpos.clone()
     bad[1, 0] = float("nan")
     cases = [
-        ((qpos.float(),), {}, r"set_reset_states: qpos must be a float64 tensor of shape \[4, \d+\] .*float32"),
+        (
+            (qpos.float(),),
+            {},
+            r"set_reset_states: qpos must be a float64 tensor of shape \[4, \d+\] \(num_envs, the model.s nq\), "
+            r"got torch.float32",
+        ),
         (
             (qpos, qvel[:, :2]),
             {},

@@ -658,33 +658,27 @@ class BatchedMujocoEnv(EnvBase):
             difference[broken] = 0.0  # no finite difference across a skipped step or MuJoCo's reset
         return self._outputs(differences, broken, reward=True, arrays=arrays)
 
+    def _checked_states(self, value: object, field: str, name: str, rows: np.ndarray, where: str) -> np.ndarray:
+        """``value`` as float64 ``[num_envs, nq|nv]`` (``field``: ``"qpos"``/``"qvel"``), its ``rows`` finite."""
+        size, count = (self.model.nq, "nq") if field == "qpos" else (self.model.nv, "nv")
+        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64 or value.shape != (self.num_envs, size):
+            got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
+            raise ValueError(
+                f"{name} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, the model's "
+                f"{count}), got {got}"
+            )
+        values = value.detach().cpu().numpy()
+        if not np.isfinite(values[rows]).all():
+            raise ValueError(f"{name} must be finite in the rows of {where}")
+        return values
+
     def _given_states(self, tensordict: TensorDictBase | None, ids: np.ndarray) -> dict[str, np.ndarray]:
         """The ``"reset_qpos"``/``"reset_qvel"`` rows of the reset envs ``ids`` (checked), by field."""
         given: dict[str, np.ndarray] = {}
-        if tensordict is None:
-            return given
-        for field, size, count in (("qpos", self.model.nq, "nq"), ("qvel", self.model.nv, "nv")):
+        for field in ("qpos", "qvel") if tensordict is not None else ():
             value = tensordict.get(f"reset_{field}", None)
-            if value is None:
-                continue
-            if (
-                not isinstance(value, torch.Tensor)
-                or value.dtype != torch.float64
-                or value.shape
-                != (
-                    self.num_envs,
-                    size,
-                )
-            ):
-                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
-                raise ValueError(
-                    f"reset_{field} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, "
-                    f"the model's {count}), got {got}"
-                )
-            rows = value.detach().cpu().numpy()[ids]
-            if not np.isfinite(rows).all():
-                raise ValueError(f"reset_{field} must be finite in the rows of the envs reset")
-            given[field] = rows
+            if value is not None:
+                given[field] = self._checked_states(value, field, f"reset_{field}", ids, "the envs reset")[ids]
         return given
 
     def set_reset_states(
@@ -717,28 +711,11 @@ class BatchedMujocoEnv(EnvBase):
             [0.0, 0.0, 0.0]
         """
         envs = np.ones(self.num_envs, dtype=bool) if mask is None else self._checked_mask(mask, "mask")
-        rows = {}
-        for name, value, size in (("qpos", qpos, self.model.nq), ("qvel", qvel, self.model.nv)):
-            if value is None:
-                continue
-            if (
-                not isinstance(value, torch.Tensor)
-                or value.dtype != torch.float64
-                or value.shape
-                != (
-                    self.num_envs,
-                    size,
-                )
-            ):
-                got = f"{value.dtype} {list(value.shape)}" if isinstance(value, torch.Tensor) else repr(value)
-                raise ValueError(
-                    f"set_reset_states: {name} must be a float64 tensor of shape [{self.num_envs}, {size}] "
-                    f"(num_envs, the model's n{name[1]}), got {got}"
-                )
-            values = value.detach().cpu().numpy()
-            if not np.isfinite(values[envs]).all():
-                raise ValueError(f"set_reset_states: {name} must be finite in the rows of the envs in mask")
-            rows[name] = values
+        rows = {
+            field: self._checked_states(value, field, f"set_reset_states: {field}", envs, "the envs in mask")
+            for field, value in (("qpos", qpos), ("qvel", qvel))
+            if value is not None
+        }
         self._queued[envs] = True
         self._queued_qpos[envs] = rows["qpos"][envs]
         self._queued_qvel[envs] = rows["qvel"][envs] if "qvel" in rows else np.nan
