@@ -110,7 +110,6 @@ _REBUILT = (
     "_previous",
     "_sizes",
     "_plan",
-    "_queued",
     "_queued_qpos",
     "_queued_qvel",
     "_time",
@@ -436,7 +435,6 @@ class BatchedMujocoEnv(EnvBase):
             self._arrays[name] = buffer
         self._model_fields = sorted({name for part in parts for name in _model_fields(part)})
         #: states queued by set_reset_states for each env's next reset (NaN rows: none; qvel NaN: the default's)
-        self._queued = np.zeros(n, dtype=bool)
         self._queued_qpos = np.full((n, model.nq), np.nan)
         self._queued_qvel = np.full((n, model.nv), np.nan)
         #: the last action of each env (zeros after a reset), for last_action readings and checkpoints
@@ -716,7 +714,6 @@ class BatchedMujocoEnv(EnvBase):
             for field, value in (("qpos", qpos), ("qvel", qvel))
             if value is not None
         }
-        self._queued[envs] = True
         self._queued_qpos[envs] = rows["qpos"][envs]
         self._queued_qvel[envs] = rows["qvel"][envs] if "qvel" in rows else np.nan
 
@@ -743,7 +740,7 @@ class BatchedMujocoEnv(EnvBase):
                 for field, values in given.items():
                     (self._qpos if field == "qpos" else self._qvel)[all_ids] = values
             else:  # the states set_reset_states queued, for the envs it queued them for; the others draw
-                queued = self._queued[all_ids]
+                queued = ~np.isnan(self._queued_qpos[all_ids, 0])  # a NaN row: nothing queued
                 drawn = all_ids[~queued] if queued.any() else all_ids
                 if drawn.size:
                     self._draw(drawn, rows if drawn is all_ids else drawn)
@@ -752,7 +749,6 @@ class BatchedMujocoEnv(EnvBase):
                     self._qpos[started] = self._queued_qpos[started]
                     velocities = started[np.isfinite(self._queued_qvel[started]).all(axis=1)]
                     self._qvel[velocities] = self._queued_qvel[velocities]
-            self._queued[all_ids] = False
             self._queued_qpos[all_ids] = np.nan
             self._queued_qvel[all_ids] = np.nan
             self.batch.forward(ids)
@@ -1042,7 +1038,6 @@ class BatchedMujocoEnv(EnvBase):
         self._last_action[:] = running["last_action"].cpu().numpy() if "last_action" in running else 0.0
         for name, array in (("queued_qpos", self._queued_qpos), ("queued_qvel", self._queued_qvel)):
             array[:] = running[name].cpu().numpy() if name in running else np.nan
-        self._queued[:] = np.isfinite(self._queued_qpos).all(axis=1)
         for (array, _), values in zip(self._readers, running["gathered"][1:], strict=True):
             array[:] = values.cpu().numpy()
 
