@@ -380,7 +380,8 @@ def test_out_of_range_and_non_finite_values_of_the_written_envs_are_refused(
             lambda env: env.domain_fields(["body_mass:torsoo"]),
             ValueError,
             r"unknown domain field 'body_mass:torsoo' in names; did you mean 'body_mass:torso'.*"
-            r"env\.domain_fields\(\) lists all 43 fields",  # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity, 4 + 4 + 5 poses
+            # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity; poses of 4 + 4 bodies and 5 geoms
+            r"env\.domain_fields\(\) lists all 43 fields",
         ),
         (
             lambda env: env.set_domain({"mass:torso": torch.ones(NUM_ENVS, dtype=torch.float64)}),

@@ -12,8 +12,9 @@ factor on every object's value, ``"gravity"`` for the global one. Objects are th
 world body; for masses not a body of mass 0, whose inertia could not follow), geoms, sites, joints and actuators (an
 unnamed actuator of a joint by its joint's name: Hopper's ``actuator_gear:thigh_joint``); an unnamed object or a name
 holding ``"."`` or ``"/"`` is not offered. Positions and orientations (``body_pos``, ``body_quat``, ``geom_pos``,
-``site_pos``: a target placed per episode, an object moved) are an object's row (3 or 4 values) and have no scale. The model's value of an object is its own value (nominal until
-set) times the kind's scale (1.0 until set): a scale and one object's value set by two ``set_domain`` calls compose.
+``site_pos``: a target placed per episode, an object moved) are an object's row (3 or 4 values) and have no scale.
+The model's value of an object is its own value (nominal until set) times the kind's scale (1.0 until set): a scale
+and one object's value set by two ``set_domain`` calls compose.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from torchtasks._did_you_mean import did_you_mean
 from torchtasks._optional import missing_extra
 from torchtasks.domain.fields import DomainField, check_domain_values, select_fields
 
@@ -34,7 +36,7 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.mujoco_domain", _error) from _error
 
-__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind"]
+__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind", "nominal_value"]
 
 #: the suffix of a kind's scale field
 SCALE = "_scale"
@@ -218,6 +220,27 @@ def _table(model: mujoco.MjModel) -> dict[str, _Entry]:
             )
             table[name] = _Entry(field, kind, None)
     return table
+
+
+def nominal_value(model: mujoco.MjModel, name: str, argument: str) -> np.ndarray:
+    """The nominal value of the domain field ``name`` of ``model`` (float64 ``value_shape``); ``ValueError`` naming
+    ``argument`` and the closest names for a field the model does not offer.
+
+    Example:
+        >>> import mujoco
+        >>> model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom name="target" pos="0 0 0.1" size="0.1"/>'
+        ...                                        '</worldbody></mujoco>')
+        >>> nominal_value(model, "geom_pos:target", "field").tolist()
+        [0.0, 0.0, 0.1]
+    """
+    table = _table(model)
+    if not isinstance(name, str) or name not in table:
+        raise ValueError(
+            f"{argument}: the model offers no domain field {name!r}{did_you_mean(str(name), list(table))} (kinds: "
+            + ", ".join(kind.stem + ("" if kind.objects is None else f":<{kind.objects}>") for kind in FIELD_KINDS)
+            + ")"
+        )
+    return table[name].field.nominal.numpy().copy()
 
 
 class BatchDomain:
