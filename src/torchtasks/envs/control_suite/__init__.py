@@ -1,0 +1,1 @@
+"""The DeepMind Control Suite on the batched MuJoCo engine."""
