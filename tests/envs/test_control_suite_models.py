@@ -129,8 +129,8 @@ def model_fields(model) -> dict:
 #: import there. (np.savez would take seconds to write and read the ~40000 arrays.)
 REFERENCE_SCRIPT = """
 import importlib.metadata, json, sys
-import numpy as np
 try:
+    import numpy as np
     import mujoco
     from dm_control import suite
     from dm_control.suite import common
