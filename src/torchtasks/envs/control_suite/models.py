@@ -70,6 +70,11 @@ class ModelEdit(NamedTuple):
     ``field`` is the ``mujoco.MjModel`` field, ``name`` the object's name (a joint for ``dof_*`` fields, else an
     object of the field's kind: ``site_*`` a site, ``geom_*`` a geom), ``column`` the column written (``None`` for
     a field with one value per object) and ``value`` the value.
+
+    Example:
+        >>> from torchtasks.envs.control_suite.models import FIXED_MODEL_EDITS
+        >>> FIXED_MODEL_EDITS["reacher", "hard"]
+        (ModelEdit(field='geom_size', name='target', column=0, value=0.015),)
     """
 
     field: str
