@@ -39,27 +39,26 @@ except ImportError as _error:
 
 __all__ = ["FIXED_MODEL_EDITS", "TASKS", "ModelEdit", "control_suite_model", "control_suite_spec"]
 
+#: the domains and their tasks (a literal: ``torchtasks check`` reads it from the source without importing MuJoCo)
+_TASK_TABLE = {
+    "acrobot": ("swingup", "swingup_sparse"),
+    "ball_in_cup": ("catch",),
+    "cartpole": ("balance", "balance_sparse", "swingup", "swingup_sparse"),
+    "cheetah": ("run",),
+    "finger": ("spin", "turn_easy", "turn_hard"),
+    "fish": ("upright", "swim"),
+    "hopper": ("stand", "hop"),
+    "humanoid": ("stand", "walk", "run"),
+    "manipulator": ("bring_ball",),
+    "pendulum": ("swingup",),
+    "point_mass": ("easy",),
+    "reacher": ("easy", "hard"),
+    "swimmer": ("swimmer6", "swimmer15"),
+    "walker": ("stand", "walk", "run"),
+    "quadruped": ("walk", "run"),
+}
 #: the domains and their tasks: dm_control's BENCHMARKING tasks (dm-control 1.0.50) and quadruped walk and run
-TASKS: Mapping[str, tuple[str, ...]] = types.MappingProxyType(
-    {
-        "acrobot": ("swingup", "swingup_sparse"),
-        "ball_in_cup": ("catch",),
-        "cartpole": ("balance", "balance_sparse", "swingup", "swingup_sparse"),
-        "cheetah": ("run",),
-        "finger": ("spin", "turn_easy", "turn_hard"),
-        "fish": ("upright", "swim"),
-        "hopper": ("stand", "hop"),
-        "humanoid": ("stand", "walk", "run"),
-        "manipulator": ("bring_ball",),
-        "pendulum": ("swingup",),
-        "point_mass": ("easy",),
-        "reacher": ("easy", "hard"),
-        "swimmer": ("swimmer6", "swimmer15"),
-        "walker": ("stand", "walk", "run"),
-        "quadruped": ("walk", "run"),
-    }
-)
-
+TASKS: Mapping[str, tuple[str, ...]] = types.MappingProxyType(_TASK_TABLE)
 #: the files the domain files include, under the names dm_control gives them (``dm_control.suite.common.ASSETS``)
 _COMMON_FILES = ("./common/materials.xml", "./common/skybox.xml", "./common/visual.xml")
 
