@@ -1436,7 +1436,8 @@ class Norm(_Composite):
     """The Euclidean norm of a reading's elements plus ``offset`` (a finite number, 0 by default): shape ``(1,)``.
 
     dm_control's finger ``dist_to_target``, the target's distance from the tip less the target's radius, is
-    ``norm(difference(sensor("target"), sensor("tip"), index=(0, 2)), offset=-0.07)``.
+    ``norm(difference(sensor("target"), sensor("tip"), index=(0, 2)), offset=-0.07)``. ``index`` and ``clip`` apply
+    to the norm. A 3-vector's norm is ``mju_norm3``'s on numpy arrays; torch's square root may differ in the last bit.
 
     Example:
         >>> import numpy as np
