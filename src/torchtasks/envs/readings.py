@@ -380,7 +380,8 @@ def _check_index(index: object) -> tuple[int, ...] | None:
 
 
 def _check_reading(value: object, argument: str) -> Reading:
-    """An input of a composite reading: a reading the env computes itself (a finite difference is the env's own)."""
+    """An input of a composite reading: any reading but a finite difference (which the env computes from the value
+    its reading had before the step, so only as an entry's outermost reading)."""
     if not isinstance(value, Reading):
         raise TypeError(f"{argument} must be a reading (e.g. body_pos('torso')), got {value!r}")
     if isinstance(value, FiniteDifference):
@@ -1353,8 +1354,8 @@ class Difference(_Composite):
         _check_frame(self.frame, "difference frame")
 
     def _arguments(self) -> list[str]:
-        inputs = [each._label() if isinstance(each, Reading) else repr(each) for each in (self.a, self.b)]
-        return [*inputs, *([] if self.frame is None else [f"frame={self.frame}"])]
+        frame = [] if self.frame is None else [f"frame={self.frame}"]
+        return [self.a._label(), self.b._label(), *frame]  # type: ignore[union-attr]
 
     def _resolve(self, model: mujoco.MjModel) -> Resolved:
         first, second = self.a.resolve(model), self.b.resolve(model)  # type: ignore[union-attr]
