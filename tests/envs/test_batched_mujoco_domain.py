@@ -70,10 +70,14 @@ CASES: dict[str, tuple[str, list[str]]] = {
     "ant": ("Ant-v5", ["body_mass:torso", "geom_friction:floor", "dof_damping:root", "dof_armature:hip_1", "gravity"]),
     # the mass centre (x_velocity from per-env masses), named actuators
     "humanoid": ("Humanoid-v5", ["body_mass_scale", "actuator_gear:right_knee", "geom_friction_scale", "gravity"]),
+    # poses: a body moved and turned in its parent, a geom moved on its body (rows of 3 and 4 values, no scale)
+    "hopper-poses": ("Hopper-v5", ["body_pos:foot", "body_quat:thigh", "geom_pos:foot_geom", "body_mass:leg"]),
 }
 
 #: fields whose model field mj_setConst reads (mujoco.MjModel._setconst_inputs)
-SET_CONST_KINDS = ("body_mass", "dof_armature", "actuator_gear")
+SET_CONST_KINDS = ("body_mass", "dof_armature", "actuator_gear", "body_pos", "body_quat", "geom_pos", "site_pos")
+#: the kinds of an object's pose, and the kind of object each belongs to
+POSE_KINDS = {"body_pos": "body", "body_quat": "body", "geom_pos": "geom", "site_pos": "site"}
 
 
 # ------------------------------------------------------------------------------ the reference
@@ -109,6 +113,8 @@ def reference_model(nominal: mujoco.MjModel, values: dict[str, np.ndarray]) -> m
                 joint = nominal.joint(obj)
                 start, count = int(joint.dofadr[0]), {0: 6, 1: 3}.get(int(joint.type[0]), 1)
                 getattr(model, kind)[start : start + count] = value
+        elif kind in POSE_KINDS:
+            getattr(model, kind)[getattr(nominal, POSE_KINDS[kind])(obj).id] = value
         elif kind == "actuator_gear":
             rows = slice(None) if obj is None else nominal.actuator(obj).id
             model.actuator_gear[rows, 0] = nominal.actuator_gear[rows, 0] * value if obj is None else value
@@ -127,6 +133,11 @@ def draw_values(env: BatchedMujocoEnv, names: list[str], rng: np.random.Generato
         shape = (NUM_ENVS, *field.value_shape)
         if field.name == "gravity":
             value = nominal + rng.uniform(-2.0, 2.0, size=shape)
+        elif field.name.startswith("body_quat:"):  # a unit quaternion near the nominal one
+            value = nominal + rng.uniform(-0.2, 0.2, size=shape)
+            value /= np.linalg.norm(value, axis=1, keepdims=True)
+        elif _parse(field.name)[0] in POSE_KINDS:
+            value = nominal + rng.uniform(-0.05, 0.05, size=shape)
         else:
             value = nominal * rng.uniform(0.6, 1.4, size=shape)
             if field.name.startswith("actuator_gear:"):
@@ -369,13 +380,14 @@ def test_out_of_range_and_non_finite_values_of_the_written_envs_are_refused(
             lambda env: env.domain_fields(["body_mass:torsoo"]),
             ValueError,
             r"unknown domain field 'body_mass:torsoo' in names; did you mean 'body_mass:torso'.*"
-            r"env\.domain_fields\(\) lists all 30 fields",  # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity
+            # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity; poses of 4 + 4 bodies and 5 geoms
+            r"env\.domain_fields\(\) lists all 43 fields",
         ),
         (
             lambda env: env.set_domain({"mass:torso": torch.ones(NUM_ENVS, dtype=torch.float64)}),
             ValueError,
             r"'mass:torso' in values; did you mean 'body_mass:torso'\? "
-            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 30",
+            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 43",
         ),
         (lambda env: env.domain_fields("gravity"), TypeError, r"names must be a sequence"),
         (

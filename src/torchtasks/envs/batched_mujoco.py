@@ -58,6 +58,7 @@ from torchtasks.envs.gymnasium_v5 import (
 from torchtasks.envs.mujoco_declaration import Actions, FreeJointRanges, Resets, declare
 from torchtasks.envs.mujoco_domain import BatchDomain, FieldKind
 from torchtasks.envs.readings import Resolved
+from torchtasks.envs.reset_steps import ResetContext
 
 __all__ = ["BatchedMujocoEnv", "ZeroBrokenStepReward"]
 
@@ -91,6 +92,7 @@ _DOMAIN_KEY = "domain"
 #: the batch and of each other, which a copy would turn into independent arrays)
 _REBUILT = (
     "batch",
+    "_context",
     "_qpos",
     "_qvel",
     "_clock",
@@ -739,6 +741,7 @@ class BatchedMujocoEnv(EnvBase):
             if given:  # the reset tensordict's states, for every env reset
                 for field, values in given.items():
                     (self._qpos if field == "qpos" else self._qvel)[all_ids] = values
+                self._run_steps(all_ids, state=False)
             else:  # the states set_reset_states queued, for the envs it queued them for; the others draw
                 queued = ~np.isnan(self._queued_qpos[all_ids, 0])  # a NaN row: nothing queued
                 drawn = all_ids[~queued] if queued.any() else all_ids
@@ -746,6 +749,7 @@ class BatchedMujocoEnv(EnvBase):
                     self._draw(drawn, rows if drawn is all_ids else drawn)
                 if queued.any():
                     started = all_ids[queued]
+                    self._run_steps(started, state=False)
                     self._qpos[started] = self._queued_qpos[started]
                     velocities = started[np.isfinite(self._queued_qvel[started]).all(axis=1)]
                     self._qvel[velocities] = self._queued_qvel[velocities]
@@ -759,8 +763,38 @@ class BatchedMujocoEnv(EnvBase):
                 previous[rows] = now[rows]
         return self._outputs(None, None, reward=False)
 
+    def _reset_context(self) -> ResetContext:
+        """What the reset steps (:mod:`~torchtasks.envs.reset_steps`) work on: this env's batch."""
+        context = self.__dict__.get("_context")
+        if context is None:
+            batch = self.batch
+
+            def write_domain(name: str, ids: np.ndarray, values: np.ndarray) -> None:
+                self._follow_domain(self._domain.write({name: values}, ids), ids)
+
+            def settle(ids: np.ndarray, nstep: int) -> None:
+                batch.step(ids, nstep, self._stage)
+                self._clock[ids] = 0.0
+
+            context = ResetContext(self.model, self._qpos, self._qvel, batch.bind, batch.forward, write_domain, settle)
+            self.__dict__["_context"] = context
+        return context
+
+    def _run_steps(self, ids: np.ndarray, state: bool) -> None:
+        """Run the declaration's reset steps for the reset envs ``ids`` (only those that write model fields alone
+        unless ``state``)."""
+        steps = [apply for _, writes_state, apply in self.declaration.reset_steps if state or not writes_state]
+        if steps:
+            context, generators = self._reset_context(), [self.np_random[i] for i in ids.tolist()]
+            for apply in steps:
+                apply(context, ids, generators)
+
     def _draw(self, ids: np.ndarray, rows: slice | np.ndarray) -> None:
         """Draw the reset envs' initial states from their generators and write them over the default state."""
+        self._draw_noise(ids, rows)
+        self._run_steps(ids, state=True)
+
+    def _draw_noise(self, ids: np.ndarray, rows: slice | np.ndarray) -> None:
         resets = self.declaration.resets
         if not resets.noise and resets.free_joint is None:
             return
@@ -950,6 +984,7 @@ class BatchedMujocoEnv(EnvBase):
                 "reset_keyframe": resets.keyframe,
                 "reset_noise": noise,
                 "free_joint": resets.free_joint,
+                **({"reset_steps": resets.steps} if resets.steps else {}),  # absent: as checkpoints written before
                 "stage": declaration.stage,
             }
         )

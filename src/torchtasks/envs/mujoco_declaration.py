@@ -31,6 +31,7 @@ except ImportError as _error:
 from torchtasks.envs import readings as _readings
 from torchtasks.envs.mujoco_model import load_model, model_label, object_id, object_names
 from torchtasks.envs.readings import Reading, Resolved
+from torchtasks.envs.reset_steps import Apply, ResetStep
 
 __all__ = [
     "Actions",
@@ -159,7 +160,9 @@ class Resets:
     - ``qpos_noise``, ``qvel_noise``: noise on every coordinate of ``qpos`` (quaternions included, unnormalised, as
       Gymnasium's resets) and of ``qvel``;
     - ``joint_noise``: ``{joint name: Noise}`` on a hinge or slide joint's position, in the order given;
-    - ``free_joint``: :class:`FreeJointRanges` of a floating base.
+    - ``free_joint``: :class:`FreeJointRanges` of a floating base;
+    - ``steps``: :mod:`~torchtasks.envs.reset_steps`, in order (joints drawn in their ranges, random orientations,
+      a target's position drawn per env, draws repeated until nothing touches, a few settling steps).
 
     Example:
         >>> from torchtasks.envs.mujoco_declaration import Noise, Resets
@@ -172,8 +175,17 @@ class Resets:
     qvel_noise: Noise | None = None
     joint_noise: Mapping[str, Noise] = field(default_factory=dict)
     free_joint: FreeJointRanges | None = None
+    steps: Sequence[ResetStep] = ()
 
     def __post_init__(self) -> None:
+        if isinstance(self.steps, (str, bytes)) or not isinstance(self.steps, Sequence):
+            raise TypeError(f"Resets steps must be a sequence of reset steps, got {self.steps!r}")
+        for step in self.steps:
+            if not isinstance(step, ResetStep):
+                raise TypeError(
+                    f"Resets steps must hold reset steps (torchtasks.envs.reset_steps), got {type(step).__name__}"
+                )
+        object.__setattr__(self, "steps", tuple(self.steps))
         for name in ("qpos_noise", "qvel_noise"):
             value = getattr(self, name)
             if value is not None and not isinstance(value, Noise):
@@ -221,6 +233,8 @@ class ResolvedResets:
     noise: tuple[tuple[str, np.ndarray, Noise], ...]
     #: the free joint's qpos and qvel addresses and its ranges, or None
     free_joint: tuple[int, int, FreeJointRanges] | None
+    #: the reset steps, in order (resolved in :attr:`MujocoDeclaration.reset_steps`)
+    steps: tuple[ResetStep, ...] = ()
 
 
 @dataclass(frozen=True, eq=False)
@@ -256,19 +270,23 @@ class MujocoDeclaration:
     contact_forces: ContactForces = "forward"
     observation: Mapping[str, tuple[Resolved, ...]] = field(init=False, repr=False, compare=False)
     state: Mapping[str, tuple[Resolved, ...]] = field(init=False, repr=False, compare=False)
+    #: ``resets.steps`` resolved: ``(step, writes_state, function)`` each
+    reset_steps: tuple[tuple[ResetStep, bool, Apply], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._resolve()
 
     def _resolve(self) -> None:
-        # resolved readings hold closures over the model's indices: rebuilt from the readings, never pickled
+        # resolved readings and steps hold closures over the model's indices: rebuilt from them, never pickled
         object.__setattr__(self, "observation", _resolve(self.model, self.observation_readings))
         object.__setattr__(self, "state", _resolve(self.model, self.state_readings))
+        steps = tuple((step, step.writes_state, step.resolve(self.model)) for step in self.resets.steps)
+        object.__setattr__(self, "reset_steps", steps)
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
-        state.pop("observation", None)
-        state.pop("state", None)
+        for name in ("observation", "state", "reset_steps"):
+            state.pop(name, None)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -398,7 +416,7 @@ def _resolve_resets(model: mujoco.MjModel, resets: Resets) -> ResolvedResets:
     if resets.free_joint is not None:
         joint = _free_joint(model, resets.free_joint.joint)
         free = (int(model.jnt_qposadr[joint]), int(model.jnt_dofadr[joint]), resets.free_joint)
-    return ResolvedResets(keyframe, tuple(noise), free)
+    return ResolvedResets(keyframe, tuple(noise), free, resets.steps)
 
 
 def _control_steps(model: mujoco.MjModel, frame_skip: object, control_timestep: object) -> int:

@@ -9,10 +9,12 @@ the checks of the values users write, and the writes into the batch's per-simula
 
 Names (:mod:`torchtasks.domain.fields`): ``"<kind>:<object>"`` for one named object's value, ``"<kind>_scale"`` for a
 factor on every object's value, ``"gravity"`` for the global one. Objects are the model's named bodies (not the
-world body, nor a body of mass 0, whose inertia could not follow), geoms, joints and actuators (an unnamed actuator of
-a joint by its joint's name: Hopper's ``actuator_gear:thigh_joint``); an unnamed object or a name holding ``"."`` or
-``"/"`` is not offered. The model's value of an object is its own value (nominal until
-set) times the kind's scale (1.0 until set): a scale and one object's value set by two ``set_domain`` calls compose.
+world body; for masses not a body of mass 0, whose inertia could not follow), geoms, sites, joints and actuators (an
+unnamed actuator of a joint by its joint's name: Hopper's ``actuator_gear:thigh_joint``); an unnamed object or a name
+holding ``"."`` or ``"/"`` is not offered. Positions and orientations (``body_pos``, ``body_quat``, ``geom_pos``,
+``site_pos``: a target placed per episode, an object moved) are an object's row (3 or 4 values) and have no scale.
+The model's value of an object is its own value (nominal until set) times the kind's scale (1.0 until set): a scale
+and one object's value set by two ``set_domain`` calls compose.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
+from torchtasks._did_you_mean import did_you_mean
 from torchtasks._optional import missing_extra
 from torchtasks.domain.fields import DomainField, check_domain_values, select_fields
 
@@ -33,7 +36,7 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.mujoco_domain", _error) from _error
 
-__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind"]
+__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind", "nominal_value"]
 
 #: the suffix of a kind's scale field
 SCALE = "_scale"
@@ -46,8 +49,8 @@ class FieldKind(NamedTuple):
     stem: str
     #: the model field the values are written into (``Batch.expand``'s name)
     model_field: str
-    #: the kind of named object with one value each (``"body"``, ``"geom"``, ``"joint"``, ``"actuator"``); ``None``:
-    #: one global value, the whole field
+    #: the kind of named object with one value each (``"body"``, ``"geom"``, ``"site"``, ``"joint"``, ``"actuator"``);
+    #: ``None``: one global value, the whole field
     objects: str | None
     #: the column of the model field's row that is the value (``geom_friction[:, 0]``, the sliding friction); ``None``:
     #: the whole row
@@ -102,6 +105,27 @@ FIELD_KINDS: tuple[FieldKind, ...] = (
         scale_what="every actuator's gear times this factor (> 0: a scale never reverses an actuator)",
     ),
     FieldKind(
+        stem="body_pos", model_field="body_pos", objects="body", column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=True,
+        what="position of body {} in its parent's frame (m; a target or an object placed per episode)",
+        scale_what="",
+    ),
+    FieldKind(
+        stem="body_quat", model_field="body_quat", objects="body", column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=True,
+        what="orientation of body {} in its parent's frame (a unit quaternion w, x, y, z)", scale_what="",
+    ),
+    FieldKind(
+        stem="geom_pos", model_field="geom_pos", objects="geom", column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=True,
+        what="position of geom {} in its body's frame (m)", scale_what="",
+    ),
+    FieldKind(
+        stem="site_pos", model_field="site_pos", objects="site", column=None, low=-math.inf, low_open=False,
+        scale_low_open=None, scaled_with=(), set_const=True,
+        what="position of site {} in its body's frame (m)", scale_what="",
+    ),
+    FieldKind(
         stem="gravity", model_field="opt.gravity", objects=None, column=None, low=-math.inf, low_open=False,
         scale_low_open=None, scaled_with=(), set_const=False,
         what="gravity (m/s^2, world frame)", scale_what="",
@@ -109,7 +133,7 @@ FIELD_KINDS: tuple[FieldKind, ...] = (
 )  # fmt: skip
 
 #: the model's count of each kind of object
-_COUNTS = {"body": "nbody", "geom": "ngeom", "joint": "njnt", "actuator": "nu"}
+_COUNTS = {"body": "nbody", "geom": "ngeom", "site": "nsite", "joint": "njnt", "actuator": "nu"}
 #: the dofs of a joint, by type
 _JOINT_DOFS = {
     int(mujoco.mjtJoint.mjJNT_FREE): 6,
@@ -182,8 +206,8 @@ def _table(model: mujoco.MjModel) -> dict[str, _Entry]:
             ]
         for name, slots, what in entries:
             value = torch.tensor(nominal[slots], dtype=torch.float64)
-            if kind.objects is not None and slots.size == 1:  # one dof, body, geom or actuator: a scalar
-                value = value.reshape(())
+            if kind.objects is not None and slots.size == 1:  # one body, geom, site, dof or actuator: its value
+                value = value[0]  # a scalar (a mass), or the object's row (a position, a quaternion)
             field = DomainField(
                 name, value.shape, value, low=kind.low, low_open=kind.low_open, description=what, **common
             )
@@ -196,6 +220,27 @@ def _table(model: mujoco.MjModel) -> dict[str, _Entry]:
             )
             table[name] = _Entry(field, kind, None)
     return table
+
+
+def nominal_value(model: mujoco.MjModel, name: str, argument: str) -> np.ndarray:
+    """The nominal value of the domain field ``name`` of ``model`` (float64 ``value_shape``); ``ValueError`` naming
+    ``argument`` and the closest names for a field the model does not offer.
+
+    Example:
+        >>> import mujoco
+        >>> model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom name="target" pos="0 0 0.1" size="0.1"/>'
+        ...                                        '</worldbody></mujoco>')
+        >>> nominal_value(model, "geom_pos:target", "field").tolist()
+        [0.0, 0.0, 0.1]
+    """
+    table = _table(model)
+    if not isinstance(name, str) or name not in table:
+        raise ValueError(
+            f"{argument}: the model offers no domain field {name!r}{did_you_mean(str(name), list(table))} (kinds: "
+            + ", ".join(kind.stem + ("" if kind.objects is None else f":<{kind.objects}>") for kind in FIELD_KINDS)
+            + ")"
+        )
+    return table[name].field.nominal.numpy().copy()
 
 
 class BatchDomain:
@@ -321,7 +366,7 @@ class BatchDomain:
         if objects:
             current = np.broadcast_to(nominal, (count, *nominal.shape)).copy()
             for slots, values in objects:
-                current[:, slots] = values[where].reshape(count, -1)
+                current[:, slots] = values[where].reshape(current[:, slots].shape)
             if (
                 kind.scaled_with
             ):  # value over nominal per object (1 where the nominal value is 0: nothing offered there)
