@@ -90,12 +90,14 @@ def control_suite_record(name: str | tuple[str, str]) -> ControlSuiteTask:
         >>> control_suite_record(("walker", "walk")).control_timestep
         0.025
     """
-    key = "-".join(name) if isinstance(name, tuple) and all(isinstance(n, str) for n in name) else name
-    if not isinstance(key, str) or key not in CONTROL_SUITE:
-        shown = key if isinstance(key, str) else repr(name)
+    pair = isinstance(name, tuple) and len(name) == 2 and all(isinstance(n, str) for n in name)
+    if not (isinstance(name, str) or pair):
+        raise TypeError(f"name must be a task name 'domain-task' or a pair (domain, task) of str, got {name!r}")
+    key = "-".join(name) if pair else name
+    if key not in CONTROL_SUITE:
         raise ValueError(
-            f"unknown Control Suite task {shown!r}{did_you_mean(str(shown), list(CONTROL_SUITE))}; the tasks are "
-            f"{', '.join(CONTROL_SUITE)} (a name 'domain-task' or a pair (domain, task))"
+            f"unknown Control Suite task {key!r}{did_you_mean(key, list(CONTROL_SUITE))}; the tasks are "
+            f"{', '.join(CONTROL_SUITE)}"
         )
     return CONTROL_SUITE[key]
 
