@@ -54,7 +54,7 @@ import mujoco
 import numpy as np
 import torch
 from torchrl.collectors import Collector
-from torchrl.envs import EnvBase
+from torchrl.envs import EnvBase, TransformedEnv
 
 from torchtasks.bench.collector import uniform_policy
 from torchtasks.envs.control_suite import CONTROL_SUITE_TASKS, control_suite_base_env, control_suite_env
@@ -79,6 +79,11 @@ DEFAULT_TASKS = (
 )
 #: this process's variants, measured in this order in every repeat
 OURS = ("floor", "env", "preset")
+#: ``--breakdown``: the preset's transforms added one at a time between ``env`` and ``preset``, then the preset over an
+#: env that simulates nothing; in this order
+LAYERS = ("+StepCounter", "+task", "+ZeroBrokenStepReward")
+NO_PHYSICS = "preset, no physics"
+BREAKDOWN = (*LAYERS, NO_PHYSICS)
 #: the peer variants (benchmarks/control_suite_peer.py) and those measured by default
 PEERS = ("serial", "parallel", "parallel_per_env", "dm_control")
 DEFAULT_PEERS = ("serial", "parallel", "dm_control")
@@ -151,15 +156,46 @@ def measure(measured: Floor | Collected, seconds: float) -> dict[str, float]:
     }
 
 
-def build_ours(task: str, num_envs: int, num_threads: int, steps: int) -> dict[str, Floor | Collected]:
-    """The floor, the env alone and the preset of ``task``, each with its first batch drawn."""
+def preset_layers(task: str, num_envs: int, num_threads: int, layers: int) -> TransformedEnv:
+    """``control_suite_env(task, num_envs)`` with only its first ``layers`` transforms (4: the preset)."""
+    env = control_suite_env(task, num_envs, seed=0, num_threads=num_threads)
+    while len(env.transform) > layers:
+        env.transform.pop()
+    return env
+
+
+def no_physics_preset(task: str, num_envs: int, num_threads: int) -> TransformedEnv:
+    """The preset's transforms over an env with its base env's specs that simulates nothing (zeros every step)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    try:
+        from pipeline_costs import NoPhysicsEnv
+    finally:
+        sys.path.pop(0)
+    preset = control_suite_env(task, num_envs, seed=0, num_threads=num_threads)
+    env = TransformedEnv(NoPhysicsEnv(preset.base_env), preset.transform.clone())
+    preset.close()
+    return env
+
+
+def build_ours(
+    task: str, num_envs: int, num_threads: int, steps: int, breakdown: bool = False
+) -> dict[str, Floor | Collected]:
+    """The floor, the env alone and the preset of ``task`` (and the :data:`BREAKDOWN` variants), each with its first
+    batch drawn, in the order they are measured."""
     frames_per_batch = num_envs * steps
     kwargs = {"seed": 0, "num_threads": num_threads}
     makers: dict[str, Callable[[], Floor | Collected]] = {
         "floor": lambda: Floor(task, num_envs, num_threads, steps),
         "env": lambda: Collected(control_suite_base_env(task, num_envs, **kwargs), frames_per_batch),
-        "preset": lambda: Collected(control_suite_env(task, num_envs, **kwargs), frames_per_batch),
     }
+    if breakdown:
+        for layers, variant in enumerate(LAYERS, start=1):
+            makers[variant] = lambda layers=layers: Collected(
+                preset_layers(task, num_envs, num_threads, layers), frames_per_batch
+            )
+    makers["preset"] = lambda: Collected(control_suite_env(task, num_envs, **kwargs), frames_per_batch)
+    if breakdown:
+        makers[NO_PHYSICS] = lambda: Collected(no_physics_preset(task, num_envs, num_threads), frames_per_batch)
     return {variant: make() for variant, make in makers.items()}
 
 
@@ -235,11 +271,12 @@ def run_task(
     peer: Peer | None,
     peers: tuple[str, ...],
     workers: int,
+    breakdown: bool = False,
 ) -> dict[str, Any]:
     """Every variant of ``task``, built once, measured back to back in each repeat: one row of the results."""
     load = os.getloadavg()
     started = time.perf_counter()
-    ours = build_ours(task, num_envs, num_threads, steps)
+    ours = build_ours(task, num_envs, num_threads, steps, breakdown)
     ours_startup = time.perf_counter() - started
     peer_startup: dict[str, float] = {}
     if peer is not None:
@@ -249,7 +286,7 @@ def run_task(
             workers=workers, seed=0,
         )  # fmt: skip
         peer_startup = opened["startup_seconds"]
-    measured = [*OURS, *(peers if peer is not None else ())]
+    measured = [*ours, *(peers if peer is not None else ())]
     raw: dict[str, list[float]] = {variant: [] for variant in measured}
     cpu: dict[str, list[float]] = {variant: [] for variant in measured}
     try:
@@ -273,7 +310,7 @@ def run_task(
         "load_average_before": load,
         "raw": raw,
         "cpu_seconds_per_second": cpu,
-        "startup_seconds": {"ours (all three)": ours_startup, **peer_startup},
+        "startup_seconds": {"ours": ours_startup, **peer_startup},
         "median": {variant: statistics.median(values) for variant, values in raw.items()},
         "ratio_to_floor": {
             variant: statistics.median(v / f for v, f in zip(values, raw["floor"], strict=True))
@@ -318,6 +355,19 @@ def _table(rows: list[dict[str, Any]], peers: tuple[str, ...], peer_status: str 
     return "\n".join(lines)
 
 
+def _breakdown_table(rows: list[dict[str, Any]]) -> str:
+    """Milliseconds per step of all envs (the bracket: frames/s over the floor's) of ``--breakdown``'s variants."""
+    variants = ("floor", "env", *LAYERS, "preset", NO_PHYSICS)
+    lines = ["| task | " + " | ".join(variants) + " |", "|---|" + "---:|" * len(variants)]
+    for row in rows:
+        cells = [f"{1000 * row['num_envs'] / row['median']['floor']:.2f}"]
+        for variant in variants[1:]:
+            milliseconds = 1000 * row["num_envs"] / row["median"][variant]
+            cells.append(f"{milliseconds:.2f} ({row['ratio_to_floor'][variant]:.2f})")
+        lines.append(f"| {row['task']} × {row['num_envs']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def _legend(num_threads: int, workers: int, steps: int, peers: tuple[str, ...]) -> str:
     items = [
         f"- physics floor: `mujoco.batch.Batch.step(nstep=frame_skip, stage=mjSTAGE_VEL)` of the env's own "
@@ -347,6 +397,15 @@ def _legend(num_threads: int, workers: int, steps: int, peers: tuple[str, ...]) 
     return "\n".join(items)
 
 
+BREAKDOWN_TEXT = (
+    "Where a step goes (`--breakdown`): milliseconds per step of all envs, medians (the bracket: frames/s over the "
+    "floor's of the same repeat, the median): the floor, the env alone, then the preset's transforms added one at a "
+    "time (`StepCounter(1000)`, the task's `TaskTransform`, `ZeroBrokenStepReward`; `RewardSum` makes the preset), "
+    "and the preset's four transforms over an env with the base env's specs that simulates nothing "
+    "(`benchmarks/pipeline_costs.py`'s `NoPhysicsEnv`: what TorchRL and the transforms cost per step without MuJoCo)."
+)
+
+
 def _versions() -> dict[str, str | None]:
     from importlib.metadata import PackageNotFoundError, version
 
@@ -371,6 +430,11 @@ def main(argv: list[str] | None = None) -> int:
         "--peers", nargs="*", default=list(DEFAULT_PEERS), choices=PEERS, help="peer variants (%(default)s)"
     )
     parser.add_argument("--peer-python", default=None, help=f"the peer venv's python (${PEER_PYTHON_VARIABLE})")
+    parser.add_argument(
+        "--breakdown",
+        action="store_true",
+        help="also the preset one transform at a time and over an env that simulates nothing (a second table)",
+    )
     parser.add_argument("--output", type=Path, default=Path("runs/control_suite_bench"))
     parser.add_argument("--quick", action="store_true", help="every code path on one small task (timings mean nothing)")
     args = parser.parse_args(argv)
@@ -395,7 +459,11 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     try:
         for task in tasks:
-            rows.append(row := run_task(task, num_envs, repeats, seconds, steps, num_threads, peer, peers, workers))
+            rows.append(
+                row := run_task(
+                    task, num_envs, repeats, seconds, steps, num_threads, peer, peers, workers, args.breakdown
+                )
+            )
             print(
                 f"{task}: "
                 + ", ".join(f"{variant} {value:,.0f}" for variant, value in row["median"].items())
@@ -421,6 +489,7 @@ def main(argv: list[str] | None = None) -> int:
         "parallel_workers": workers,
         "torch_threads": 1,
         "quick": args.quick,
+        "breakdown": args.breakdown,
         "python": sys.version.split()[0],
         "platform": platform.platform(),
         "cpus": os.cpu_count(),
@@ -443,6 +512,7 @@ def main(argv: list[str] | None = None) -> int:
         + ", ".join(f"{name} {value}" for name, value in meta["versions"].items())
         + f"; peer: {peer_versions}\n\n"
         f"{_table(rows, shown_peers, peer_status, workers)}\n\n{_legend(num_threads, workers, steps, shown_peers)}\n"
+        + (f"\n{BREAKDOWN_TEXT}\n\n{_breakdown_table(rows)}\n" if args.breakdown else "")
     )
     print((args.output / "results.md").read_text())
     return 0

@@ -35,16 +35,19 @@ def _run(module: Any, arguments: list[str], output: Path) -> tuple[dict[str, Any
 
 
 def test_quick_run_measures_the_preset_against_its_floor_and_says_why_no_peer(tmp_path: Path) -> None:
-    """Without the peer venv, the floor, the env alone and the preset are measured and the peer columns say why not."""
+    """Without the peer venv, the floor, the env alone, the preset and ``--breakdown``'s layers are measured and the
+    peer columns say why not."""
     module = _benchmark()
     missing = tmp_path / "no-venv" / "python"
-    results, table = _run(module, ["--quick", "--peer-python", str(missing)], tmp_path)
+    results, table = _run(module, ["--quick", "--breakdown", "--peer-python", str(missing)], tmp_path)
     (row,) = results["rows"]
     assert row["task"] == "cartpole-swingup" and row["num_envs"] == 2
-    assert set(row["raw"]) == set(module.OURS)
+    assert list(row["raw"]) == ["floor", "env", *module.LAYERS, "preset", module.NO_PHYSICS]  # the measuring order
     assert all(value > 0 for values in row["raw"].values() for value in values)
     floor = row["raw"]["floor"][0]
-    assert row["ratio_to_floor"] == {variant: row["raw"][variant][0] / floor for variant in ("env", "preset")}
+    others = {variant: values[0] / floor for variant, values in row["raw"].items() if variant != "floor"}
+    assert row["ratio_to_floor"] == others
+    assert "| cartpole-swingup × 2 | " in table  # the breakdown table's row
     reason = f"not measured: no peer venv ({missing}, --peer-python, does not exist; `make bench-dmc-venv` builds it)"
     assert results["meta"]["peer_status"] == reason
     assert "| cartpole-swingup | 2 |" in table
@@ -63,7 +66,7 @@ def test_quick_run_measures_torchrl_dm_control_peers(tmp_path: Path) -> None:
     (row,) = results["rows"]
     assert set(row["raw"]) == {*module.OURS, *module.DEFAULT_PEERS}
     assert all(value > 0 for values in row["raw"].values() for value in values)
-    assert set(row["startup_seconds"]) == {"ours (all three)", *module.DEFAULT_PEERS}
+    assert set(row["startup_seconds"]) == {"ours", *module.DEFAULT_PEERS}
     best = max(row["raw"][variant][0] for variant in ("serial", "parallel"))
     assert row["preset_over_best_torchrl_peer"] == row["raw"]["preset"][0] / best
     versions = results["meta"]["peer_versions"]
