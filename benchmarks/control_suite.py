@@ -29,8 +29,9 @@ no TorchRL). Without the venv (``--peer-python`` or ``$TORCHTASKS_BENCH_DMC_PYTH
 
 Every variant's first batch is drawn when it is built, not timed; the peers' start-up seconds are recorded. The
 table reports medians over the repeats; a ratio is the median of the per-repeat ratios to that repeat's floor.
-Results: ``<output>/results.json`` (every repeat's numbers, the CPU seconds this process got per second of each
-measurement, the load average before every task and after the run, the versions) and ``<output>/results.md``.
+Results: ``<output>/results.json`` (every repeat's numbers, the CPU seconds each measurement got per second: this
+process's threads, or the peer worker's and its workers', the load average before every task and after the run, the
+versions) and ``<output>/results.md``.
 ``--quick`` runs every code path on one small task in seconds (its timings mean nothing).
 """
 
@@ -355,6 +356,19 @@ def _table(rows: list[dict[str, Any]], peers: tuple[str, ...], peer_status: str 
     return "\n".join(lines)
 
 
+def _cpu_line(rows: list[dict[str, Any]]) -> str:
+    """The CPU seconds per second each variant got, the median over tasks and repeats."""
+    variants = list(dict.fromkeys(variant for row in rows for variant in row["cpu_seconds_per_second"]))
+    shares = {
+        variant: statistics.median(share for row in rows for share in row["cpu_seconds_per_second"].get(variant, ()))
+        for variant in variants
+    }
+    return (
+        "CPU seconds per second each variant got (its threads, or the peer's processes; the median over tasks and "
+        "repeats): " + ", ".join(f"{variant} {share:.2f}" for variant, share in shares.items()) + "."
+    )
+
+
 def _breakdown_table(rows: list[dict[str, Any]]) -> str:
     """Milliseconds per step of all envs (the bracket: frames/s over the floor's) of ``--breakdown``'s variants."""
     variants = ("floor", "env", *LAYERS, "preset", NO_PHYSICS)
@@ -511,8 +525,8 @@ def main(argv: list[str] | None = None) -> int:
         f"`{meta['command']}`; ours: "
         + ", ".join(f"{name} {value}" for name, value in meta["versions"].items())
         + f"; peer: {peer_versions}\n\n"
-        f"{_table(rows, shown_peers, peer_status, workers)}\n\n{_legend(num_threads, workers, steps, shown_peers)}\n"
-        + (f"\n{BREAKDOWN_TEXT}\n\n{_breakdown_table(rows)}\n" if args.breakdown else "")
+        f"{_table(rows, shown_peers, peer_status, workers)}\n\n{_legend(num_threads, workers, steps, shown_peers)}\n\n"
+        f"{_cpu_line(rows)}\n" + (f"\n{BREAKDOWN_TEXT}\n\n{_breakdown_table(rows)}\n" if args.breakdown else "")
     )
     print((args.output / "results.md").read_text())
     return 0

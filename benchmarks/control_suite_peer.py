@@ -10,7 +10,8 @@ goes to stderr). The first line is its hello (the versions). Requests:
   each, and answers their start-up seconds.
 - ``{"op": "measure", "variant": ..., "seconds": T}``: draws batches of ``N * S`` frames from the variant until ``T``
   seconds have passed (at least one batch) and answers ``{"frames": ..., "seconds": ..., "frames_per_second": ...,
-  "cpu_seconds_per_second": ...}`` (CPU of this process only, not of a ParallelEnv's workers).
+  "cpu_seconds_per_second": ...}``: the CPU seconds this process and its worker processes got per second (Linux's
+  ``/proc``; elsewhere this process's only).
 - ``{"op": "close"}`` closes the variants; the end of stdin ends the worker.
 
 Errors answer ``{"error": message, "traceback": ...}`` and the worker keeps serving.
@@ -139,6 +140,25 @@ def _build(variant: str, domain: str, task: str, num_envs: int, steps: int, work
     return _Collected(_counted(env), num_envs * steps)
 
 
+def _cpu_seconds() -> float:
+    """CPU seconds of this process (all threads) and of its running child processes (a ParallelEnv's workers)."""
+    total = time.process_time()
+    if not os.path.isdir("/proc"):
+        return total
+    me, tick = os.getpid(), os.sysconf("SC_CLK_TCK")
+    for pid in os.listdir("/proc"):
+        if not pid.isdigit():
+            continue
+        try:
+            with open(f"/proc/{pid}/stat") as stat:
+                fields = stat.read().rsplit(")", 1)[1].split()  # after the command name, which may hold spaces
+        except OSError:  # exited meanwhile
+            continue
+        if int(fields[1]) == me:  # ppid; then utime and stime in clock ticks
+            total += (int(fields[11]) + int(fields[12])) / tick
+    return total
+
+
 class Server:
     """The variants of the open task, by name."""
 
@@ -159,12 +179,12 @@ class Server:
         if variant not in self.open_variants:
             raise ValueError(f"variant {variant!r} is not open (open: {sorted(self.open_variants)})")
         measured = self.open_variants[variant]
-        frames, elapsed, cpu = 0, 0.0, time.process_time()
+        frames, elapsed, cpu = 0, 0.0, _cpu_seconds()
         started = time.perf_counter()
         while elapsed < seconds or frames == 0:
             frames += measured.batch()
             elapsed = time.perf_counter() - started
-        cpu = time.process_time() - cpu
+        cpu = _cpu_seconds() - cpu
         return {
             "frames": frames,
             "seconds": elapsed,
