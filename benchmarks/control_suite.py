@@ -1,7 +1,7 @@
 """Frames/s of the Control Suite presets against the bare physics and against TorchRL's DMControlEnv, interleaved.
 
 ``python benchmarks/control_suite.py [--tasks walker-walk ...] [--envs 64] [--repeats 5] [--seconds 1.0]
-[--steps-per-batch 20] [--peers serial parallel dm_control] [--peer-python PATH] [--threads N]
+[--steps-per-batch 20] [--peers serial parallel parallel_pipes dm_control] [--peer-python PATH] [--threads N]
 [--output runs/control_suite_bench] [--quick]``
 
 For one task per domain (the 15 of :data:`DEFAULT_TASKS`) with ``--envs`` envs, these variants are built once per
@@ -22,10 +22,13 @@ and the peers, TorchRL's ``DMControlEnv(domain, task)`` (dm-control 1.0.50 on Mu
 in the benchmark venv ``make bench-dmc-venv`` builds, run by a worker process (``benchmarks/control_suite_peer.py``;
 its docstring says what each variant is): ``serial`` (the same Collector over ``SerialEnv(N, DMControlEnv)`` +
 ``StepCounter(1000)`` + ``RewardSum()``), ``parallel`` (``ParallelEnv(W, SerialEnv(N / W, DMControlEnv))``, W =
-``--threads`` worker processes: one per core), ``parallel_per_env`` (``ParallelEnv(N, DMControlEnv)``, one process
-per env: not measured by default) and ``dm_control`` (dm_control's own ``env.step`` in a Python loop over the N envs,
-no TorchRL). Without the venv (``--peer-python`` or ``$TORCHTASKS_BENCH_DMC_PYTHON``, else
-``.venv-bench-dmc/bin/python`` of this repository) the peer columns say why they were not measured.
+``--threads`` worker processes: one per core; TorchRL 0.14.1's parent process spin-polls shared-memory flags while
+its workers step, so it keeps a core busy), ``parallel_pipes`` (the same with ``use_buffers=False``: the workers send
+their results through pipes, which the parent blocks on), ``parallel_per_env`` (``ParallelEnv(N, DMControlEnv)``, one
+process per env: not measured by default, 64 processes of ~340 MB each on this 2-core machine) and ``dm_control``
+(dm_control's own ``env.step`` in a Python loop over the N envs, no TorchRL). Without the venv (``--peer-python`` or
+``$TORCHTASKS_BENCH_DMC_PYTHON``, else ``.venv-bench-dmc/bin/python`` of this repository) the peer columns say why
+they were not measured.
 
 Every variant's first batch is drawn when it is built, not timed; the peers' start-up seconds are recorded. The
 table reports medians over the repeats; a ratio is the median of the per-repeat ratios to that repeat's floor.
@@ -86,8 +89,10 @@ LAYERS = ("+StepCounter", "+task", "+ZeroBrokenStepReward")
 NO_PHYSICS = "preset, no physics"
 BREAKDOWN = (*LAYERS, NO_PHYSICS)
 #: the peer variants (benchmarks/control_suite_peer.py) and those measured by default
-PEERS = ("serial", "parallel", "parallel_per_env", "dm_control")
-DEFAULT_PEERS = ("serial", "parallel", "dm_control")
+PEERS = ("serial", "parallel", "parallel_pipes", "parallel_per_env", "dm_control")
+DEFAULT_PEERS = ("serial", "parallel", "parallel_pipes", "dm_control")
+#: the peers that are TorchRL envs (the speed-up of the preset is over the fastest of them)
+TORCHRL_PEERS = ("serial", "parallel", "parallel_pipes", "parallel_per_env")
 PEER_PYTHON_VARIABLE = "TORCHTASKS_BENCH_DMC_PYTHON"
 ROOT = Path(__file__).resolve().parents[1]
 PEER_SCRIPT = Path(__file__).resolve().with_name("control_suite_peer.py")
@@ -319,7 +324,7 @@ def run_task(
             if variant != "floor"
         },
     }
-    collected_peers = [variant for variant in ("serial", "parallel", "parallel_per_env") if variant in raw]
+    collected_peers = [variant for variant in TORCHRL_PEERS if variant in raw]
     if collected_peers:
         # the preset against the faster TorchRL peer of each repeat
         best = [max(raw[variant][k] for variant in collected_peers) for k in range(repeats)]
@@ -335,6 +340,7 @@ COLUMNS = {
     "preset": "preset (÷ floor)",
     "serial": "DMControlEnv SerialEnv (÷ floor)",
     "parallel": "DMControlEnv ParallelEnv of {workers} SerialEnv (÷ floor)",
+    "parallel_pipes": "the same, use_buffers=False (÷ floor)",
     "parallel_per_env": "DMControlEnv ParallelEnv, 1 env per process (÷ floor)",
     "dm_control": "dm_control loop, no TorchRL (÷ floor)",
 }
@@ -398,6 +404,9 @@ def _legend(num_threads: int, workers: int, steps: int, peers: tuple[str, ...]) 
         "`StepCounter(1000)` + `RewardSum()` (dm-control 1.0.50 on MuJoCo 3.17.0, in the peer venv), one process.",
         "parallel": f"- DMControlEnv ParallelEnv of {workers} SerialEnv: the same over `ParallelEnv({workers}, "
         f"SerialEnv(N / {workers}, DMControlEnv))`: one worker process per core.",
+        "parallel_pipes": "- the same, use_buffers=False: the workers send their results through pipes, which the "
+        "parent blocks on (the default, shared buffers, makes the parent spin-poll flags in shared memory while the "
+        "workers step: a busy core).",
         "parallel_per_env": "- DMControlEnv ParallelEnv, 1 env per process: the same over `ParallelEnv(N, "
         "DMControlEnv)`, what `DMControlEnv(domain, task, num_workers=N)` builds.",
         "dm_control": "- dm_control loop: dm_control's own `env.step(action)` over the N envs in a Python loop (a "
@@ -405,7 +414,7 @@ def _legend(num_threads: int, workers: int, steps: int, peers: tuple[str, ...]) 
     }
     items += [peer_items[variant] for variant in peers]
     items.append(
-        "- preset ÷ TorchRL peer: the preset's frames/s over the faster TorchRL peer's (SerialEnv or ParallelEnv) of "
+        "- preset ÷ TorchRL peer: the preset's frames/s over the fastest TorchRL peer's (SerialEnv or ParallelEnv) of "
         "the same repeat, the median."
     )
     return "\n".join(items)
@@ -461,7 +470,7 @@ def main(argv: list[str] | None = None) -> int:
         tasks, num_envs, repeats, seconds, steps = ["cartpole-swingup"], 2, 1, 0.0, 2
     peers = tuple(args.peers)
     workers = min(num_threads, num_envs)
-    if "parallel" in peers and num_envs % workers:
+    if {"parallel", "parallel_pipes"} & set(peers) and num_envs % workers:
         parser.error(f"--envs ({num_envs}) must be a multiple of the parallel peer's {workers} workers")
     python, peer_status = peer_python(args.peer_python) if peers else (None, "not measured (--peers)")
     threads = torch.get_num_threads()

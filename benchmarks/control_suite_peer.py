@@ -22,7 +22,10 @@ The variants (N envs of ``DMControlEnv(domain, task)`` each):
   Collectors) over ``TransformedEnv(SerialEnv(N, make), Compose(StepCounter(1000), RewardSum()))``: every env
   stepped in turn in this process.
 - ``parallel``: the same over ``ParallelEnv(W, SerialEnv(N / W, make))``: W worker processes (one per core), each
-  stepping N / W envs in turn.
+  stepping N / W envs in turn. TorchRL 0.14.1's parent spin-polls shared-memory flags while the workers step
+  (``ParallelEnv._wait_for_workers``): it keeps a core busy.
+- ``parallel_pipes``: the same with ``use_buffers=False``: the workers send their results through pipes, which the
+  parent blocks on.
 - ``parallel_per_env``: the same over ``ParallelEnv(N, make)``: one worker process per env, what
   ``DMControlEnv(domain, task, num_workers=N)`` builds.
 - ``dm_control``: dm_control alone: a Python loop of ``env.step(action)`` over N ``suite.load(domain, task)`` envs
@@ -39,7 +42,7 @@ import time
 import traceback
 from typing import Any
 
-VARIANTS = ("serial", "parallel", "parallel_per_env", "dm_control")
+VARIANTS = ("serial", "parallel", "parallel_pipes", "parallel_per_env", "dm_control")
 
 
 def _uniform_actions(env: Any) -> Any:
@@ -128,10 +131,13 @@ def _build(variant: str, domain: str, task: str, num_envs: int, steps: int, work
         return _DmControlLoop(domain, task, num_envs, steps, seed)
     if variant == "serial":
         env = SerialEnv(num_envs, make)
-    elif variant == "parallel":
+    elif variant in ("parallel", "parallel_pipes"):
         if num_envs % workers:
-            raise ValueError(f"parallel: num_envs ({num_envs}) must be a multiple of workers ({workers})")
-        env = ParallelEnv(workers, functools.partial(SerialEnv, num_envs // workers, make))
+            raise ValueError(f"{variant}: num_envs ({num_envs}) must be a multiple of workers ({workers})")
+        # use_buffers=False: the workers send their results through pipes, which the parent blocks on; with buffers
+        # (the default) the parent spin-polls shared-memory flags while the workers step
+        use_buffers = None if variant == "parallel" else False
+        env = ParallelEnv(workers, functools.partial(SerialEnv, num_envs // workers, make), use_buffers=use_buffers)
     elif variant == "parallel_per_env":
         env = ParallelEnv(num_envs, make)
     else:

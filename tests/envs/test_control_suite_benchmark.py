@@ -67,7 +67,7 @@ def test_quick_run_measures_torchrl_dm_control_peers(tmp_path: Path) -> None:
     assert set(row["raw"]) == {*module.OURS, *module.DEFAULT_PEERS}
     assert all(value > 0 for values in row["raw"].values() for value in values)
     assert set(row["startup_seconds"]) == {"ours", *module.DEFAULT_PEERS}
-    best = max(row["raw"][variant][0] for variant in ("serial", "parallel"))
+    best = max(row["raw"][variant][0] for variant in ("serial", "parallel", "parallel_pipes"))
     assert row["preset_over_best_torchrl_peer"] == row["raw"]["preset"][0] / best
     versions = results["meta"]["peer_versions"]
     assert (versions["mujoco"], versions["dm-control"]) == ("3.17.0", "1.0.50")
