@@ -120,6 +120,7 @@ def _control_suite_tables() -> ModuleType:
     """``docs/_scripts/control_suite_tables.py`` as a module (the tables of the Control Suite's tasks)."""
     spec = importlib.util.spec_from_file_location("control_suite_tables", CONTROL_SUITE_TABLES)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # where its dataclasses look their module up
     spec.loader.exec_module(module)
     return module
 

@@ -17,7 +17,8 @@ Two measurements per task, both with :mod:`torchtasks.envs.control_suite.check`:
   actions in the bounds, never resynchronised: the first control step at which the largest ``|qpos|`` difference
   exceeds 1e-9, 1e-6 and 1e-3, and the difference after the last step.
 
-Writes ``control_suite_exactness.json`` (every number, the versions, the date, the command and the load average),
+Writes ``control_suite_exactness.json`` (every number to 6 significant digits, the versions, the date, the command and
+the load average),
 ``control_suite_exactness_table.md`` and ``control_suite_drift_table.md`` into ``--output``.
 """
 
@@ -45,6 +46,17 @@ from torchtasks.envs.control_suite.reference import DmControlReference
 THRESHOLDS = {1e-9: "1e-9", 1e-6: "1e-6", 1e-3: "1e-3"}
 #: steps at which the JSON keeps the drift (the whole curve is 1000 numbers per seed)
 DRIFT_SAMPLES = (1, 10, 100, 250, 500, 1000)
+
+
+def rounded(value: Any) -> Any:
+    """Every float of ``value`` to 6 significant digits (a JSON of full-length floats reads like commit hashes)."""
+    if isinstance(value, float):
+        return float(f"{value:.6g}")
+    if isinstance(value, dict):
+        return {key: rounded(item) for key, item in value.items()}
+    if isinstance(value, list):
+        return [rounded(item) for item in value]
+    return value
 
 
 def _number(value: float) -> str:
@@ -152,29 +164,31 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
                 f"({time.perf_counter() - clock:.1f} s)",
                 flush=True,
             )
-    results = {
-        "date": started.strftime("%Y-%m-%d %H:%M UTC"),
-        "command": " ".join(["python", "docs/_scripts/control_suite_exactness.py", *(argv or sys.argv[1:])]),
-        "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]},
-        "seconds": time.perf_counter() - clock_start,
-        "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
-        "versions": {
-            "torchtasks side": {
-                "python": platform.python_version(),
-                "torch": torch.__version__,
-                "mujoco": mujoco.__version__,
+    results = rounded(
+        {
+            "date": started.strftime("%Y-%m-%d %H:%M UTC"),
+            "command": " ".join(["python", "docs/_scripts/control_suite_exactness.py", *(argv or sys.argv[1:])]),
+            "load_average_1min": {"before": load_before, "after": os.getloadavg()[0]},
+            "seconds": time.perf_counter() - clock_start,
+            "machine": {"platform": platform.platform(), "cpus": os.cpu_count()},
+            "versions": {
+                "torchtasks side": {
+                    "python": platform.python_version(),
+                    "torch": torch.__version__,
+                    "mujoco": mujoco.__version__,
+                },
+                "dm_control side": versions,
             },
-            "dm_control side": versions,
-        },
-        "check_tolerance": CHECK_TOLERANCE,
-        "exactness": exactness,
-        "drift": drift,
-    }
+            "check_tolerance": CHECK_TOLERANCE,
+            "exactness": exactness,
+            "drift": drift,
+        }
+    )
     folder = Path(args.output)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "control_suite_exactness.json").write_text(json.dumps(results, indent=1) + "\n")
-    (folder / "control_suite_exactness_table.md").write_text(exactness_table(exactness))
-    (folder / "control_suite_drift_table.md").write_text(drift_table(drift))
+    (folder / "control_suite_exactness_table.md").write_text(exactness_table(results["exactness"]))
+    (folder / "control_suite_drift_table.md").write_text(drift_table(results["drift"]))
     worst = max(row["worst"] for row in exactness)
     print(f"wrote {folder}/control_suite_exactness.json and the two tables; largest difference {worst:.1e}")
     return results
