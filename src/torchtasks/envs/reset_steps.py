@@ -129,6 +129,12 @@ def _joint(model: mujoco.MjModel, name: str, argument: str, types: tuple[int, ..
     return joint
 
 
+def _attempts(value: object, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+    return int(value)
+
+
 def _draws(generators: Sequence[np.random.Generator], draw: Callable[[np.random.Generator], Any]) -> np.ndarray:
     # the Python loop over the envs reset: each draws from its own generator, in the declared order
     return np.array([draw(rng) for rng in generators])
@@ -489,10 +495,8 @@ class UntilContactFree(ResetStep):
     def resolve(self, model: mujoco.MjModel) -> Apply:
         if not self.steps or not all(isinstance(step, ResetStep) for step in self.steps):
             raise TypeError(f"UntilContactFree steps must be ResetSteps, got {self.steps!r}")
-        if isinstance(self.attempts, bool) or not isinstance(self.attempts, int) or self.attempts < 1:
-            raise ValueError(f"UntilContactFree attempts must be a positive int, got {self.attempts!r}")
+        attempts = _attempts(self.attempts, "UntilContactFree attempts")
         inner = [step.resolve(model) for step in self.steps]
-        attempts = self.attempts
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
             pending, rngs = ids, list(generators)
@@ -530,9 +534,11 @@ class RaiseUntilContactFree(ResetStep):
     def resolve(self, model: mujoco.MjModel) -> Apply:
         joint = _joint(model, self.joint, "RaiseUntilContactFree joint", (_FREE,), "a free joint")
         column = int(model.jnt_qposadr[joint]) + 2
-        step, start, attempts = _finite(self.step, "step"), _finite(self.start, "start"), self.attempts
+        step = _finite(self.step, "RaiseUntilContactFree step")
+        start = _finite(self.start, "RaiseUntilContactFree start")
         if step <= 0:
             raise ValueError(f"RaiseUntilContactFree step must be > 0, got {self.step}")
+        attempts = _attempts(self.attempts, "RaiseUntilContactFree attempts")
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
             pending, height = ids, np.full(ids.size, start)
