@@ -419,6 +419,31 @@ def test_a_drawn_body_pose_is_each_envs_own_in_the_physics() -> None:
     env.close()
 
 
+def test_a_drawn_field_with_a_range_stays_in_it_and_reaches_each_envs_model() -> None:
+    """A free joint's damping (>= 0, 6 values) and gravity (finite): checked as set_domain checks them."""
+    steps = [
+        DrawDomain("dof_damping:root", Box((0.0,) * 6, (2.0,) * 6)),
+        DrawDomain("gravity", Choice(((0.5, Ring((0.0, -9.81), 1.0, axes=(0, 2))), (0.5, Box((-1.0,), (1.0,)))))),
+    ]
+    env = _env(JOINTS_XML, 6, steps, seed=13)
+    env.reset()
+    values = {name: value.numpy() for name, value in env.domain_values(["dof_damping:root", "gravity"]).items()}
+    for i, rng in enumerate(generators(13, 6)):
+        damping, gravity = rng.uniform([0.0] * 6, [2.0] * 6), env.model.opt.gravity.copy()
+        if rng.random() < 0.5:
+            angle = rng.uniform(0.0, 2 * math.pi)
+            gravity[[0, 2]] = math.sin(angle), -9.81 + math.cos(angle)
+        else:
+            gravity[0] = rng.uniform(-1.0, 1.0)
+        np.testing.assert_array_equal(values["dof_damping:root"][i], damping, err_msg=f"env {i}")
+        np.testing.assert_array_equal(values["gravity"][i], gravity, err_msg=f"env {i}")
+        reference = reference_model(env.model, {name: value[i] for name, value in values.items()})
+        model = env.batch.get_model(i)
+        np.testing.assert_array_equal(model.dof_damping, reference.dof_damping, err_msg=f"env {i}")
+        np.testing.assert_array_equal(model.opt.gravity, reference.opt.gravity, err_msg=f"env {i}")
+    env.close()
+
+
 # ------------------------------------------------------------------------------ contacts
 def test_until_contact_free_redraws_each_touching_env_until_it_touches_nothing() -> None:
     n, seed = 32, 6
@@ -611,6 +636,14 @@ def _bad_steps() -> list[tuple[Callable[[], Any], type[Exception], str]]:
          r"\(0, 3\) do not index domain field 'geom_pos:post'"),
         (env(DrawDomain("geom_pos:post", "box"), xml=WALL_XML), TypeError, r"DrawDomain sampler must be a Sampler, "
          r"got str"),
+        # draws set_domain would refuse: a negative damping (of a free joint: 6 values), from any sampler
+        (env(DrawDomain("dof_damping:root", Box((-0.5,), (1.0,)))), ValueError, r"DrawDomain\(field='dof_damping:"
+         r"root', .*\) can write -0.5 into 'dof_damping:root' \(damping of joint 'root' \(per dof\)\), which must "
+         r"be in \[0.0, inf\); narrow the sampler"),
+        (env(DrawDomain("dof_damping:root", Ring((0.5, 0.5), (0.1, 0.6)))), ValueError, r"can write -0.09999+\d* "
+         r"into 'dof_damping:root'"),
+        (env(DrawDomain("dof_damping:root", Choice(((0.9, Box((0.0,), (1.0,))), (0.1, Box((-1.0,), (0.0,))))))),
+         ValueError, r"can write -1.0 into 'dof_damping:root'"),
         (lambda: Box((0.0,), (1.0, 2.0)), ValueError, r"Box needs low <= high with one entry per axis"),
         (lambda: Box((1.0,), (0.0,)), ValueError, r"Box needs low <= high"),
         (lambda: Box((0.0, 0.0), (1.0, 1.0), axes=(0,)), ValueError, r"one entry per axis"),

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
 
 from torchtasks._optional import missing_extra
 
@@ -34,7 +35,8 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.reset_steps", _error) from _error
 
-from torchtasks.envs.mujoco_domain import nominal_value
+from torchtasks.domain.fields import check_in_field
+from torchtasks.envs.mujoco_domain import domain_field
 from torchtasks.envs.mujoco_model import object_id
 
 __all__ = [
@@ -308,6 +310,11 @@ class Sampler:
         """A new value: ``nominal`` (a copy) with the sampled components."""
         raise NotImplementedError
 
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The smallest and the largest value each component of a draw can take (elementwise, ``nominal``'s shape),
+        which the field's range must hold; unbounded (``-inf``, ``inf``) unless a sampler says."""
+        return np.full(nominal.shape, -math.inf), np.full(nominal.shape, math.inf)
+
 
 def _axes(axes: object, shape: tuple[int, ...], field: str, who: str) -> None:
     if len(shape) != 1 or not all(isinstance(a, int) and 0 <= a < shape[0] for a in axes):  # type: ignore[union-attr]
@@ -342,6 +349,12 @@ class Box(Sampler):
         value = nominal.copy()
         value[list(range(len(self.low)) if self.axes is None else self.axes)] = rng.uniform(self.low, self.high)
         return value
+
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lowest, highest = nominal.copy(), nominal.copy()
+        axes = list(range(len(self.low)) if self.axes is None else self.axes)
+        lowest[axes], highest[axes] = self.low, self.high
+        return lowest, highest
 
 
 @dataclass(frozen=True)
@@ -382,6 +395,14 @@ class Ring(Sampler):
         value[self.axes[1]] = self.centre[1] + radius * math.cos(angle)
         return value
 
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # the square around the circle of the largest radius (whatever the angles)
+        radius = self.radius if isinstance(self.radius, numbers.Real) else self.radius[1]
+        lowest, highest = nominal.copy(), nominal.copy()
+        for axis, centre in zip(self.axes, self.centre, strict=True):
+            lowest[axis], highest[axis] = centre - radius, centre + radius
+        return lowest, highest
+
 
 @dataclass(frozen=True)
 class AxisAngle(Sampler):
@@ -409,6 +430,10 @@ class AxisAngle(Sampler):
     def draw(self, rng: np.random.Generator, nominal: np.ndarray) -> np.ndarray:
         half = 0.5 * rng.uniform(*self.angle)
         return np.array([math.cos(half), *(math.sin(half) * np.asarray(self.axis, dtype=float))])
+
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        bound = np.array([1.0, *np.abs(np.asarray(self.axis, dtype=float))])
+        return -bound, bound
 
 
 @dataclass(frozen=True)
@@ -445,12 +470,17 @@ class Choice(Sampler):
                 return sampler.draw(rng, nominal)
         return self.options[-1][1].draw(rng, nominal)
 
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        supports = [sampler.support(nominal) for _, sampler in self.options]
+        return np.min([low for low, _ in supports], axis=0), np.max([high for _, high in supports], axis=0)
+
 
 @dataclass(frozen=True)
 class DrawDomain(ResetStep):
     """Draw a domain field of each reset env (``"geom_pos:target"``, ``"body_quat:target_ball"``) with a
     :class:`Sampler`, from its nominal value. The value stays until the next draw or ``set_domain``, and is saved
-    with the env's other domain values.
+    with the env's other domain values. A sampler that could draw a value the field does not allow (a negative
+    damping: see the sampler's ``support``) is refused when the env is built.
 
     Example:
         >>> DrawDomain("geom_pos:target", Ring((0.0, 0.0), (0.05, 0.2))).field
@@ -464,8 +494,12 @@ class DrawDomain(ResetStep):
     def resolve(self, model: mujoco.MjModel) -> Apply:
         if not isinstance(self.sampler, Sampler):
             raise TypeError(f"DrawDomain sampler must be a Sampler, got {type(self.sampler).__name__}")
-        nominal = nominal_value(model, self.field, "DrawDomain field")
+        field = domain_field(model, self.field, "DrawDomain field")
+        nominal = field.nominal.numpy().copy()
         self.sampler.check(nominal.shape, self.field)
+        # what set_domain would refuse (a negative damping) is refused here, before any reset draws it
+        lowest, highest = self.sampler.support(nominal)
+        check_in_field(field, torch.from_numpy(lowest), torch.from_numpy(highest), repr(self), "narrow the sampler")
         name, sampler = self.field, self.sampler
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
