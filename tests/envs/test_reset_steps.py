@@ -35,6 +35,7 @@ from test_batched_mujoco_domain import reference_model  # noqa: E402
 from model_files import dm_control_suite_xml  # noqa: E402
 from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
 from torchtasks.envs import readings as R  # noqa: E402
+from torchtasks.envs.models import model_path  # noqa: E402
 from torchtasks.envs.mujoco_declaration import Resets  # noqa: E402
 from torchtasks.envs.reset_steps import (  # noqa: E402
     AxisAngle,
@@ -548,6 +549,26 @@ def test_settle_steps_the_drawn_state_with_zero_controls_and_restarts_the_clock(
         mujoco.mj_step(model, data, nstep=5)
         np.testing.assert_array_equal(out["qpos"][i].numpy(), data.qpos, err_msg=f"env {i}")
         np.testing.assert_array_equal(out["qvel"][i].numpy(), data.qvel, err_msg=f"env {i}")
+    env.close()
+
+
+def test_settle_from_a_keyframe_holds_its_controls() -> None:
+    """The shipped quadruped's "home" keyframe holds its servos' targets: the settling steps keep them."""
+    path, substeps = model_path("quadruped"), 20
+    model = mujoco.MjModel.from_xml_path(str(path))
+    key = model.key("home")
+    assert (key.ctrl != 0).any()
+    env = BatchedMujocoEnv(
+        path, 2, observation=R.joint_pos(), resets=Resets(keyframe="home", steps=[Settle(substeps)]), seed=0
+    )
+    env.reset()
+    data = mujoco.MjData(model)
+    mujoco.mj_resetDataKeyframe(model, data, key.id)
+    mujoco.mj_step(model, data, nstep=substeps)
+    for i in range(2):
+        for field in ("qpos", "qvel", "ctrl"):
+            np.testing.assert_array_equal(env.batch.bind(field)[i], getattr(data, field), err_msg=f"env {i} {field}")
+        assert env.batch.bind("time")[i] == 0.0
     env.close()
 
 

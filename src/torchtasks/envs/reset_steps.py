@@ -590,8 +590,8 @@ class RaiseUntilContactFree(ResetStep):
 
 @dataclass(frozen=True)
 class Settle(ResetStep):
-    """Step the reset envs ``substeps`` MuJoCo substeps with zero controls, then set their clock back to 0
-    (dm_control's cheetah starts from its drawn pose after 200 such steps).
+    """Step the reset envs ``substeps`` MuJoCo substeps with the reset's controls (zero, or the keyframe's), then
+    set their clock back to 0 (dm_control's cheetah starts from its drawn pose after 200 such steps).
 
     Example:
         >>> Settle(200).substeps
