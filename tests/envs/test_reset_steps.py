@@ -667,7 +667,16 @@ def _bad_steps() -> list[tuple[Callable[[], Any], type[Exception], str]]:
          ValueError, r"can write -1.0 into 'dof_damping:root'"),
         (lambda: Box((0.0,), (1.0, 2.0)), ValueError, r"Box needs low <= high with one entry per axis"),
         (lambda: Box((1.0,), (0.0,)), ValueError, r"Box needs low <= high"),
-        (lambda: Box((0.0, 0.0), (1.0, 1.0), axes=(0,)), ValueError, r"one entry per axis"),
+        (lambda: Box((0.0, 0.0), (1.0, 1.0), axes=(0,)), ValueError, r"Box axes \(one per entry of low\) must be 2 "
+         r"distinct indices \(ints >= 0\), got \(0,\)"),
+        (lambda: Box((0.0, 0.0), (1.0, 1.0), axes=(2, 2)), ValueError, r"Box axes .* must be 2 distinct indices"),
+        (lambda: Box((0.0,), (1.0,), axes=0), ValueError, r"Box axes .* must be 1 distinct indices .*got 0"),
+        (lambda: Box(0.0, 1.0), TypeError, r"Box low must be a non-empty sequence of finite numbers, got 0.0"),
+        (lambda: Box((0.0,), (math.inf,)), TypeError, r"Box high must be a finite real number, got inf"),
+        (lambda: Ring((0.0, 0.0), 0.1, axes=(1, 1)), ValueError, r"Ring axes must be 2 distinct indices \(ints >= "
+         r"0\), got \(1, 1\)"),
+        (lambda: Ring((0.0, 0.0), 0.1, axes=(0,)), ValueError, r"Ring axes must be 2 distinct indices"),
+        (lambda: Ring((0.0, 0.0), math.inf), TypeError, r"Ring radius must be a finite real number, got inf"),
         (lambda: Ring((0.0, 0.0), -0.1), ValueError, r"Ring radius must be >= 0 \(low <= high\), got -0.1"),
         (lambda: Ring((0.0, 0.0), (0.2, 0.1)), ValueError, r"Ring radius must be >= 0 \(low <= high\)"),
         (lambda: Ring((0.0,), 0.1), TypeError, r"Ring centre must be a pair of finite numbers"),

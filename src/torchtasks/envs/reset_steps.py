@@ -316,8 +316,25 @@ class Sampler:
         return np.full(nominal.shape, -math.inf), np.full(nominal.shape, math.inf)
 
 
-def _axes(axes: object, shape: tuple[int, ...], field: str, who: str) -> None:
-    if len(shape) != 1 or not all(isinstance(a, int) and 0 <= a < shape[0] for a in axes):  # type: ignore[union-attr]
+def _numbers(value: object, name: str) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or not value:
+        raise TypeError(f"{name} must be a non-empty sequence of finite numbers, got {value!r}")
+    return tuple(_finite(v, name) for v in value)
+
+
+def _indices(value: object, count: int, name: str) -> None:
+    if (
+        isinstance(value, (str, bytes))
+        or not isinstance(value, Sequence)
+        or len(value) != count
+        or not all(isinstance(a, numbers.Integral) and not isinstance(a, bool) and a >= 0 for a in value)
+        or len(set(value)) != count
+    ):
+        raise ValueError(f"{name} must be {count} distinct indices (ints >= 0), got {value!r}")
+
+
+def _axes(axes: Sequence[int], shape: tuple[int, ...], field: str, who: str) -> None:
+    if len(shape) != 1 or not all(a < shape[0] for a in axes):
         raise ValueError(f"{who} axes {axes} do not index domain field {field!r} of shape {shape}")
 
 
@@ -336,11 +353,11 @@ class Box(Sampler):
     axes: Sequence[int] | None = None
 
     def __post_init__(self) -> None:
-        low = [_finite(v, "Box low") for v in self.low]
-        high = [_finite(v, "Box high") for v in self.high]
-        axes = range(len(low)) if self.axes is None else self.axes
-        if len(low) != len(high) or len(low) != len(axes) or any(a > b for a, b in zip(low, high, strict=True)):
-            raise ValueError(f"Box needs low <= high with one entry per axis, got {self.low}, {self.high}, {self.axes}")
+        low, high = _numbers(self.low, "Box low"), _numbers(self.high, "Box high")
+        if len(low) != len(high) or any(a > b for a, b in zip(low, high, strict=True)):
+            raise ValueError(f"Box needs low <= high with one entry per axis, got {self.low}, {self.high}")
+        if self.axes is not None:
+            _indices(self.axes, len(low), "Box axes (one per entry of low)")
 
     def check(self, shape: tuple[int, ...], field: str) -> None:
         _axes(range(len(self.low)) if self.axes is None else self.axes, shape, field, "Box")
@@ -378,9 +395,11 @@ class Ring(Sampler):
     def __post_init__(self) -> None:
         _pair(self.centre, "Ring centre")
         _pair(self.angle, "Ring angle")
-        low, high = (
-            (self.radius, self.radius) if isinstance(self.radius, numbers.Real) else _pair(self.radius, "Ring radius")
-        )
+        _indices(self.axes, 2, "Ring axes")
+        if isinstance(self.radius, numbers.Real) and not isinstance(self.radius, bool):
+            low = high = _finite(self.radius, "Ring radius")
+        else:
+            low, high = _pair(self.radius, "Ring radius")
         if not 0 <= low <= high:
             raise ValueError(f"Ring radius must be >= 0 (low <= high), got {self.radius}")
 
