@@ -684,7 +684,10 @@ def _bad_steps() -> list[tuple[Callable[[], Any], type[Exception], str]]:
         (lambda: Choice(((0.5, Box((0.0,), (1.0,))), (0.4, Box((0.0,), (1.0,))))), ValueError, r"Choice "
          r"probabilities must be >= 0 and sum to 1, got \[0.5, 0.4\]"),
         (lambda: Choice(((1.0, "box"),)), TypeError, r"Choice options must be \(probability, Sampler\) pairs"),
-        (env(UntilContactFree([])), TypeError, r"UntilContactFree steps must be ResetSteps, got \[\]"),
+        (env(UntilContactFree([])), TypeError, r"UntilContactFree steps must be a non-empty sequence of ResetSteps, "
+         r"got \[\]"),
+        (env(UntilContactFree(UniformJoints())), TypeError, r"UntilContactFree steps must be a non-empty sequence of "
+         r"ResetSteps, got UniformJoints\(joints=None\)"),
         (env(UntilContactFree([UniformJoints(), "again"])), TypeError, r"UntilContactFree steps must be ResetSteps"),
         (env(UntilContactFree([UniformJoints()], attempts=0)), ValueError, r"UntilContactFree attempts must be a "
          r"positive int, got 0"),

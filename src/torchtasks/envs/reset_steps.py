@@ -546,8 +546,11 @@ class UntilContactFree(ResetStep):
     attempts: int = 1000
 
     def resolve(self, model: mujoco.MjModel) -> Apply:
-        if not self.steps or not all(isinstance(step, ResetStep) for step in self.steps):
-            raise TypeError(f"UntilContactFree steps must be ResetSteps, got {self.steps!r}")
+        steps = self.steps
+        if isinstance(steps, (str, bytes)) or not isinstance(steps, Sequence) or not steps:
+            raise TypeError(f"UntilContactFree steps must be a non-empty sequence of ResetSteps, got {steps!r}")
+        if not all(isinstance(step, ResetStep) for step in steps):
+            raise TypeError(f"UntilContactFree steps must be ResetSteps, got {steps!r}")
         attempts = _attempts(self.attempts, "UntilContactFree attempts")
         inner = [step.resolve(model) for step in self.steps]
 
