@@ -50,6 +50,7 @@ API_OBJECTS = (
     "torchtasks.envs.readings.BodyLinVel",
     "torchtasks.envs.mujoco_declaration.Resets",
     "torchtasks.envs.mujoco_declaration.declare",
+    "torchtasks.envs.reset_steps.UntilContactFree",
     "torchtasks.envs.models.model_path",
     "torchtasks.parity.check_parity",
     "torchtasks.cli.main",
