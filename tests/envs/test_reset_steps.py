@@ -340,6 +340,16 @@ def test_a_loaded_state_dict_continues_the_draws_and_keeps_the_drawn_domain(fing
         np.testing.assert_array_equal(model.site("target").pos, at_save["site_pos:target"][i], err_msg=f"env {i}")
         np.testing.assert_array_equal(model.geom("ground").pos, at_save["geom_pos:ground"][i], err_msg=f"env {i}")
     _assert_same(_episodes(other), expected)
+    # an env of other steps (a ring of another radius) refuses the checkpoint and keeps its own state
+    steps = _finger_steps()
+    steps[1] = DrawDomain("site_pos:target", Ring((0.2, 0.4), 0.1, axes=(0, 2)))
+    another = _env(dm_control_suite_xml("finger.xml"), 6, steps, seed=11, frame_skip=2)
+    another.reset()
+    before = _snapshot(another)
+    with pytest.raises(ValueError, match=r"the saved running episodes are of another simulation \(declaration differ"):
+        another.load_state_dict(saved)
+    _assert_rows(before, _snapshot(another), list(range(6)), "refused")
+    another.close()
 
 
 def test_copies_and_pickles_are_independent_envs_in_the_same_state(finger_envs) -> None:
