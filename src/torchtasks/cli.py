@@ -81,6 +81,7 @@ _LAZY = {
             "torchtasks.envs.batched_mujoco",
             "torchtasks.envs.mujoco_declaration",
             "torchtasks.envs.multi_objective",
+            "torchtasks.envs.control_suite",
         ),
         "mujoco",
     )
@@ -276,6 +277,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
             for text in (
                 f"(the Gymnasium ids of the MuJoCo presets: {env_ids})",
                 f"(the MO-Gymnasium ids of the multi-objective presets: {mo_ids})",
+                f"(the DeepMind Control Suite tasks: {', '.join(_control_suite_tasks())})",
             ):
                 indents = {"initial_indent": "  ", "subsequent_indent": "   "}
                 lines += textwrap.wrap(text, WIDTH, break_on_hyphens=False, **indents)  # ids stay whole
