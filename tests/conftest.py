@@ -7,6 +7,7 @@ from typing import Any
 
 import pytest
 
+from reference_venv import dm_control_reference  # noqa: F401  (the fixture of dm_control's reference worker)
 from repo_paths import TESTS
 
 # Nothing here imports torch at module level: pytest-xdist's controller process loads this file too, and runs no

@@ -16,7 +16,7 @@ substep's forward pass, the state (``qpos``, ``qvel``, ``time``) the returned on
 Every reading kind on every named object of the model (test_readings' ``_cases``) is then compared with MuJoCo's
 own function on (a copy of) the reference ``MjData`` in the same state, bit for bit; ``contact_force`` with the
 ``cfrc_ext`` MuJoCo's ``mj_rnePostConstraint`` wrote in that forward pass. Finite differences are compared with
-``(value now - value at the previous step or reset) / dt`` of the reference.
+``(value now - value at the previous step or reset) / dt`` of the reference, a composite reading's among them.
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ pytest.importorskip("gymnasium")
 import torch  # noqa: E402
 from tensordict import TensorDict  # noqa: E402
 from test_batched_mujoco_domain import reference_model  # noqa: E402
-from test_readings import _cases, _spec, _with_contact_sensor  # noqa: E402
+from test_readings import _cases, _in_frame, _norm3, _spec, _with_contact_sensor  # noqa: E402
 
 from model_files import dm_control_suite_xml, gymnasium_asset  # noqa: E402
 from torchtasks.envs import BatchedMujocoEnv  # noqa: E402
@@ -244,16 +244,24 @@ def differenced(twin: Twin) -> dict[str, np.ndarray]:
     return {
         "com_rate": np.stack([data.subtree_com[root].copy() for data in twin.datas]),
         "hinge_rate": np.stack([data.qpos[[adr]].copy() for data in twin.datas]),
+        "gap_rate": np.stack(
+            [[_norm3(_in_frame(data.xmat[root], data.xpos[root] - data.subtree_com[root]))] for data in twin.datas]
+        ),
     }
 
 
 def state_readings(model: mujoco.MjModel) -> dict[str, R.Reading]:
     hinge = int(np.flatnonzero(model.jnt_type == mujoco.mjtJoint.mjJNT_HINGE)[0])
+    root = model.body(1).name
     return {
         "qpos": R.joint_pos(),
         "qvel": R.joint_vel(),
-        "com_rate": R.finite_difference(R.subtree_com(model.body(1).name)),
+        "com_rate": R.finite_difference(R.subtree_com(root)),
         "hinge_rate": R.finite_difference(R.joint_pos(model.joint(hinge).name), dt=0.05),
+        # a composite reading's finite difference: the root's distance from its subtree's centre of mass
+        "gap_rate": R.finite_difference(
+            R.norm(R.difference(R.body_pos(root), R.subtree_com(root), frame=f"body:{root}")), dt=0.05
+        ),
     }
 
 

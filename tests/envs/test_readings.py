@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import functools
 import pickle
 import warnings
 import zlib
@@ -113,6 +114,15 @@ MODELS = {
 }
 
 
+#: dm_control's suite models of test_composites_equal_dm_controls_numpy_expressions (their states need not touch)
+SUITE_MODELS = {
+    "dm_control finger": lambda: dm_control_suite_xml("finger.xml"),
+    "dm_control manipulator": lambda: dm_control_suite_xml("manipulator.xml"),
+    "dm_control hopper": lambda: dm_control_suite_xml("hopper.xml"),
+    "dm_control swimmer": lambda: dm_control_suite_xml("swimmer.xml"),
+}
+
+
 @contextmanager
 def _quiet() -> Iterator[None]:
     """Hide MuJoCo 4's deprecation of dm_control's cheetah.xml ``settotalmass`` (a file no one here wrote)."""
@@ -186,7 +196,7 @@ def _model_field(model: mujoco.MjModel, name: str) -> np.ndarray:
 
 
 def _build_world(name: str) -> World:
-    source = MODELS[name]()
+    source = {**MODELS, **SUITE_MODELS}[name]()
     with _quiet():
         base = load_model(source)
     with_sensor = _with_contact_sensor(_spec(source))
@@ -221,9 +231,13 @@ def _build_world(name: str) -> World:
     return World(name, models, datas, np.array(actions), sensed)
 
 
+#: the worlds, each built once for the tests that only read them
+_shared_world = functools.cache(_build_world)
+
+
 @pytest.fixture(scope="module", params=list(MODELS))
 def world(request: pytest.FixtureRequest) -> World:
-    return _build_world(request.param)
+    return _shared_world(request.param)
 
 
 # --------------------------------------------------------------------------------------------- MuJoCo's references
@@ -255,10 +269,96 @@ def _post_constraint_forces(model, data, bodies: list[int]) -> np.ndarray:
 
 
 def _names(model, kind: str) -> list[str]:
-    count = {"body": model.nbody, "joint": model.njnt, "site": model.nsite, "sensor": model.nsensor}[kind]
+    count = {"body": model.nbody, "joint": model.njnt, "site": model.nsite, "sensor": model.nsensor}.get(kind)
+    count = model.ngeom if count is None else count
     obj = {"body": mujoco.mjtObj.mjOBJ_BODY, "joint": mujoco.mjtObj.mjOBJ_JOINT}.get(kind)
-    obj = obj or {"site": mujoco.mjtObj.mjOBJ_SITE, "sensor": mujoco.mjtObj.mjOBJ_SENSOR}[kind]
+    obj = obj or {"site": mujoco.mjtObj.mjOBJ_SITE, "sensor": mujoco.mjtObj.mjOBJ_SENSOR}.get(kind)
+    obj = obj or {"geom": mujoco.mjtObj.mjOBJ_GEOM}[kind]
     return [name for name in (mujoco.mj_id2name(model, obj, i) for i in range(count)) if name]
+
+
+def _in_frame(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """``vector`` in the axes of the frame of row-major rotation ``matrix`` (MuJoCo's mju_mulMatTVec3)."""
+    result = np.zeros(3)
+    mujoco.mju_mulMatTVec3(result, matrix, vector)
+    return result
+
+
+def _norm3(vector: np.ndarray) -> float:
+    return mujoco.mju_norm3(np.ascontiguousarray(vector, dtype=np.float64))
+
+
+def _composite_cases(world: World):
+    """(reading, its value from the raw MjData fields for env i) for difference, elementwise and norm, composed of
+    the other kinds: in a body, geom and site frame, with index and clip, nested, and reading per-env model fields
+    and the last action through their inputs (contact forces: test_composites_unite_what_their_inputs_read)."""
+    model = world.model
+    bodies = [name for name in _names(model, "body") if model.body(name).id > 0]
+    first, last = bodies[0], bodies[-1]
+    f, t = model.body(first).id, model.body(last).id  # the first body and the last (a tip)
+    yield (
+        R.difference(R.body_pos(last), R.body_pos(first), frame=f"body:{first}"),
+        lambda m, d, i: _in_frame(d.xmat[f], d.xpos[t] - d.xpos[f]),
+    )
+    yield (
+        R.difference(R.body_pos(last, point="com"), R.subtree_com(first), index=(2, 0)),
+        lambda m, d, i: (d.xipos[t] - d.subtree_com[f])[[2, 0]],
+    )
+    yield (
+        R.difference(R.subtree_lin_vel(first), R.mass_centre()),
+        lambda m, d, i: _subtree_linvel(m, d, f) - np.sum(m.body_mass[:, None] * d.xipos, 0) / np.sum(m.body_mass),
+    )
+    yield (
+        R.norm(R.difference(R.body_pos(last), R.body_pos(first)), offset=-0.07),
+        lambda m, d, i: np.array([_norm3(d.xpos[t] - d.xpos[f]) - 0.07]),
+    )
+    yield (
+        R.norm(R.difference(R.body_pos(last), R.body_pos(first), index=(0, 2))),
+        lambda m, d, i: np.array([np.sqrt((d.xpos[t, 0] - d.xpos[f, 0]) ** 2 + (d.xpos[t, 2] - d.xpos[f, 2]) ** 2)]),
+    )
+    yield (
+        R.elementwise(R.norm(R.body_pos(last, point="com")), "log1p"),
+        lambda m, d, i: np.log1p([_norm3(d.xipos[t])]),
+    )
+    yield (
+        R.elementwise(R.subtree_lin_vel(first), "arcsinh", clip=(-0.5, 0.5)),
+        lambda m, d, i: np.clip(np.arcsinh(_subtree_linvel(m, d, f)), -0.5, 0.5),
+    )
+    hinges = [j for j in _names(model, "joint") if model.joint(j).type == mujoco.mjtJoint.mjJNT_HINGE]
+    q = [model.joint(j).qposadr[0] for j in hinges[::-1]]
+    yield (
+        R.elementwise(R.joint_pos(*hinges[::-1]), "sin_cos"),
+        lambda m, d, i: np.column_stack([np.sin(d.qpos[q]), np.cos(d.qpos[q])]).ravel(),
+    )
+    yield (
+        R.elementwise(R.joint_pos(*hinges), "sin_cos", index=(1,)),
+        lambda m, d, i: np.cos(d.qpos[[model.joint(hinges[0]).qposadr[0]]]),
+    )
+    if model.nu:
+        yield R.elementwise(R.last_action(), "arcsinh"), lambda m, d, i: np.arcsinh(world.actions[i])
+    geoms = _names(model, "geom")
+    if geoms:  # the frame: the last named geom (on a moving body in every model here)
+        a, g = model.geom(geoms[0]).id, model.geom(geoms[-1]).id
+        yield (
+            R.difference(R.geom_pos(geoms[0]), R.geom_pos(geoms[-1]), frame=f"geom:{geoms[-1]}"),
+            lambda m, d, i: _in_frame(d.geom_xmat[g], d.geom_xpos[a] - d.geom_xpos[g]),
+        )
+        yield (
+            R.difference(R.geom_pos(geoms[-1]), R.body_pos(last), frame=f"geom:{geoms[-1]}", index=(1,)),
+            lambda m, d, i: _in_frame(d.geom_xmat[g], d.geom_xpos[g] - d.xpos[t])[[1]],
+        )
+    sites = _names(model, "site")
+    if sites:
+        s = model.site(sites[0]).id
+        yield (
+            R.difference(
+                R.body_pos(last, point="com"), R.site_pos(sites[0]), frame=f"site:{sites[0]}", clip=(-0.1, 0.1)
+            ),
+            lambda m, d, i: np.clip(_in_frame(d.site_xmat[s], d.xipos[t] - d.site_xpos[s]), -0.1, 0.1),
+        )
+    touch = [n for n in _names(model, "sensor") if model.sensor(n).type == mujoco.mjtSensor.mjSENS_TOUCH]
+    for name in touch[:2]:
+        yield R.elementwise(R.sensor(name), "log1p"), lambda m, d, i, name=name: np.log1p(d.sensor(name).data)
 
 
 _XBODY, _BODY = mujoco.mjtObj.mjOBJ_XBODY, mujoco.mjtObj.mjOBJ_BODY
@@ -302,6 +402,7 @@ def _cases(world: World):
         b = model.body(name).id
         yield R.body_pos(name), lambda m, d, i, b=b: d.xpos[b].copy()
         yield R.body_pos(name, index=(2,)), lambda m, d, i, b=b: d.xpos[b, [2]]
+        yield R.body_pos(name, point="com"), lambda m, d, i, b=b: d.xipos[b].copy()
         yield R.body_quat(name), lambda m, d, i, b=b: d.xquat[b].copy()
         for point, objtype in (("origin", _XBODY), ("com", _BODY)):
             for frame in ("world", "local"):
@@ -324,6 +425,9 @@ def _cases(world: World):
         yield R.site_pos(name), lambda m, d, i, name=name: d.site(name).xpos.copy()
         site = model.site(name).id
         yield R.site_quat(name), lambda m, d, i, s=site: d.site_xquat[s].copy()
+    for name in _names(model, "geom"):
+        geom = model.geom(name).id
+        yield R.geom_pos(name), lambda m, d, i, g=geom: d.geom_xpos[g].copy()
     yield R.time(), lambda m, d, i: np.array([d.time])
     yield R.data_field("cinert", 1), lambda m, d, i: d.cinert[1:].ravel()
     yield R.data_field("cvel", 1, clip=(-1, 1)), lambda m, d, i: np.clip(d.cvel[1:].ravel(), -1, 1)
@@ -338,6 +442,7 @@ def _cases(world: World):
         R.mass_centre(index=(1, 0)),
         lambda m, d, i: (np.sum(m.body_mass[:, None] * d.xipos, 0) / np.sum(m.body_mass))[[1, 0]],
     )
+    yield from _composite_cases(world)
 
 
 def _compare(world: World) -> dict[str, tuple[str, float]]:
@@ -399,6 +504,105 @@ def test_readings_agree_with_the_sensors_of_the_same_quantity() -> None:
         np.testing.assert_allclose(resolved.compute(robot.arrays(resolved)), sensed, rtol=1e-12, atol=1e-12)
 
 
+def _sd(d, name: str) -> np.ndarray:
+    return d.sensor(name).data
+
+
+_ARM = ("arm_root", "arm_shoulder", "arm_elbow", "arm_wrist", "finger", "fingertip", "thumb", "thumbtip")
+_QUADRUPED_FORCE_TORQUE = tuple(
+    f"{kind}_toe_{leg}"
+    for kind in ("force", "torque")
+    for leg in ("front_left", "front_right", "back_right", "back_left")
+)
+
+#: dm_control's observations (and reward inputs) that need difference, elementwise or norm: model -> (the readings
+#: whose values, concatenated, rebuild it; the suite's own numpy expression of it on (model, data))
+DM_CONTROL_EXPRESSIONS = {
+    "dm_control humanoid": [
+        (  # humanoid's extremities
+            [
+                R.difference(R.body_pos(f"{side}_{limb}"), R.body_pos("torso"), frame="body:torso")
+                for side in ("left", "right")
+                for limb in ("hand", "foot")
+            ],
+            lambda m, d: np.hstack(
+                [
+                    (d.body(f"{side}_{limb}").xpos - d.body("torso").xpos) @ d.body("torso").xmat.reshape(3, 3)
+                    for side in ("left", "right")
+                    for limb in ("hand", "foot")
+                ]
+            ),
+        ),
+        (  # fish's target, in the frame of its mouth geom: here between two of the humanoid's geoms
+            [R.difference(R.geom_pos("head"), R.geom_pos("left_hand"), frame="geom:left_hand")],
+            lambda m, d: (d.geom("head").xpos - d.geom("left_hand").xpos) @ d.geom("left_hand").xmat.reshape(3, 3),
+        ),
+    ],
+    "dm_control quadruped": [
+        (  # quadruped's force_torque
+            [R.elementwise(R.sensor(name), "arcsinh") for name in _QUADRUPED_FORCE_TORQUE],
+            lambda m, d: np.arcsinh(np.hstack([_sd(d, name) for name in _QUADRUPED_FORCE_TORQUE])),
+        ),
+    ],
+    "dm_control finger": [
+        (  # finger's position: the tip's x and z relative to the spinner
+            [R.difference(R.sensor("tip"), R.sensor("spinner"), index=(0, 2))],
+            lambda m, d: _sd(d, "tip")[[0, 2]] - _sd(d, "spinner")[[0, 2]],
+        ),
+        (  # finger's dist_to_target: |target_position - tip_position| less the target site's radius
+            [R.norm(R.difference(R.sensor("target"), R.sensor("tip"), index=(0, 2)), offset=-0.03)],
+            lambda m, d: (
+                np.linalg.norm(
+                    (_sd(d, "target")[[0, 2]] - _sd(d, "spinner")[[0, 2]])
+                    - (_sd(d, "tip")[[0, 2]] - _sd(d, "spinner")[[0, 2]])
+                )
+                - m.site("target").size[0]
+            ),
+        ),
+    ],
+    "dm_control manipulator": [
+        (  # manipulator's arm_pos, flattened from (8, 2)
+            [R.elementwise(R.joint_pos(*_ARM), "sin_cos")],
+            lambda m, d: np.vstack([np.sin(q := np.hstack([d.joint(j).qpos for j in _ARM])), np.cos(q)]).T.ravel(),
+        ),
+    ],
+    "dm_control hopper": [
+        (  # hopper's standing height (centres of mass) and touch
+            [R.difference(R.body_pos("torso", point="com"), R.body_pos("foot", point="com"), index=(2,))],
+            lambda m, d: d.body("torso").xipos[2] - d.body("foot").xipos[2],
+        ),
+        (
+            [R.elementwise(R.sensor("touch_toe"), "log1p"), R.elementwise(R.sensor("touch_heel"), "log1p")],
+            lambda m, d: np.log1p(np.hstack([_sd(d, "touch_toe"), _sd(d, "touch_heel")])),
+        ),
+    ],
+    "dm_control swimmer": [
+        (  # swimmer's to_target, in the head body's frame
+            [R.difference(R.geom_pos("target"), R.geom_pos("nose"), frame="body:head", index=(0, 1))],
+            lambda m, d: ((d.geom("target").xpos - d.geom("nose").xpos) @ d.body("head").xmat.reshape(3, 3))[:2],
+        ),
+    ],
+}
+
+
+def test_composites_equal_dm_controls_numpy_expressions() -> None:
+    """difference, elementwise and norm equal dm_control's numpy expressions of the same observations to the last
+    bits (numpy's ``@`` and ``linalg.norm`` sum in BLAS's order, the readings in MuJoCo's), on every env."""
+    checked = 0
+    for name, cases in DM_CONTROL_EXPRESSIONS.items():
+        world = _shared_world(name)
+        for readings, expression in cases:
+            resolved = [reading.resolve(world.model) for reading in readings]
+            value = np.hstack([each.compute(world.arrays(each, contacts=True)) for each in resolved])
+            expected = np.stack(
+                [np.atleast_1d(expression(m, d)) for m, d in zip(world.models, world.datas, strict=True)]
+            )
+            assert np.abs(expected).max() > 1e-3, (name, resolved[0].label)  # states that test something
+            np.testing.assert_allclose(value, expected, rtol=1e-14, atol=1e-15, err_msg=f"{name}: {resolved[0].label}")
+            checked += 1
+    assert checked == sum(len(cases) for cases in DM_CONTROL_EXPRESSIONS.values())
+
+
 def test_site_quat_is_the_rotation_of_site_xmat() -> None:
     robot = _build_world("robot")
     resolved = R.site_quat("imu").resolve(robot.model)
@@ -450,12 +654,32 @@ def test_contact_forces_after_mj_step_differ_from_the_forward_pass_only_under_rk
 # ------------------------------------------------------------------------------------------------ other backends
 
 
+#: readings whose torch values may differ from numpy's in the last bits (the most ulps): mass_centre's sums over the
+#: bodies (torch adds in another order), elementwise's functions (torch's own log1p, arcsinh, sin and cos) and a
+#: norm's square root (torch's vectorised sqrt is not always the correctly rounded one)
+_TORCH_ULPS = {
+    R.mass_centre(): 4,
+    R.norm(R.difference(R.sensor("torso_pos"), R.site_pos("foot")), offset=-0.1): 1,
+    R.elementwise(R.sensor("torso_touch"), "log1p"): 2,
+    R.elementwise(R.joint_vel(), "arcsinh"): 2,
+    R.elementwise(R.joint_pos("hip", "knee", "slide"), "sin_cos", index=(3, 0, 4)): 2,
+    R.elementwise(R.norm(R.contact_force()), "log1p", clip=(0, 3)): 4,
+}
+
+
 def test_compute_runs_on_torch_tensors_with_the_same_values() -> None:
     """The arithmetic is backend-neutral: torch tensors of the same arrays give the same values, bit for bit but for
-    mass_centre's sums over the bodies (torch adds in another order: a few ulps), and the dtype follows the input."""
+    _TORCH_ULPS (a few ulps), and the dtype follows the input."""
     torch = pytest.importorskip("torch")
     robot = _build_world("robot")
     readings = [
+        *_TORCH_ULPS,
+        R.geom_pos("torso_geom"),
+        R.body_pos("thigh", point="com"),
+        R.difference(R.body_pos("shin"), R.site_pos("imu"), frame="site:imu"),
+        R.difference(R.geom_pos("floor"), R.body_pos("slider", point="com"), frame="geom:torso_geom", index=(0, 2)),
+        R.difference(R.sensor("imu_gyro"), R.body_ang_vel("torso", frame="local"), frame="body:shin", clip=(-1, 1)),
+        R.difference(R.subtree_lin_vel("torso"), R.last_action(index=(0, 1, 2))),
         R.joint_pos("hip", "knee", relative_to="crouch"),
         R.joint_pos("hip", "slide", relative_to="qpos0", clip=(-0.1, 0.1)),
         R.joint_vel(),
@@ -479,8 +703,8 @@ def test_compute_runs_on_torch_tensors_with_the_same_values() -> None:
         tensors = {name: torch.from_numpy(array.copy()) for name, array in arrays.items()}
         result = resolved.compute(tensors)
         assert isinstance(result, torch.Tensor) and result.dtype == torch.float64, resolved.label
-        if reading.kind == "mass_centre":
-            np.testing.assert_allclose(result.numpy(), value, rtol=1e-14, atol=0, err_msg=resolved.label)
+        if reading in _TORCH_ULPS:
+            np.testing.assert_array_max_ulp(result.numpy(), value, maxulp=_TORCH_ULPS[reading])
         else:
             np.testing.assert_array_equal(result.numpy(), value, err_msg=resolved.label)
         single = resolved.compute({name: tensor.float() for name, tensor in tensors.items()})
@@ -497,6 +721,8 @@ def test_readings_are_frozen_picklable_and_compare_by_value() -> None:
         R.finite_difference(R.body_pos("torso"), dt=0.02),
         R.data_field("cvel", 1),
         R.mass_centre(),
+        R.norm(R.difference(R.geom_pos("floor"), R.body_pos("torso", point="com"), frame="site:imu"), offset=-1),
+        R.elementwise(R.sensor("torso_touch"), "log1p", clip=(0, 2)),
     ]
     for reading in readings:
         assert pickle.loads(pickle.dumps(reading)) == reading
@@ -505,11 +731,14 @@ def test_readings_are_frozen_picklable_and_compare_by_value() -> None:
             reading.clip = (0, 1)  # type: ignore[misc]
     assert R.joint_pos("hip") != R.joint_pos("knee")
     assert R.body_lin_vel("torso") != R.body_ang_vel("torso")
+    assert R.body_pos("torso") != R.body_pos("torso", point="com")
+    assert R.difference(R.time(), R.time()) != R.difference(R.time(), R.time(), index=(0,))
     robot = _build_world("robot")
-    resolved = R.subtree_lin_vel("torso", clip=(-1, 1)).resolve(robot.model)
-    restored = pickle.loads(pickle.dumps(resolved))
-    arrays = robot.arrays(resolved)
-    np.testing.assert_array_equal(restored.compute(arrays), resolved.compute(arrays))
+    for reading in (R.subtree_lin_vel("torso", clip=(-1, 1)), readings[-2], readings[-1]):
+        resolved = reading.resolve(robot.model)
+        restored = pickle.loads(pickle.dumps(resolved))
+        arrays = robot.arrays(resolved)
+        np.testing.assert_array_equal(restored.compute(arrays), resolved.compute(arrays))
 
 
 def test_labels_and_finite_difference_resolution() -> None:
@@ -532,6 +761,73 @@ def test_labels_and_finite_difference_resolution() -> None:
     assert (difference.shape, difference.fields, difference.dt) == ((3,), ("xpos",), 0.05)
     with pytest.raises(RuntimeError, match="keeps the reading's previous value"):
         difference.compute({"xpos": np.zeros((2, model.nbody, 3))})
+
+
+def test_composites_unite_what_their_inputs_read() -> None:
+    """A composite resolves its inputs and reads what they read (once each, in order), its frame's rotation too; it
+    needs contact forces or the last action when an input does; its labels name its entries."""
+    model = load_model(ROBOT)
+    resolved = R.difference(R.subtree_lin_vel("torso"), R.mass_centre(), frame="site:imu").resolve(model)
+    assert resolved.fields == ("cvel", "xipos", "subtree_com", "site_xmat")
+    assert resolved.model_fields == ("body_mass", "body_subtreemass")
+    assert (resolved.shape, resolved.contact_forces, resolved.action, resolved.difference_of) == (
+        (3,),
+        False,
+        False,
+        None,
+    )
+    forces = R.norm(R.elementwise(R.contact_force("shin", "thigh"), "arcsinh")).resolve(model)
+    assert (forces.fields, forces.shape, forces.contact_forces, forces.action) == (("cfrc_ext",), (1,), True, False)
+    action = R.difference(R.last_action(), R.actuator_ctrl(), clip=(-1, 1)).resolve(model)
+    assert (action.fields, action.action, action.contact_forces) == (("ctrl",), True, False)
+    assert action.labels == ("hip_motor - hip_motor", "knee_servo - knee_servo", "slide_motor - slide_motor")
+    relative = R.difference(R.joint_pos("hip", relative_to="qpos0"), R.sensor("hip_pos")).resolve(model)
+    assert (relative.fields, relative.model_fields, relative.labels) == (
+        ("qpos", "sensordata"),
+        ("qpos0",),
+        ("hip - hip_pos",),
+    )
+    framed = R.difference(R.body_pos("shin"), R.body_pos("torso"), frame="body:torso", index=(2,), clip=(-1, 1))
+    resolved = framed.resolve(model)
+    assert resolved.label == "difference(body_pos(shin), body_pos(torso), frame=body:torso, index=(2,), clip=(-1, 1))"
+    assert (resolved.shape, resolved.fields) == ((1,), ("xpos", "xmat"))
+    assert resolved.labels == ("difference(body_pos(shin), body_pos(torso), frame=body:torso).z",)
+    geom = R.difference(R.geom_pos("torso_geom"), R.body_pos("torso", point="com"), frame="geom:torso_geom")
+    assert geom.resolve(model).fields == ("geom_xpos", "xipos", "geom_xmat")
+    waves = R.elementwise(R.joint_pos("hip", "knee"), "sin_cos").resolve(model)
+    assert (waves.label, waves.shape) == ("elementwise(joint_pos(hip, knee), sin_cos)", (4,))
+    assert waves.labels == ("sin(hip)", "cos(hip)", "sin(knee)", "cos(knee)")
+    assert R.elementwise(R.sensor("torso_touch"), "log1p").resolve(model).labels == ("log1p(torso_touch)",)
+    assert R.elementwise(R.joint_vel("hip"), "arcsinh").resolve(model).labels == ("arcsinh(hip)",)
+    distance = R.norm(R.site_pos("foot", index=(0, 2)), offset=-0.07).resolve(model)
+    assert (distance.label, distance.labels) == (
+        "norm(site_pos(foot, index=(0, 2)), offset=-0.07)",
+        ("norm(site_pos(foot, index=(0, 2)), offset=-0.07)",),
+    )
+    centre = R.body_pos("torso", point="com").resolve(model)
+    assert (centre.label, centre.fields, centre.labels) == (
+        "body_pos(torso, point=com)",
+        ("xipos",),
+        ("torso.x", "torso.y", "torso.z"),
+    )
+    assert R.geom_pos("floor", index=(2,)).resolve(model).labels == ("floor.z",)
+
+
+def test_a_finite_difference_of_a_composite_differences_its_value() -> None:
+    """finite_difference of a composite reading names it (the env keeps its previous value) with all it reads."""
+    robot = _build_world("robot")
+    inner = R.norm(R.difference(R.body_pos("shin"), R.site_pos("imu"), frame="body:torso"), offset=-0.5)
+    resolved = R.finite_difference(inner, dt=0.02).resolve(robot.model)
+    assert (
+        resolved.label
+        == "finite_difference(norm(difference(body_pos(shin), site_pos(imu), frame=body:torso), offset=-0.5), dt=0.02)"
+    )
+    assert (resolved.shape, resolved.fields, resolved.dt) == ((1,), ("xpos", "site_xpos", "xmat"), 0.02)
+    assert resolved.labels == ("d(norm(difference(body_pos(shin), site_pos(imu), frame=body:torso), offset=-0.5))",)
+    shin, torso, imu = robot.model.body("shin").id, robot.model.body("torso").id, robot.model.site("imu").id
+    expected = [[_norm3(_in_frame(d.xmat[torso], d.xpos[shin] - d.site_xpos[imu])) - 0.5] for d in robot.datas]
+    value = resolved.difference_of.compute(robot.arrays(resolved.difference_of))
+    np.testing.assert_array_equal(value, np.array(expected))
 
 
 # ------------------------------------------------------------------------------------------------------ bad input
@@ -582,6 +878,54 @@ def test_bad_input_is_refused_clearly() -> None:
             ValueError,
             r"body_pos\(torso, index=\(3,\)\): index must be positions in \[0, 3\) of its 3 elements, got \(3,\)",
             R.body_pos("torso", index=(3,)).resolve,
+        ),
+        (
+            ValueError,
+            r"geom_pos geom: the model has no geom 'torso_gem'; did you mean 'torso_geom'",
+            R.geom_pos("torso_gem").resolve,
+        ),
+        # composites: their inputs' names, their shapes, their frames
+        (
+            ValueError,
+            r"body_pos body: the model has no body 'shn'; did you mean 'shin'",
+            R.difference(R.body_pos("torso"), R.body_pos("shn")).resolve,
+        ),
+        (
+            ValueError,
+            r"sensor name: the model has no sensor 'touch'",
+            R.norm(R.elementwise(R.sensor("touch"), "log1p")).resolve,
+        ),
+        (
+            ValueError,
+            r"difference\(body_pos\(torso\), body_quat\(torso\)\): a and b must have the same shape, got \(3,\) "
+            r"\(body_pos\(torso\)\) and \(4,\) \(body_quat\(torso\)\)",
+            R.difference(R.body_pos("torso"), R.body_quat("torso")).resolve,
+        ),
+        (
+            ValueError,
+            r"frame=body:torso expresses 3-vectors in its axes, so a and b must have shape \(3,\), got \(2,\) "
+            r"\(joint_pos\(hip, knee\), joint_vel\(hip, knee\)\)",
+            R.difference(R.joint_pos("hip", "knee"), R.joint_vel("hip", "knee"), frame="body:torso").resolve,
+        ),
+        (
+            ValueError,
+            r"difference frame: the model has no site 'im'; did you mean 'imu'",
+            R.difference(R.body_pos("torso"), R.site_pos("imu"), frame="site:im").resolve,
+        ),
+        (
+            ValueError,
+            r"difference frame: the model has no geom 'torso'; did you mean 'torso_geom'",
+            R.difference(R.body_pos("torso"), R.site_pos("imu"), frame="geom:torso").resolve,
+        ),
+        (
+            ValueError,
+            r"norm\(time\(\), index=\(1,\)\): index must be positions in \[0, 1\) of its 1 elements, got \(1,\)",
+            R.norm(R.time(), index=(1,)).resolve,
+        ),
+        (
+            ValueError,
+            r"index must be positions in \[0, 6\) of its 6 elements, got \(6,\)",
+            R.elementwise(R.body_pos("torso"), "sin_cos", index=(6,)).resolve,
         ),
     ]
     for error, match, resolve in cases:
@@ -696,6 +1040,75 @@ def test_bad_arguments_are_refused_when_declared() -> None:
             TypeError,
             r"resolve takes a compiled mujoco.MjModel .*, got str",
             lambda: R.mass_centre().resolve("robot.xml"),
+        ),
+        (
+            ValueError,
+            r"body_pos point must be one of \['origin', 'com'\], got 'centre'",
+            lambda: R.body_pos("t", point="centre"),
+        ),
+        (TypeError, r"geom_pos geom must be the name of a geom \(a string\), got None", lambda: R.geom_pos(None)),
+        # composites: their inputs, frames, functions and offsets
+        (
+            TypeError,
+            r"difference a must be a reading \(e.g. body_pos\('torso'\)\), got 'torso'",
+            lambda: R.difference("torso", R.body_pos("torso")),
+        ),
+        (TypeError, r"difference b must be a reading .*, got None", lambda: R.Difference(a=R.time())),
+        (
+            ValueError,
+            r"difference a must not be a finite difference .*, got finite_difference\(time\(\)\)",
+            lambda: R.difference(R.finite_difference(R.time()), R.time()),
+        ),
+        (
+            ValueError,
+            r"norm reading must not be a finite difference .*finite_difference\(\.\.\.\) of the composite",
+            lambda: R.norm(R.finite_difference(R.body_pos("t"))),
+        ),
+        (
+            ValueError,
+            r"difference frame must be None or 'body:<name>', 'geom:<name>' or 'site:<name>' .*, got 'torso'",
+            lambda: R.difference(R.time(), R.time(), frame="torso"),
+        ),
+        (
+            ValueError,
+            r"difference frame must be None or .*, got 'body:'",
+            lambda: R.difference(R.time(), R.time(), frame="body:"),
+        ),
+        (
+            ValueError,
+            r"the kind 'bdy' of 'bdy:torso' is none of \['body', 'geom', 'site'\]; did you mean 'body'",
+            lambda: R.difference(R.time(), R.time(), frame="bdy:torso"),
+        ),
+        (
+            ValueError,
+            r"difference frame must be .*: the kind 'camera' of 'camera:eye' is none of",
+            lambda: R.difference(R.time(), R.time(), frame="camera:eye"),
+        ),
+        (
+            TypeError,
+            r"difference frame must be None or a string .*, got 3",
+            lambda: R.difference(R.time(), R.time(), frame=3),
+        ),
+        (
+            ValueError,
+            r"elementwise function must be one of \['log1p', 'arcsinh', 'sin_cos'\], got 'log1'; did you mean 'log1p'",
+            lambda: R.elementwise(R.time(), "log1"),
+        ),
+        (ValueError, r"elementwise function must be one of .*, got 'exp'", lambda: R.elementwise(R.time(), "exp")),
+        (
+            TypeError,
+            r"elementwise function must be the name of a function \(a string\), got <ufunc 'log1p'>",
+            lambda: R.elementwise(R.time(), np.log1p),
+        ),
+        (TypeError, r"elementwise reading must be a reading .*, got 'torso'", lambda: R.elementwise("torso", "log1p")),
+        (TypeError, r"norm reading must be a reading .*, got \[\]", lambda: R.norm([])),
+        (TypeError, r"norm offset must be a number, got '0.1'", lambda: R.norm(R.time(), offset="0.1")),
+        (TypeError, r"norm offset must be a number, got True", lambda: R.norm(R.time(), offset=True)),
+        (ValueError, r"norm offset must be a finite number, got nan", lambda: R.norm(R.time(), offset=float("nan"))),
+        (
+            ValueError,
+            r"clip must be \(low, high\) with low <= high, got \(1, 0\)",
+            lambda: R.norm(R.time(), clip=(1, 0)),
         ),
     ]
     for error, match, declare in cases:

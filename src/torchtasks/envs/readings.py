@@ -4,7 +4,8 @@ A reading (``joint_pos("knee")``, ``body_lin_vel("torso", frame="local")``, ``se
 picklable declaration. ``reading.resolve(model)`` checks its names against the model (the closest names on a miss)
 and returns a :class:`Resolved`: the bound ``mujoco.batch.Batch`` arrays it reads and a ``compute`` from those
 ``(num_envs, ...)`` arrays to a new ``(num_envs, *shape)`` array, written with indexing and arithmetic that run on
-numpy arrays and torch tensors alike. :data:`READING_KINDS` lists every kind.
+numpy arrays and torch tensors alike. ``difference``, ``elementwise`` and ``norm`` compute a value from other
+readings. :data:`READING_KINDS` lists every kind.
 """
 
 from __future__ import annotations
@@ -39,11 +40,15 @@ __all__ = [
     "BodyQuat",
     "ContactForce",
     "DataField",
+    "Difference",
+    "Elementwise",
     "FiniteDifference",
+    "GeomPos",
     "JointPos",
     "JointVel",
     "LastAction",
     "MassCentre",
+    "Norm",
     "ProjectedGravity",
     "Reading",
     "Resolved",
@@ -61,11 +66,15 @@ __all__ = [
     "body_quat",
     "contact_force",
     "data_field",
+    "difference",
+    "elementwise",
     "finite_difference",
+    "geom_pos",
     "joint_pos",
     "joint_vel",
     "last_action",
     "mass_centre",
+    "norm",
     "projected_gravity",
     "sensor",
     "site_pos",
@@ -138,7 +147,18 @@ class Resolved:
 
 # ----------------------------------------------------------------------------------------------------- arithmetic
 # Each works on numpy arrays and torch tensors alike: integer-array indexing (a copy in both), + - * /, ``.sum(axis=)``,
-# ``.reshape`` and ``.clip``.
+# ``.reshape``, ``.clip``, slice assignment and the functions of ``_unary``.
+
+
+def _unary(name: str, value: Array) -> Array:
+    """numpy's function ``name`` (``"log1p"``, ``"sin"``, ...) of a numpy array, the tensor method of that name of a
+    tensor (torch's own implementation: it may differ from numpy's in the last bit)."""
+    return getattr(np, name)(value) if isinstance(value, np.ndarray) else getattr(value, name)()
+
+
+def _length(value: Array) -> Array:
+    """The Euclidean norm of each row of ``(n, k)`` values: ``(n,)``, for 3-vectors as ``mju_norm3`` (on numpy)."""
+    return (value * value).sum(axis=1) ** 0.5
 
 
 def _cross(a: Array, b: Array) -> Array:
@@ -186,8 +206,7 @@ def _body_velocity(
 
 def _projected_gravity(arrays: Mapping[str, Array], *, body: int) -> Array:
     gravity = arrays["model.opt.gravity"]
-    norm = ((gravity * gravity).sum(axis=1) ** 0.5)[:, None]
-    return _rotate_transposed(arrays["xmat"][:, body], gravity * (1 / norm))
+    return _rotate_transposed(arrays["xmat"][:, body], gravity * (1 / _length(gravity)[:, None]))
 
 
 def _subtree_lin_vel(
@@ -218,6 +237,32 @@ def _time(arrays: Mapping[str, Array]) -> Array:
     return arrays["time"].reshape(-1, 1) * 1
 
 
+def _difference(
+    arrays: Mapping[str, Array],
+    *,
+    first: Callable[[Mapping[str, Array]], Array],
+    second: Callable[[Mapping[str, Array]], Array],
+    rotation: str | None,
+    row: int,
+) -> Array:
+    # in a frame: R^T (a - b), i.e. dm_control's ``(a - b) @ R`` in mju_mulMatTVec3's order of operations
+    value = first(arrays) - second(arrays)
+    return value if rotation is None else _rotate_transposed(arrays[rotation][:, row], value)
+
+
+def _elementwise(
+    arrays: Mapping[str, Array],
+    *,
+    inner: Callable[[Mapping[str, Array]], Array],
+    function: Callable[[Array], Array],
+) -> Array:
+    return function(inner(arrays))
+
+
+def _norm(arrays: Mapping[str, Array], *, inner: Callable[[Mapping[str, Array]], Array], offset: float) -> Array:
+    return _length(inner(arrays))[:, None] + offset
+
+
 def _selected(
     arrays: Mapping[str, Array],
     *,
@@ -236,6 +281,44 @@ def _differenced_by_the_engine(arrays: Mapping[str, Array], *, label: str) -> Ar
         f"{label} is the change of its reading over a step: the env keeps the reading's previous value and "
         f"differences it (Resolved.difference_of); it has no compute of its own"
     )
+
+
+# ------------------------------------------------------------------------------------------ elementwise functions
+
+
+def _log1p(value: Array) -> Array:
+    return _unary("log1p", value)
+
+
+def _arcsinh(value: Array) -> Array:
+    return _unary("arcsinh", value)
+
+
+def _sin_cos(value: Array) -> Array:
+    interleaved = value[:, np.repeat(np.arange(value.shape[1]), 2)]  # a new (n, 2k) array of the input's type
+    interleaved[:, 0::2] = _unary("sin", value)
+    interleaved[:, 1::2] = _unary("cos", value)
+    return interleaved
+
+
+@dataclass(frozen=True)
+class _Function:
+    """An elementwise function of :func:`elementwise`: ``(n, k)`` values to ``(n, k * len(labels))``."""
+
+    compute: Callable[[Array], Array]
+    #: the label formats of the entries one element ``x`` gives, in their order
+    labels: tuple[str, ...]
+
+
+#: the functions of :func:`elementwise`: name -> its computation and the labels of its entries
+_FUNCTIONS: dict[str, _Function] = {
+    "log1p": _Function(_log1p, ("log1p({})",)),
+    "arcsinh": _Function(_arcsinh, ("arcsinh({})",)),
+    "sin_cos": _Function(_sin_cos, ("sin({})", "cos({})")),
+}
+
+#: the kinds of object a difference can be expressed in the frame of -> the MjData field of their rotation matrices
+_FRAME_ROTATIONS = {"body": "xmat", "geom": "geom_xmat", "site": "site_xmat"}
 
 
 # --------------------------------------------------------------------------------------------------------- checks
@@ -294,6 +377,45 @@ def _check_index(index: object) -> tuple[int, ...] | None:
     if not index:
         raise ValueError("index must select at least one element, got an empty sequence")
     return tuple(int(position) for position in index)
+
+
+def _check_reading(value: object, argument: str) -> Reading:
+    """An input of a composite reading: any reading but a finite difference (which the env computes from the value
+    its reading had before the step, so only as an entry's outermost reading)."""
+    if not isinstance(value, Reading):
+        raise TypeError(f"{argument} must be a reading (e.g. body_pos('torso')), got {value!r}")
+    if isinstance(value, FiniteDifference):
+        raise ValueError(
+            f"{argument} must not be a finite difference (the env differences a whole entry's reading, so a finite "
+            f"difference can only be outermost: finite_difference(...) of the composite), got {value._label()}"
+        )
+    return value
+
+
+def _check_frame(frame: object, argument: str) -> str | None:
+    if frame is None:
+        return None
+    forms = [f"'{kind}:<name>'" for kind in _FRAME_ROTATIONS]
+    forms_text = f"{', '.join(forms[:-1])} or {forms[-1]}"
+    if not isinstance(frame, str):
+        raise TypeError(f"{argument} must be None or a string {forms_text}, got {frame!r}")
+    kind, colon, name = frame.partition(":")
+    if not colon or not name:
+        raise ValueError(f"{argument} must be None or {forms_text} (the object whose frame it is), got {frame!r}")
+    if kind not in _FRAME_ROTATIONS:
+        raise ValueError(
+            f"{argument} must be {forms_text}: the kind {kind!r} of {frame!r} is none of {list(_FRAME_ROTATIONS)}"
+            f"{did_you_mean(kind, list(_FRAME_ROTATIONS))}"
+        )
+    return frame
+
+
+def _check_number(value: object, argument: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{argument} must be a number, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{argument} must be a finite number, got {value!r}")
+    return float(value)
 
 
 def _check_model(model: object) -> mujoco.MjModel:
@@ -624,7 +746,8 @@ class _BodyReading(Reading):
 
 @dataclass(frozen=True)
 class BodyPos(_BodyReading):
-    """A body frame's origin in the world frame (``xpos`` row): shape ``(3,)``.
+    """A body's position in the world frame: its frame's origin (``xpos`` row, ``point="origin"``) or its centre of
+    mass (``xipos`` row, ``point="com"``): shape ``(3,)``.
 
     Example:
         >>> from torchtasks.envs.mujoco_model import load_model
@@ -636,13 +759,24 @@ class BodyPos(_BodyReading):
         >>> height = body_pos("torso", index=(2,)).resolve(model)
         >>> height.label, height.shape, height.labels
         ('body_pos(torso, index=(2,))', (1,), ('torso.z',))
+        >>> body_pos("torso", point="com").resolve(model).fields
+        ('xipos',)
     """
 
     kind: ClassVar[str] = "body_pos"
+    point: str = "origin"
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_choice(self.point, f"{self.kind} point", _POINTS)
+
+    def _arguments(self) -> list[str]:
+        return [self.body, *([] if self.point == "origin" else [f"point={self.point}"])]
 
     def _resolve(self, model: mujoco.MjModel) -> Resolved:
-        compute = functools.partial(_gather_row, name="xpos", row=self._body(model), index=_XYZ)
-        return self._resolved((3,), ("xpos",), compute, _axes(self.body, "xyz"))
+        name = "xpos" if self.point == "origin" else "xipos"
+        compute = functools.partial(_gather_row, name=name, row=self._body(model), index=_XYZ)
+        return self._resolved((3,), (name,), compute, _axes(self.body, "xyz"))
 
 
 @dataclass(frozen=True)
@@ -926,6 +1060,36 @@ class SiteQuat(_SiteReading):
 
 
 @dataclass(frozen=True)
+class GeomPos(Reading):
+    """A geom's position in the world frame (``geom_xpos`` row): shape ``(3,)``.
+
+    Example:
+        >>> from torchtasks.envs.mujoco_model import load_model
+        >>> from torchtasks.envs.readings import geom_pos
+        >>> model = load_model('<mujoco><worldbody><body><freejoint/><geom name="mouth" size=".1"/></body>'
+        ...                    '</worldbody></mujoco>')
+        >>> resolved = geom_pos("mouth").resolve(model)
+        >>> resolved.fields, resolved.labels
+        (('geom_xpos',), ('mouth.x', 'mouth.y', 'mouth.z'))
+    """
+
+    kind: ClassVar[str] = "geom_pos"
+    geom: str = ""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_name(self.geom, "geom_pos geom", "geom")
+
+    def _arguments(self) -> list[str]:
+        return [self.geom]
+
+    def _resolve(self, model: mujoco.MjModel) -> Resolved:
+        geom = object_id(model, "geom", self.geom, "geom_pos geom")
+        compute = functools.partial(_gather_row, name="geom_xpos", row=geom, index=_XYZ)
+        return self._resolved((3,), ("geom_xpos",), compute, _axes(self.geom, "xyz"))
+
+
+@dataclass(frozen=True)
 class LastAction(Reading):
     """The action of the last step (zeros after a reset), one entry per actuator: shape ``(nu,)``.
 
@@ -1119,6 +1283,195 @@ class MassCentre(Reading):
         return self._resolved((3,), ("xipos",), _mass_centre, ("x", "y", "z"), model_fields=("body_mass",))
 
 
+def _union(*groups: tuple[str, ...]) -> tuple[str, ...]:
+    return tuple(dict.fromkeys(name for group in groups for name in group))
+
+
+@dataclass(frozen=True)
+class _Composite(Reading):
+    """A reading computed from other readings, each resolved once: it reads what they read."""
+
+    def _combined(
+        self,
+        inputs: tuple[Resolved, ...],
+        shape: tuple[int, ...],
+        compute: Callable[[Mapping[str, Array]], Array],
+        labels: tuple[str, ...],
+        *,
+        fields: tuple[str, ...] = (),
+    ) -> Resolved:
+        return self._resolved(
+            shape,
+            _union(*(each.fields for each in inputs), fields),
+            compute,
+            labels,
+            model_fields=_union(*(each.model_fields for each in inputs)),
+            contact_forces=any(each.contact_forces for each in inputs),
+            action=any(each.action for each in inputs),
+        )
+
+    def _call(self) -> str:
+        """The reading as written, without its index and clip."""
+        return f"{self.kind}({', '.join(self._arguments())})"
+
+
+@dataclass(frozen=True)
+class Difference(_Composite):
+    """The difference ``a - b`` of two readings of the same shape: their shape. With ``frame`` (``"body:<name>"``,
+    ``"geom:<name>"`` or ``"site:<name>"``) two 3-vectors' difference in that object's frame, ``R^T (a - b)`` with
+    ``R`` its rotation in the world (``xmat``, ``geom_xmat`` or ``site_xmat``; dm_control's ``(a - b) @ R``):
+    shape ``(3,)``.
+
+    ``index`` and ``clip`` apply to the difference; give ``a`` and ``b`` their own to select or clip before
+    subtracting (dm_control's finger: ``difference(sensor("tip"), sensor("spinner"), index=(0, 2))``, the tip's x
+    and z relative to the spinner; humanoid: ``difference(body_pos("left_hand"), body_pos("torso"),
+    frame="body:torso")``).
+
+    Example:
+        >>> import mujoco
+        >>> from torchtasks.envs.mujoco_model import load_model
+        >>> from torchtasks.envs.readings import body_pos, difference
+        >>> model = load_model('<mujoco><worldbody><body name="torso" euler="0 0 90"><geom size=".1"/>'
+        ...                    '<body name="hand" pos="1 0 0"><geom size=".1"/></body></body></worldbody></mujoco>')
+        >>> data = mujoco.MjData(model)
+        >>> mujoco.mj_forward(model, data)
+        >>> resolved = difference(body_pos("hand"), body_pos("torso"), frame="body:torso").resolve(model)
+        >>> resolved.fields, resolved.labels[0]
+        (('xpos', 'xmat'), 'difference(body_pos(hand), body_pos(torso), frame=body:torso).x')
+        >>> resolved.compute({"xpos": data.xpos[None], "xmat": data.xmat[None]}).round(12) + 0.0
+        array([[1., 0., 0.]])
+    """
+
+    kind: ClassVar[str] = "difference"
+    a: Reading | None = None
+    b: Reading | None = None
+    frame: str | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_reading(self.a, "difference a")
+        _check_reading(self.b, "difference b")
+        _check_frame(self.frame, "difference frame")
+
+    def _arguments(self) -> list[str]:
+        frame = [] if self.frame is None else [f"frame={self.frame}"]
+        return [self.a._label(), self.b._label(), *frame]  # type: ignore[union-attr]
+
+    def _resolve(self, model: mujoco.MjModel) -> Resolved:
+        first, second = self.a.resolve(model), self.b.resolve(model)  # type: ignore[union-attr]
+        if first.shape != second.shape:
+            raise ValueError(
+                f"{self._label()}: a and b must have the same shape, got {first.shape} ({first.label}) and "
+                f"{second.shape} ({second.label})"
+            )
+        if self.frame is None:
+            rotation, row = None, 0
+            labels = tuple(f"{x} - {y}" for x, y in zip(first.labels, second.labels, strict=True))
+        else:
+            if first.shape != (3,):
+                raise ValueError(
+                    f"{self._label()}: frame={self.frame} expresses 3-vectors in its axes, so a and b must have "
+                    f"shape (3,), got {first.shape} ({first.label}, {second.label})"
+                )
+            kind, _, name = self.frame.partition(":")
+            rotation = _FRAME_ROTATIONS[kind]
+            row = object_id(model, kind, name, "difference frame")  # type: ignore[arg-type]
+            labels = _axes(self._call(), "xyz")
+        compute = functools.partial(_difference, first=first.compute, second=second.compute, rotation=rotation, row=row)
+        extra = () if rotation is None else (rotation,)
+        return self._combined((first, second), first.shape, compute, labels, fields=extra)
+
+
+@dataclass(frozen=True)
+class Elementwise(_Composite):
+    """A function of each element of a reading: ``"log1p"`` (``log(1 + x)``, dm_control's touch sensors) and
+    ``"arcsinh"`` (its force and torque sensors) keep the reading's shape; ``"sin_cos"`` gives each element's sine
+    and cosine, interleaved (``sin x0, cos x0, sin x1, ...``, dm_control's manipulator ``arm_pos``): shape twice the
+    reading's.
+
+    ``index`` and ``clip`` apply to the result. On numpy arrays the values are numpy's functions'; on torch tensors
+    torch's, which may differ from numpy's in the last bit.
+
+    Example:
+        >>> import numpy as np
+        >>> from torchtasks.envs.mujoco_model import load_model
+        >>> from torchtasks.envs.readings import elementwise, joint_pos
+        >>> model = load_model('<mujoco><worldbody><body><joint name="elbow"/><geom size=".1"/></body>'
+        ...                    '</worldbody></mujoco>')
+        >>> resolved = elementwise(joint_pos("elbow"), "sin_cos").resolve(model)
+        >>> resolved.shape, resolved.labels
+        ((2,), ('sin(elbow)', 'cos(elbow)'))
+        >>> resolved.compute({"qpos": np.array([[0.0], [np.pi / 2]])}).round(12) + 0.0
+        array([[0., 1.],
+               [1., 0.]])
+    """
+
+    kind: ClassVar[str] = "elementwise"
+    reading: Reading | None = None
+    function: str = ""
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_reading(self.reading, "elementwise reading")
+        if not isinstance(self.function, str):
+            raise TypeError(f"elementwise function must be the name of a function (a string), got {self.function!r}")
+        if self.function not in _FUNCTIONS:
+            raise ValueError(
+                f"elementwise function must be one of {list(_FUNCTIONS)}, got {self.function!r}"
+                f"{did_you_mean(self.function, list(_FUNCTIONS))}"
+            )
+
+    def _arguments(self) -> list[str]:
+        return [self.reading._label(), self.function]  # type: ignore[union-attr]
+
+    def _resolve(self, model: mujoco.MjModel) -> Resolved:
+        inner = self.reading.resolve(model)  # type: ignore[union-attr]
+        function = _FUNCTIONS[self.function]
+        labels = tuple(form.format(label) for label in inner.labels for form in function.labels)
+        compute = functools.partial(_elementwise, inner=inner.compute, function=function.compute)
+        return self._combined((inner,), (len(labels),), compute, labels)
+
+
+@dataclass(frozen=True)
+class Norm(_Composite):
+    """The Euclidean norm of a reading's elements plus ``offset`` (a finite number, 0 by default): shape ``(1,)``.
+
+    dm_control's finger ``dist_to_target``, the target's distance from the tip less the target's radius, is
+    ``norm(difference(sensor("target"), sensor("tip"), index=(0, 2)), offset=-0.07)``. ``index`` and ``clip`` apply
+    to the norm. A 3-vector's norm is ``mju_norm3``'s on numpy arrays; torch's square root may differ in the last bit.
+
+    Example:
+        >>> import numpy as np
+        >>> from torchtasks.envs.mujoco_model import load_model
+        >>> from torchtasks.envs.readings import body_pos, norm
+        >>> model = load_model('<mujoco><worldbody><body name="torso"><freejoint/><geom size=".1"/></body>'
+        ...                    '</worldbody></mujoco>')
+        >>> resolved = norm(body_pos("torso"), offset=-1).resolve(model)
+        >>> resolved.label, resolved.shape
+        ('norm(body_pos(torso), offset=-1)', (1,))
+        >>> resolved.compute({"xpos": np.array([[[0.0, 0.0, 0.0], [3.0, 0.0, 4.0]]])})
+        array([[4.]])
+    """
+
+    kind: ClassVar[str] = "norm"
+    reading: Reading | None = None
+    offset: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _check_reading(self.reading, "norm reading")
+        object.__setattr__(self, "offset", _check_number(self.offset, "norm offset"))
+
+    def _arguments(self) -> list[str]:
+        offset = [] if self.offset == 0 else [f"offset={self.offset:g}"]
+        return [self.reading._label(), *offset]  # type: ignore[union-attr]
+
+    def _resolve(self, model: mujoco.MjModel) -> Resolved:
+        inner = self.reading.resolve(model)  # type: ignore[union-attr]
+        compute = functools.partial(_norm, inner=inner.compute, offset=self.offset)
+        return self._combined((inner,), (1,), compute, (self._call(),))
+
+
 #: every reading kind: its name (the constructor function's) -> its class
 READING_KINDS: dict[str, type[Reading]] = {
     kind.kind: kind
@@ -1138,11 +1491,15 @@ READING_KINDS: dict[str, type[Reading]] = {
         ContactForce,
         SitePos,
         SiteQuat,
+        GeomPos,
         LastAction,
         Time,
         FiniteDifference,
         DataField,
         MassCentre,
+        Difference,
+        Elementwise,
+        Norm,
     )
 }
 
@@ -1202,14 +1559,17 @@ def sensor(name: str, *, index: Index = None, clip: Clip = None) -> Sensor:
     return Sensor(name=name, index=index, clip=clip)
 
 
-def body_pos(body: str, *, index: Index = None, clip: Clip = None) -> BodyPos:
-    """The world position of ``body``'s frame (``index=(2,)``: its height): see :class:`BodyPos`.
+def body_pos(body: str, *, point: str = "origin", index: Index = None, clip: Clip = None) -> BodyPos:
+    """The world position of ``body``'s frame origin or (``point="com"``) centre of mass (``index=(2,)``: its
+    height): see :class:`BodyPos`.
 
     Example:
         >>> body_pos("torso", index=(2,)).index
         (2,)
+        >>> body_pos("torso", point="com").point
+        'com'
     """
-    return BodyPos(body=body, index=index, clip=clip)
+    return BodyPos(body=body, point=point, index=index, clip=clip)
 
 
 def body_quat(body: str, *, index: Index = None, clip: Clip = None) -> BodyQuat:
@@ -1306,6 +1666,16 @@ def site_quat(site: str, *, index: Index = None, clip: Clip = None) -> SiteQuat:
     return SiteQuat(site=site, index=index, clip=clip)
 
 
+def geom_pos(geom: str, *, index: Index = None, clip: Clip = None) -> GeomPos:
+    """The world position of ``geom``: see :class:`GeomPos`.
+
+    Example:
+        >>> geom_pos("target", index=(0, 1)).geom
+        'target'
+    """
+    return GeomPos(geom=geom, index=index, clip=clip)
+
+
 def last_action(*, index: Index = None, clip: Clip = None) -> LastAction:
     """The last action: see :class:`LastAction`.
 
@@ -1357,3 +1727,37 @@ def mass_centre(*, index: Index = None, clip: Clip = None) -> MassCentre:
         'mass_centre'
     """
     return MassCentre(index=index, clip=clip)
+
+
+def difference(
+    a: Reading, b: Reading, *, frame: str | None = None, index: Index = None, clip: Clip = None
+) -> Difference:
+    """``a - b``, two readings of the same shape; with ``frame`` (``"body:<name>"``, ``"geom:<name>"`` or
+    ``"site:<name>"``) two 3-vectors' difference in that object's frame: see :class:`Difference`.
+
+    Example:
+        >>> difference(geom_pos("target"), geom_pos("mouth"), frame="geom:mouth").frame
+        'geom:mouth'
+    """
+    return Difference(a=a, b=b, frame=frame, index=index, clip=clip)
+
+
+def elementwise(reading: Reading, function: str, *, index: Index = None, clip: Clip = None) -> Elementwise:
+    """``function`` (``"log1p"``, ``"arcsinh"`` or ``"sin_cos"``) of each element of ``reading``: see
+    :class:`Elementwise`.
+
+    Example:
+        >>> elementwise(sensor("touch"), "log1p").function
+        'log1p'
+    """
+    return Elementwise(reading=reading, function=function, index=index, clip=clip)
+
+
+def norm(reading: Reading, *, offset: float = 0.0, index: Index = None, clip: Clip = None) -> Norm:
+    """The Euclidean norm of ``reading``'s elements plus ``offset``: see :class:`Norm`.
+
+    Example:
+        >>> norm(site_pos("tip"), offset=-0.05).offset
+        -0.05
+    """
+    return Norm(reading=reading, offset=offset, index=index, clip=clip)
