@@ -51,6 +51,7 @@ API_OBJECTS = (
     "torchtasks.envs.readings.BodyLinVel",
     "torchtasks.envs.mujoco_declaration.Resets",
     "torchtasks.envs.mujoco_declaration.declare",
+    "torchtasks.envs.reset_steps.UntilContactFree",
     "torchtasks.envs.models.model_path",
     "torchtasks.envs.reset_steps.UniformJoints",
     "torchtasks.envs.control_suite.control_suite_env",
