@@ -626,6 +626,24 @@ def test_resets_to_given_states_skip_the_state_draws_and_still_draw_the_domain()
     env.close()
 
 
+def test_a_reset_to_given_states_draws_the_domain_inside_until_contact_free_once() -> None:
+    """A target drawn inside the rejection loop (dm_control's manipulator) is drawn once for a given state."""
+    n, seed = 3, 11
+    draw = DrawDomain("geom_pos:post", Box((1.5, -0.5), (2.5, 0.5), axes=(0, 2)))
+    env = _env(WALL_XML, n, [UntilContactFree([UniformJoints(), draw])], seed=seed, observation=R.joint_pos())
+    given = torch.tensor([[0.9, 0.95]] * n, dtype=torch.float64)
+    env.set_reset_states(given)
+    out = env.reset()
+    values = env.domain_values(["geom_pos:post"])["geom_pos:post"].numpy()
+    post = env.model.geom("post").pos
+    for i, rng in enumerate(generators(seed, n)):
+        expected = post.copy()
+        expected[[0, 2]] = rng.uniform([1.5, -0.5], [2.5, 0.5])  # the post only: no joint draw, no rejection
+        np.testing.assert_array_equal(values[i], expected, err_msg=f"env {i}")
+        np.testing.assert_array_equal(out["observation"][i].numpy(), given[i].numpy())
+    env.close()
+
+
 # ------------------------------------------------------------------------------ bad declarations
 def _bad_steps() -> list[tuple[Callable[[], Any], type[Exception], str]]:
     """(what builds the env or the step, the error, a pattern of its message), on JOINTS_XML unless said."""

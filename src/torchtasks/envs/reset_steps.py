@@ -14,7 +14,8 @@ a function of the model's addresses once; the env calls it with a :class:`ResetC
 for and their generators. Draws loop over the reset envs (each draws from its own generator, so an env's draws do not
 depend on which others reset); the writes are array operations. A reset to given states
 (:meth:`~torchtasks.envs.BatchedMujocoEnv.set_reset_states`) runs only the steps that write model fields alone
-(:class:`DrawDomain`): the given state replaces every draw of ``qpos`` and ``qvel``.
+(:class:`DrawDomain`, also inside :class:`UntilContactFree`, then drawn once): the given state replaces every draw of
+``qpos`` and ``qvel``.
 """
 
 from __future__ import annotations
@@ -104,6 +105,10 @@ class ResetStep:
     def resolve(self, model: mujoco.MjModel) -> Apply:
         """Check the step against ``model`` (names, joint types, field shapes) and return its function."""
         raise NotImplementedError
+
+    def resolve_model_part(self, model: mujoco.MjModel) -> Apply | None:
+        """The part of the step a reset to given states runs: what writes model fields alone (None: nothing)."""
+        return None if self.writes_state else self.resolve(model)
 
 
 def _finite(value: object, name: str) -> float:
@@ -568,6 +573,18 @@ class UntilContactFree(ResetStep):
             raise RuntimeError(
                 f"UntilContactFree: envs {pending.tolist()} still touched something after {attempts} draws"
             )
+
+        return apply
+
+    def resolve_model_part(self, model: mujoco.MjModel) -> Apply | None:
+        # a reset to given states draws the model fields of the steps once (a target), without the rejection
+        parts = [part for step in self.steps if (part := step.resolve_model_part(model)) is not None]
+        if not parts:
+            return None
+
+        def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
+            for part in parts:
+                part(context, ids, generators)
 
         return apply
 
