@@ -132,6 +132,8 @@ def test_the_cheetah_numbers_are_the_scripts_output() -> None:
     results = json.loads((GENERATED / "cheetah_settling.json").read_text())
     page = PAGE.read_text(encoding="utf-8")
     assert results["date"] in page
-    assert f"up to {results['largest_qpos_difference']:.2f} in `qpos`" in page
-    assert f"(median {results['median_qpos_difference']:.2f})" in page
-    assert f"matches dm_control to {results['largest_qpos_difference_of_the_mujoco_version']:.1e}" in page
+    assert f"agree to\n  {results['largest_qpos_difference']:.1e} in `qpos`" in page
+    assert f"(median {results['median_qpos_difference']:.1e}: the MuJoCo versions)" in page
+    assert results["largest_qpos_difference"] < 1e-12  # the preset settles as dm_control does
+    assert f"differ by up\n  to {results['largest_qpos_difference_without_the_first_step']:.2f}" in page
+    assert f"(median {results['median_qpos_difference_without_the_first_step']:.2f})" in page
