@@ -177,3 +177,29 @@ def test_a_checkpoint_continues_targets_and_episodes_bit_for_bit() -> None:
     assert not torch.equal(after[0], targets[0]) and torch.equal(after[1], targets[1])
     for e in (env, resumed):
         e.close()
+
+
+def _reset_twice(env) -> tuple:
+    """A full reset, then a partial one of env 0: its observation and every domain value after."""
+    td = env.reset()
+    td = env.reset(td.set("_reset", torch.tensor([[True], [False]])))
+    return td, env.domain_values()
+
+
+@pytest.mark.parametrize("name", ["manipulator-bring_ball", "quadruped-run", "swimmer-swimmer6"])
+def test_copies_and_pickles_continue_with_their_reset_steps(name: str) -> None:
+    """A copy or an unpickled env (a spawned worker's) rebuilds the reset steps and continues bit for bit."""
+    import pickle
+
+    env = control_suite_base_env(name, 2, seed=2)
+    env.reset()
+    copies = [copy.deepcopy(env), pickle.loads(pickle.dumps(env))]
+    first, values = _reset_twice(env)
+    for other in copies:
+        td, other_values = _reset_twice(other)
+        for key in env.declaration.observation:
+            torch.testing.assert_close(td[key], first[key], rtol=0, atol=0)
+        for field, value in values.items():
+            torch.testing.assert_close(other_values[field], value, rtol=0, atol=0)
+        other.close()
+    env.close()
