@@ -30,6 +30,7 @@ the batch layout and the minibatch size):
 Another env, more transforms: ``LocomotionPPOConfig.env_id`` (any of ``SUPPORTED_ENV_IDS``) and
 the ``extra_transforms`` hook of :func:`make_env` and :func:`train` (appended to the preset before the
 normalisation); ``train_hopper_domain_randomization.py`` trains Hopper with domain randomization that way.
+Another preset: the ``preset`` argument of :func:`train` (``control_suite_ppo.py`` trains the Control Suite's).
 
 Returns: HalfCheetah never terminates, so every episode ends at the 1000-step limit. The learning
 curve is the **mean return of the training episodes that ended** in each batch (the stochastic
