@@ -9,8 +9,11 @@ BENCH_STAMP := $(BENCH_VENV)/.installed
 DMC_VENV := .venv-dmc
 DMC_STAMP := $(DMC_VENV)/.installed
 DMC_REQUIREMENTS := .ci/dm_control_reference.txt
+BENCH_DMC_VENV := .venv-bench-dmc
+BENCH_DMC_BIN := $(BENCH_DMC_VENV)/bin
+BENCH_DMC_STAMP := $(BENCH_DMC_VENV)/.installed
 
-.PHONY: setup demo test test-quick check-base-install lint docs bench bench-venv reference-venv clean
+.PHONY: setup demo test test-quick check-base-install lint docs bench bench-venv bench-dmc-venv reference-venv clean
 
 $(STAMP): pyproject.toml constraints.txt
 	$(PY) -m venv $(VENV)
@@ -70,6 +73,21 @@ $(BENCH_STAMP): pyproject.toml constraints.txt
 
 bench-venv: $(BENCH_STAMP)
 
+# A separate venv for the peer columns of benchmarks/control_suite.py: TorchRL's DMControlEnv needs dm_control, and
+# dm-control 1.0.50 does not import on MuJoCo 4, so the project's torch, torchrl and tensordict go into a venv with
+# the dm_control reference's mujoco 3.17.0 and dm-control (its requirements file; constraints.txt pins mujoco 4, so
+# it is not applied there). No torchtasks: the benchmark runs benchmarks/control_suite_peer.py in it. Not built by
+# `make test` or `make demo`.
+$(BENCH_DMC_STAMP): constraints.txt $(DMC_REQUIREMENTS)
+	$(PY) -m venv $(BENCH_DMC_VENV)
+	$(BENCH_DMC_BIN)/pip install --quiet --upgrade pip
+	$(BENCH_DMC_BIN)/pip install --quiet -c constraints.txt torch==2.13.0 torchrl==0.14.1 tensordict==0.14.3
+	$(BENCH_DMC_BIN)/pip install --quiet -r $(DMC_REQUIREMENTS)
+	MUJOCO_GL=disable $(BENCH_DMC_BIN)/python -c "import dm_control.suite, torchrl.envs.libs.dm_control"
+	touch $(BENCH_DMC_STAMP)
+
+bench-dmc-venv: $(BENCH_DMC_STAMP)
+
 # The dm_control reference: dm-control 1.0.50 on MuJoCo 3.17.0 (it does not import on MuJoCo 4), in a venv of its own
 # that the tests talk to through a worker process (torchtasks.envs.control_suite.reference). Not a dependency of
 # torchtasks. `make test` builds it as a best effort (DMC_BUILD_ERRORS := - there: a failed build does not stop it).
@@ -79,4 +97,4 @@ $(DMC_STAMP): $(DMC_REQUIREMENTS) .ci/build_reference_venv.sh
 reference-venv: $(DMC_STAMP)
 
 clean:
-	rm -rf $(VENV) $(BENCH_VENV) $(DMC_VENV) docs/_build
+	rm -rf $(VENV) $(BENCH_VENV) $(BENCH_DMC_VENV) $(DMC_VENV) docs/_build
