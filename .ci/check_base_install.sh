@@ -57,6 +57,33 @@ echo "== torchtasks --help"
 "$bin/torchtasks" --help > help.txt
 head -n 1 help.txt
 
+echo "== package data: every model file of the checkout is installed"
+"$bin/python" - "$work/src/src/torchtasks/envs/models" <<'PY'
+import pathlib
+import sys
+
+import torchtasks
+
+source = pathlib.Path(sys.argv[1])
+installed = pathlib.Path(torchtasks.__file__).parent / "envs" / "models"
+
+
+def files(root: pathlib.Path) -> set[str]:
+    return {
+        path.relative_to(root).as_posix()
+        for path in root.rglob("*")
+        if path.is_file() and "__pycache__" not in path.parts and path.suffix != ".pyc"
+    }
+
+
+expected, shipped = files(source), files(installed)
+assert {"dm_control/quadruped.xml", "dm_control/common/visual.xml", "dm_control/LICENSE"} <= expected, expected
+assert shipped == expected, f"not installed: {sorted(expected - shipped)}; unexpected: {sorted(shipped - expected)}"
+for name in sorted(expected):
+    assert (installed / name).read_bytes() == (source / name).read_bytes(), name
+print(f"ok: {len(shipped)} model files installed (the shipped robots, the DeepMind Control Suite's MJCF files)")
+PY
+
 echo "== torchtasks list"
 "$bin/torchtasks" list > list.txt
 grep -q "gymnasium_env .*\[needs the 'mujoco' extra\]" list.txt

@@ -7,8 +7,10 @@ is an error. Pages are Markdown (MyST); the API reference is generated from the 
 
 from __future__ import annotations
 
+import importlib.util
 import sys
 from pathlib import Path
+from types import ModuleType
 
 from sphinx.application import Sphinx
 from sphinx.util import logging
@@ -85,6 +87,14 @@ BENCHMARK_MISSING = (
 #: the line of api.md that the table of reading kinds replaces (generated from ``READING_KINDS``)
 READING_KINDS_MARKER = "<!-- the table of reading kinds, generated from READING_KINDS -->"
 
+#: the script that writes the tables of docs/control_suite.md from the presets (see its docstring)
+CONTROL_SUITE_TABLES = DOCS / "_scripts" / "control_suite_tables.py"
+#: the measured tables docs/control_suite.md includes (written by docs/_scripts/control_suite_exactness.py)
+CONTROL_SUITE_MEASURED = (
+    DOCS / "_generated" / "control_suite_exactness_table.md",
+    DOCS / "_generated" / "control_suite_drift_table.md",
+)
+
 logger = logging.getLogger(__name__)
 
 
@@ -106,9 +116,32 @@ def reading_kinds_table() -> str:
     return "\n".join(rows)
 
 
+def _control_suite_tables() -> ModuleType:
+    """``docs/_scripts/control_suite_tables.py`` as a module (the tables of the Control Suite's tasks)."""
+    spec = importlib.util.spec_from_file_location("control_suite_tables", CONTROL_SUITE_TABLES)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # where its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def _fill_control_suite(app: Sphinx, source: list[str]) -> None:
+    """Replace the two marker lines of docs/control_suite.md with the tables generated from the presets."""
+    tables = _control_suite_tables()
+    for marker in (tables.OBSERVATION_MARKER, tables.REWARD_MARKER):
+        if marker not in source[0]:
+            raise RuntimeError(f"docs/control_suite.md must hold the line {marker!r}: a table of the tasks")
+    facts = tables.all_task_facts()
+    source[0] = source[0].replace(tables.OBSERVATION_MARKER, tables.observation_table(facts))
+    source[0] = source[0].replace(tables.REWARD_MARKER, tables.reward_table(facts))
+    app.env.note_dependency(str(CONTROL_SUITE_TABLES))
+    for table in CONTROL_SUITE_MEASURED:
+        app.env.note_dependency(str(table))  # the page is rebuilt when a measured table changes
+
+
 def _adapt_sources(app: Sphinx, docname: str, source: list[str]) -> None:
     """Leave out toctree entries of missing optional pages and a missing benchmark table; fill in the table of
-    reading kinds of the API reference."""
+    reading kinds of the API reference and the tables of the Control Suite's tasks."""
     if docname == root_doc:
         for page in OPTIONAL_PAGES:
             # a dependency on the page (even a missing one) re-reads the index when the page appears
@@ -120,6 +153,8 @@ def _adapt_sources(app: Sphinx, docname: str, source: list[str]) -> None:
         if READING_KINDS_MARKER not in source[0]:
             raise RuntimeError(f"docs/api.md must hold the line {READING_KINDS_MARKER!r}: the table of reading kinds")
         source[0] = source[0].replace(READING_KINDS_MARKER, reading_kinds_table())
+    elif docname == "control_suite":
+        _fill_control_suite(app, source)
     elif docname == "benchmarks":
         # a dependency on the table (even a missing one) rebuilds this page when the table changes
         app.env.note_dependency(str(BENCHMARK_TABLE))

@@ -14,7 +14,9 @@ for the measured results.
 
 from __future__ import annotations
 
+import dataclasses
 import json
+import math
 import os
 import time
 from collections.abc import Callable
@@ -115,6 +117,31 @@ PPO_CONFIG_HELP = {
     "eval_steps": "steps of each evaluation episode",
     "max_minutes": "wall-clock limit in minutes",
 }
+
+
+def config_problem(config: Any) -> str | None:
+    """What is wrong with a PPO config dataclass as the flags set it (``"--num-envs must be at least 1, got 0"``), or
+    None: every integer field is a count (at least 1), every float field a positive finite number.
+
+    The MuJoCo PPO examples call it after parsing, before anything is built, and hand its message to
+    ``parser.error``: a wrong flag is one line, not a traceback.
+
+    Example:
+        >>> config_problem(PPOConfig()) is None, config_problem(PPOConfig(num_envs=0))
+        (True, '--num-envs must be at least 1, got 0')
+        >>> config_problem(PPOConfig(learning_rate=float("nan")))
+        '--learning-rate must be a positive number, got nan'
+    """
+    for field in dataclasses.fields(config):
+        value = getattr(config, field.name)
+        flag = f"--{field.name.replace('_', '-')}"
+        if isinstance(value, bool):
+            continue
+        if isinstance(value, int) and value < 1:
+            return f"{flag} must be at least 1, got {value}"
+        if isinstance(value, float) and not (math.isfinite(value) and value > 0):
+            return f"{flag} must be a positive number, got {value}"
+    return None
 
 
 def mlp(out_features: int, hidden: int) -> nn.Sequential:

@@ -57,7 +57,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar
-from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info, ppo_update
 from tensordict.nn import AddStateIndependentNormalScale
 from torchrl.collectors import Collector
 from torchrl.envs import (
@@ -143,19 +143,6 @@ QUICK = OwnRobotPPOConfig(
 
 def file_name(seed: int | str) -> str:
     return f"own_robot_ppo_seed{seed}.json"
-
-
-def config_problem(config: OwnRobotPPOConfig) -> str | None:
-    """What is wrong with ``config`` as the flags set it (``"--num-envs must be ..."``), or None."""
-    for name in ("num_envs", "rollout_steps", "total_frames", "epochs", "minibatch_size", "eval_every", "eval_envs"):
-        value = getattr(config, name)
-        if value < 1:
-            return f"--{name.replace('_', '-')} must be at least 1, got {value}"
-    for name in ("learning_rate", "max_minutes"):
-        value = getattr(config, name)
-        if not (math.isfinite(value) and value > 0):
-            return f"--{name.replace('_', '-')} must be a positive number, got {value}"
-    return None
 
 
 def make_task(action_space: Box) -> GoallessTask:

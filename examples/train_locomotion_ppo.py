@@ -30,6 +30,7 @@ the batch layout and the minibatch size):
 Another env, more transforms: ``LocomotionPPOConfig.env_id`` (any of ``SUPPORTED_ENV_IDS``) and
 the ``extra_transforms`` hook of :func:`make_env` and :func:`train` (appended to the preset before the
 normalisation); ``train_hopper_domain_randomization.py`` trains Hopper with domain randomization that way.
+Another preset: the ``preset`` argument of :func:`train` (``control_suite_ppo.py`` trains the Control Suite's).
 
 Returns: HalfCheetah never terminates, so every episode ends at the 1000-step limit. The learning
 curve is the **mean return of the training episodes that ended** in each batch (the stochastic
@@ -92,6 +93,7 @@ from torchtasks._plotting import mark_short_series
 from torchtasks.envs.gymnasium_v5 import locomotion_record
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, gymnasium_env
 from torchtasks.stats import episode_statistics
+from torchtasks.transforms import TaskTransform
 
 ENV_ID = "HalfCheetah-v5"  # the default env (LocomotionPPOConfig.env_id)
 EVAL_SEED = 12345  # the deterministic evaluation always starts from the same initial states
@@ -315,37 +317,62 @@ def training_returns(batch: TensorDictBase, terms: Sequence[str] = TERMS) -> dic
     return stats
 
 
+def reward_terms(env: TransformedEnv) -> tuple[str, ...]:
+    """The named terms of the reward of ``env``'s task (its one TaskTransform), which RewardSum sums per episode."""
+    tasks = [transform.task for transform in env.transform if isinstance(transform, TaskTransform)]
+    if len(tasks) != 1:
+        raise ValueError(f"the env needs one TaskTransform, got {len(tasks)}")
+    return tasks[0].term_names
+
+
 @torch.no_grad()
-def evaluate(actor: ProbabilisticActor, config: LocomotionPPOConfig, vecnorm: VecNormV2) -> dict[str, float]:
-    """One deterministic episode (``eval_steps`` steps) in each of ``eval_envs`` envs; ``episode_statistics`` of it."""
-    env = make_eval_env(config, vecnorm)
+def evaluate(
+    actor: ProbabilisticActor, config: LocomotionPPOConfig, vecnorm: VecNormV2, preset: Preset = gymnasium_env
+) -> dict[str, float]:
+    """One deterministic episode (``eval_steps`` steps) in each of ``eval_envs`` envs; ``episode_statistics`` of it.
+
+    ``preset``: as for :func:`make_env`.
+    """
+    env = make_eval_env(config, vecnorm, preset=preset)
+    terms = reward_terms(env)
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(config.eval_steps, actor, break_when_any_done=False)
     env.close()
     stats = episode_statistics(rollout)
     if not stats["complete_episodes"]:  # --eval-steps below the episode length: the returns of the partial episodes
         stats["return_mean"] = rollout["next", "episode_reward"][:, -1].mean().item()
-        for term in locomotion_record(config.env_id).term_names:
+        for term in terms:
             stats[f"return_mean/{term}"] = rollout["next", "task_reward", f"episode_{term}"][:, -1].mean().item()
     return {key: value for key, value in stats.items() if not key.endswith(("/step", "/final"))}
 
 
-def train(config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None) -> dict[str, Any]:
+def train(
+    config: LocomotionPPOConfig,
+    seed: int,
+    extra_transforms: ExtraTransforms | None = None,
+    preset: Preset = gymnasium_env,
+) -> dict[str, Any]:
     """Train one seed for ``config.total_frames`` frames (or ``config.max_minutes``); return the run record.
 
-    ``extra_transforms``: see :func:`make_env` (the training env only; the evaluations run the preset).
+    ``extra_transforms``: see :func:`make_env` (the training env only; the evaluations run the preset). ``preset``:
+    the env factory called with ``config.env_id`` (default :func:`~torchtasks.envs.locomotion.gymnasium_env`; any
+    factory of a ``TransformedEnv`` with one ``TaskTransform``, ``StepCounter`` and ``RewardSum``, whose
+    ``"observation"`` is one vector: ``control_suite_ppo.py`` passes the Control Suite's).
     """
-    return train_policy(config, seed, extra_transforms)[0]
+    return train_policy(config, seed, extra_transforms, preset)[0]
 
 
 def train_policy(
-    config: LocomotionPPOConfig, seed: int, extra_transforms: ExtraTransforms | None = None
+    config: LocomotionPPOConfig,
+    seed: int,
+    extra_transforms: ExtraTransforms | None = None,
+    preset: Preset = gymnasium_env,
 ) -> tuple[dict[str, Any], ProbabilisticActor, VecNormV2]:
     """:func:`train`, also returning the trained actor and the training env's VecNormV2 (for further evaluations)."""
     torch.manual_seed(seed)
     start = time.perf_counter()
-    terms = locomotion_record(config.env_id).term_names
-    env, vecnorm = make_env(config, seed, extra_transforms)
+    env, vecnorm = make_env(config, seed, extra_transforms, preset)
+    terms = reward_terms(env)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
     advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
@@ -428,7 +455,7 @@ def train_policy(
         done = iteration >= iterations or time.perf_counter() > deadline
         if frames >= next_eval or done:
             eval_start = time.perf_counter()
-            stats = evaluate(actor, config, vecnorm)
+            stats = evaluate(actor, config, vecnorm, preset)
             eval_seconds += time.perf_counter() - eval_start
             last_eval = {"iteration": iteration, "frames": frames, "seconds": time.perf_counter() - start, **stats}
             record["eval_curve"].append(last_eval)

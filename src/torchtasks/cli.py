@@ -81,6 +81,7 @@ _LAZY = {
             "torchtasks.envs.batched_mujoco",
             "torchtasks.envs.mujoco_declaration",
             "torchtasks.envs.multi_objective",
+            "torchtasks.envs.control_suite",
         ),
         "mujoco",
     )
@@ -91,6 +92,9 @@ _ENV_IDS = ("torchtasks.envs.locomotion", "SUPPORTED_ENV_IDS")
 
 #: the module and name of the MO-Gymnasium ids that ``torchtasks check`` compares with MO-Gymnasium (from the source)
 _MO_ENV_IDS = ("torchtasks.envs.multi_objective", "MULTI_OBJECTIVE_ENV_IDS")
+
+#: the module and name of the Control Suite's domains and tasks, compared with dm_control by ``torchtasks check``
+_CONTROL_SUITE_TABLE = ("torchtasks.envs.control_suite.models", "_TASK_TABLE")
 
 #: the module and name of the command that installs MO-Gymnasium, the reference of the MO ids (from the source)
 _MO_INSTALL = ("torchtasks.parity", "MO_GYMNASIUM_INSTALL")
@@ -273,6 +277,7 @@ def _cmd_list(args: argparse.Namespace) -> int:
             for text in (
                 f"(the Gymnasium ids of the MuJoCo presets: {env_ids})",
                 f"(the MO-Gymnasium ids of the multi-objective presets: {mo_ids})",
+                f"(the DeepMind Control Suite tasks: {', '.join(_control_suite_tasks())})",
             ):
                 indents = {"initial_indent": "  ", "subsequent_indent": "   "}
                 lines += textwrap.wrap(text, WIDTH, break_on_hyphens=False, **indents)  # ids stay whole
@@ -518,22 +523,122 @@ def _write_details(folder: Path, backend: str, rows: list[dict[str, Any]], markd
     return path
 
 
+def _control_suite_tasks() -> tuple[str, ...]:
+    """The Control Suite's ``domain-task`` names (read from the source: no MuJoCo import)."""
+    table = _source_constant(*_CONTROL_SUITE_TABLE) or {}
+    return tuple(f"{domain}-{task}" for domain, tasks in table.items() for task in tasks)
+
+
 def _check_refusal(args: argparse.Namespace) -> str | None:
     """Why ``torchtasks check``'s arguments cannot run (an unknown env id, ids of both kinds, ...), or None."""
-    if args.envs is not None and args.backend != "batched":
-        return "--envs applies to --backend batched only"
     gymnasium_ids, mo_ids = _source_constant(*_ENV_IDS) or (), _source_constant(*_MO_ENV_IDS) or ()
-    known = (*gymnasium_ids, *mo_ids)
+    suite = _control_suite_tasks()
+    known = (*gymnasium_ids, *mo_ids, *suite)
     unknown = [env_id for env_id in args.env_ids if known and env_id not in known]
-    if unknown:
-        return _unknown_env(unknown[0], known)
+    if unknown:  # the closest of all, or the Gymnasium ids listed and the other kinds named
+        message = _unknown_env(unknown[0], known)
+        if "did you mean" not in message:
+            message = _unknown_env(unknown[0], gymnasium_ids) + ", an MO-Gymnasium id or a Control Suite task"
+        return message
+    control_suite = [env_id for env_id in args.env_ids if env_id in suite]
+    if control_suite and len(control_suite) < len(args.env_ids):
+        return "check Control Suite tasks (walker-walk, ...) and Gymnasium ids in separate commands"
+    if args.envs is not None and args.backend != "batched" and not control_suite:
+        return "--envs applies to --backend batched and to Control Suite tasks only"
     multi_objective = [env_id for env_id in args.env_ids if env_id in mo_ids]
     if multi_objective and len(multi_objective) < len(args.env_ids):
         return "check MO-Gymnasium ids (mo-...) and Gymnasium ids in separate commands"
     return None
 
 
+def _control_suite_table(rows: Sequence[dict[str, Any]], tolerance: float) -> str:
+    header = ("task", "seeds", "envs", "states", "reward", "obs", "reset obs", "physics", "drift", "result", "s")
+    cells = [
+        (
+            row["task"],
+            _seeds(row["seeds"]),
+            str(row["envs"]),
+            str(row["states"]),
+            _number(row["reward"]),
+            _number(max(row["observation"].values())),
+            _number(max(row["reset_observation"].values())),
+            _number(max(row["physics"].values())),
+            _number(row["drift"]),
+            "PASS" if row["worst"] <= tolerance else "FAIL",
+            f"{row['seconds']:.1f}",
+        )
+        for row in rows
+    ]
+    legend = (
+        "largest |torchtasks - dm_control| over every step of every env, from the same states: reward, obs\n"
+        "(every entry), reset obs, physics (next qpos, qvel, act); drift: largest qpos difference after\n"
+        f"--steps steps of one free-running episode (not checked). PASS: every difference <= {tolerance:g}"
+    )
+    return _table(header, cells) + "\n" + legend
+
+
+def _check_control_suite(args: argparse.Namespace) -> int:
+    """``torchtasks check walker-walk``: the Control Suite presets against dm_control in its reference venv."""
+    from tqdm import tqdm
+
+    from torchtasks.envs.control_suite import check
+    from torchtasks.envs.control_suite.reference import DmControlReference, DmControlUnavailableError
+
+    try:
+        reference = DmControlReference()
+    except DmControlUnavailableError as error:
+        return _usage_error("check", str(error))
+    names = list(dict.fromkeys(args.env_ids))
+    num_envs = 4 if args.envs is None else args.envs
+    rows = []
+    disable = True if args.no_progress else None  # None: shown on a terminal only
+    total = len(names) * (args.seeds + 1) * args.steps
+    with reference, tqdm(total=total, desc="torchtasks check", unit="step", file=sys.stderr, disable=disable) as bar:
+        for name in names:
+            start = time.perf_counter()
+            parts = []
+            for seed in range(args.seeds):
+                bar.set_postfix_str(f"{name}, seed {seed}")
+                parts.append(
+                    check.compare_with_dm_control(name, reference, num_envs=num_envs, steps=args.steps, seed=seed)
+                )
+                bar.update(args.steps)
+            bar.set_postfix_str(f"{name}, drift")
+            drift = check.trajectory_drift(name, reference, num_envs=1, steps=args.steps, seed=0)
+            bar.update(args.steps)
+            row = dict(parts[0])
+            row["seeds"] = list(range(args.seeds))
+            row["states"] = sum(part["states"] for part in parts)
+            row["reward"] = max(part["reward"] for part in parts)
+            row["worst"] = max(part["worst"] for part in parts)
+            for key in ("observation", "reset_observation", "physics"):
+                row[key] = {entry: max(part[key][entry] for part in parts) for entry in parts[0][key]}
+            row["drift"], row["drift_first_above"] = drift["final"], drift["first_above"]
+            row["seconds"] = time.perf_counter() - start
+            rows.append(row)
+    markdown = _control_suite_table(rows, check.CHECK_TOLERANCE)
+    print(markdown)
+    path = _write_details(Path(args.output), "control_suite", rows, markdown)
+    print(f"wrote {path} (the details: every entry and the drift)")
+    failed = [row["task"] for row in rows if not check.passed(row)]
+    if failed:
+        print(
+            f"dm_control parity NOT met (tolerance {check.CHECK_TOLERANCE:g}) for: {', '.join(failed)}", file=sys.stderr
+        )
+    return 1 if failed else 0
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
+    if any(env_id in _control_suite_tasks() for env_id in args.env_ids):
+        try:
+            return _check_control_suite(args)
+        except ImportError as error:  # pragma: no cover - depends on the optional mujoco extra
+            from torchtasks._optional import missing_extra
+
+            print(
+                f"{missing_extra('mujoco', 'torchtasks check')} (cannot import {error.name or error})", file=sys.stderr
+            )
+            return 2
     mo_ids = _source_constant(*_MO_ENV_IDS) or ()
     multi_objective = [env_id for env_id in args.env_ids if env_id in mo_ids]
     try:
@@ -785,9 +890,9 @@ def _parser() -> argparse.ArgumentParser:
 
     check = command(
         "check",
-        "compare a Gymnasium MuJoCo preset with Gymnasium, step by step",
-        "Compare MuJoCo v5 presets with Gymnasium (MO-Gymnasium) for --seeds seeds of --steps random steps; "
-        "exit status 1 when they differ. Needs the 'mujoco' extra.",
+        "compare a preset with Gymnasium or dm_control, step by step",
+        "Compare presets with Gymnasium, MO-Gymnasium or dm_control (`make reference-venv`) for --seeds seeds "
+        "of --steps random steps; exit 1 when they differ.",
     )
     env_ids = ", ".join(_source_constant(*_ENV_IDS) or ("HalfCheetah-v5", "Ant-v5"))
     mo_id = (_source_constant(*_MO_ENV_IDS) or ("mo-hopper-v5",))[0]
@@ -795,7 +900,7 @@ def _parser() -> argparse.ArgumentParser:
         "env_ids",
         nargs="+",
         metavar="ENV_ID",
-        help=f"one or more of {env_ids}, or of MO-Gymnasium's ids ({mo_id}, ...: 'torchtasks list')",
+        help=f"one or more of {env_ids}, MO-Gymnasium's ({mo_id}, ...), Control Suite tasks (walker-walk)",
     )
     check.add_argument(
         "--seeds", type=_count(1), default=3, metavar="N", help="seeds 0, ..., N-1 (default: %(default)s)"
@@ -812,15 +917,15 @@ def _parser() -> argparse.ArgumentParser:
         choices=("gymnasium", "batched"),
         default="gymnasium",
         help=f"gymnasium: one Gymnasium env in TorchRL, reward within {PARITY_TOLERANCE}; batched: "
-        "BatchedMujocoEnv against one Gymnasium env per entry, partial resets forced (observation, reward, "
-        "terms and flags within 1e-9) (default: %(default)s)",
+        "BatchedMujocoEnv against a Gymnasium env per entry, partial resets forced (obs, reward, terms, flags "
+        "within 1e-9) (default: %(default)s)",
     )
     check.add_argument(
         "--envs",
         type=_count(1),
         default=None,
         metavar="N",
-        help="envs of the batched env (--backend batched; default: 3)",
+        help="envs of the batched env (default: 3; Control Suite tasks: 4)",
     )
     check.add_argument(
         "--output", default=CHECK_OUTPUT, metavar="DIR", help="folder of the JSON details (default: %(default)s)"

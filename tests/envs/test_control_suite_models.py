@@ -6,20 +6,16 @@ Our model must equal dm_control's model after a reset in every numeric field bot
 sizes, the arrays of every object kind, names and their addresses, ``opt``, ``stat`` and ``vis``), except the
 targets a reset draws per episode, where it keeps the file's value (that of the model ``suite.load`` compiled), and
 the fields that differ between MuJoCo 3.17 and 4.0 whatever the model (listed below, with the reason). The shipped
-files are dm_control's byte for byte, and a wheel built from the checkout ships them and finds them as package
-data. The tests that need the reference venv skip with the reason when there is none.
+files are dm_control's byte for byte (that an install ships them is checked by .ci/check_base_install.sh, which
+installs a build of the checkout). The tests that need the reference venv skip with the reason when there is none.
 """
 
 from __future__ import annotations
 
-import hashlib
 import inspect
 import json
 import os
-import shutil
 import subprocess
-import sys
-import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -367,74 +363,3 @@ def test_bad_names_are_refused_with_the_closest():
             build(None, "run")  # type: ignore[arg-type]
         with pytest.raises(TypeError, match="task must be a string"):
             build("cheetah", 0)  # type: ignore[arg-type]
-
-
-#: run with a wheel's path as argv[1], the wheel (a zip) on sys.path: prints the numbers of bodies, geoms, sensors and
-#: actuators of every task's spec, and the SHA-256 of finger spin's model's fields
-WHEEL_SCRIPT = """
-import hashlib, json, sys, types
-wheel = sys.argv[1]
-sys.path.insert(0, wheel)
-import torchtasks
-# torchtasks.envs's __init__ imports torch (seconds): the modules under test need only the subpackage's path
-envs = types.ModuleType("torchtasks.envs")
-envs.__path__ = [wheel + "/torchtasks/envs"]
-sys.modules["torchtasks.envs"] = envs
-from torchtasks.envs.control_suite import models
-assert models.__file__.startswith(wheel), models.__file__
-
-MODEL_FIELDS
-
-# every task's spec (its file and the common files read from the wheel), and one model compiled with its edits
-counts = {}
-for domain, tasks in models.TASKS.items():
-    for task in tasks:
-        spec = models.control_suite_spec(domain, task)
-        counts[f"{domain}/{task}"] = [len(spec.bodies), len(spec.geoms), len(spec.sensors), len(spec.actuators)]
-fields = model_fields(models.control_suite_model("finger", "spin"))
-digest = hashlib.sha256(b"".join(name.encode() + fields[name].tobytes() for name in sorted(fields))).hexdigest()
-print(json.dumps({"counts": counts, "finger/spin": digest}))
-""".replace("MODEL_FIELDS", inspect.getsource(model_fields))
-
-
-def _digest(model: mujoco.MjModel) -> str:
-    fields = model_fields(model)
-    return hashlib.sha256(b"".join(name.encode() + fields[name].tobytes() for name in sorted(fields))).hexdigest()
-
-
-@pytest.mark.slow  # builds a wheel and 30 specs from it in a subprocess, about 2 s
-def test_a_wheel_ships_the_files_and_builds_the_models_from_them(ours, tmp_path):
-    pytest.importorskip("setuptools")
-    checkout = tmp_path / "checkout"
-    checkout.mkdir()
-    for name in ("pyproject.toml", "README.md", "LICENSE"):
-        shutil.copy(ROOT / name, checkout / name)
-    shutil.copytree(ROOT / "src", checkout / "src", ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
-    script = "import sys; from setuptools import build_meta; print(build_meta.build_wheel(sys.argv[1]))"
-    build = subprocess.run(
-        [sys.executable, "-c", script, str(tmp_path / "dist")],
-        cwd=checkout,
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
-    assert build.returncode == 0, build.stderr
-    wheel = tmp_path / "dist" / build.stdout.strip().splitlines()[-1]
-    folder = ROOT / "src" / "torchtasks" / "envs" / "models" / "dm_control"
-    source = sorted(path.relative_to(folder).as_posix() for path in folder.rglob("*") if path.is_file())
-    assert {"LICENSE", "README.md", "common/visual.xml", "quadruped.xml"} <= set(source)
-    prefix = "torchtasks/envs/models/dm_control/"
-    with zipfile.ZipFile(wheel) as archive:
-        shipped = sorted(name[len(prefix) :] for name in archive.namelist() if name.startswith(prefix))
-    assert shipped == source
-    env = {key: value for key, value in os.environ.items() if key != "PYTHONPATH"}
-    run = subprocess.run(
-        [sys.executable, "-c", WHEEL_SCRIPT, str(wheel)], env=env, capture_output=True, text=True, timeout=300
-    )
-    assert run.returncode == 0, run.stderr
-    built = json.loads(run.stdout)
-    assert built["counts"] == {
-        f"{domain}/{task}": [model.nbody, model.ngeom, model.nsensor, model.nu]
-        for (domain, task), model in ours.items()
-    }
-    assert built["finger/spin"] == _digest(ours[("finger", "spin")])

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import importlib.util
 import math
 
 import pytest
@@ -45,7 +46,18 @@ from torchtasks.tasks import (
     proximity_succeeded,
 )
 
-CASES = {**class_cases(), **predefined_cases()}
+
+def _control_suite_cases() -> dict:
+    """The Control Suite's rewards (products of tolerances, affine maps, weighted sums, means); needs mujoco."""
+    if importlib.util.find_spec("mujoco") is None:
+        return {}
+    from torchtasks.envs.control_suite import control_suite_task
+
+    names = ("walker-walk", "humanoid-stand")  # between them every reward kind of the suite
+    return {f"control_suite[{name}]": functools.partial(control_suite_task, name) for name in names}
+
+
+CASES = {**class_cases(), **predefined_cases(), **_control_suite_cases()}
 #: representative cases compiled with the default (inductor) backend: a leaf, a wrapper over a
 #: stateful reward, and a nested Sequential/Parallel/Masked/FinalReward tree
 INDUCTOR_CASES = ("desired_state", "final_state_goalless", "sequential")

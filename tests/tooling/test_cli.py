@@ -140,9 +140,10 @@ USER_MISTAKES = {
         ("unknown env 'hopper-v5'; did you mean Hopper-v5?",),
     ),
     "not a MuJoCo preset": (
-        ["check", "Pendulum-v1"],
-        ("unknown env 'Pendulum-v1'; choose one of HalfCheetah-v5, Hopper-v5,",),
+        ["check", "LunarLander-v3"],
+        ("unknown env 'LunarLander-v3'; choose one of HalfCheetah-v5, Hopper-v5,", "or a Control Suite task"),
     ),
+    "a Control Suite task misspelt": (["check", "cheetah_run"], ("did you mean cheetah-run?",)),
     "second env unknown": (["check", "Hopper-v5", "Hoper-v5"], ("unknown env 'Hoper-v5'", "did you mean Hopper-v5?")),
     "zero seeds": (["check", "Hopper-v5", "--seeds", "0"], ("--seeds: expected an integer >= 1, got '0'",)),
     "steps not a number": (["check", "Hopper-v5", "--steps", "many"], ("--steps: expected an integer >= 1",)),
@@ -256,7 +257,7 @@ def test_list_shows_every_public_class_and_function(capsys: pytest.CaptureFixtur
             for name in module.__all__
             if name in vars(module) and (inspect.isclass(vars(module)[name]) or inspect.isroutine(vars(module)[name]))
         } | {name for name in module.__all__ if name not in vars(module)}  # lazy: the MuJoCo envs
-        expected -= {"SUPPORTED_ENV_IDS", "MULTI_OBJECTIVE_ENV_IDS"}
+        expected -= {"SUPPORTED_ENV_IDS", "MULTI_OBJECTIVE_ENV_IDS", "CONTROL_SUITE_TASKS"}
         assert set(sections[module_name]) == expected, module_name
     for module_name, name in (
         ("torchtasks.transforms", "TaskTransform"),
@@ -571,6 +572,48 @@ def test_check_batched(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> No
     row = dict(zip(rows[0], rows[2], strict=True))
     assert (row["env"], row["envs"], row["steps"], row["result"]) == ("Swimmer-v5", "2", "12", "PASS")
     assert json.loads(path.read_text())["rows"][0]["passed"] is True
+
+
+@pytest.mark.mujoco
+@needs_mujoco
+def test_check_control_suite_against_dm_control(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A Control Suite task is compared with dm_control in the reference venv: a table that fits 100 columns, the
+    details in a JSON file."""
+    from torchtasks.envs.control_suite.reference import reference_python
+
+    if reference_python() is None:
+        pytest.skip("no dm_control reference venv (`make reference-venv` builds .venv-dmc)")
+    argv = ["check", "reacher-hard", "cartpole-swingup", "--seeds", "2", "--steps", "15", "--envs", "2"]
+    assert main([*argv, "--output", str(tmp_path), "--no-progress"]) == 0
+    captured = capsys.readouterr()
+    (path,) = tmp_path.glob("check_control_suite_*.json")
+    _check_text(captured.out.replace(str(path), "PATH"))
+    assert captured.err == ""
+    rows = _markdown_rows(captured.out)
+    body = [dict(zip(rows[0], row, strict=True)) for row in rows[2:]]
+    assert [(row["task"], row["seeds"], row["envs"], row["result"]) for row in body] == [
+        ("reacher-hard", "0-1", "2", "PASS"),
+        ("cartpole-swingup", "0-1", "2", "PASS"),
+    ]
+    assert all(int(row["states"]) >= 2 * 2 * 15 for row in body)  # every step of every env of both seeds
+    details = json.loads(path.read_text())["rows"]
+    assert set(details[0]["observation"]) == {"position", "to_target", "velocity"}
+    assert details[1]["worst"] <= 1e-8
+
+
+@pytest.mark.mujoco
+@needs_mujoco
+def test_check_control_suite_refusals(capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:
+    """No reference venv, a mix of kinds of ids, a misspelt task: one line on stderr, exit status 2, nothing run."""
+    monkeypatch.setenv("TORCHTASKS_DM_CONTROL_PYTHON", "/nonexistent/python")
+    assert main(["check", "walker-walk", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("torchtasks check: no dm_control reference: /nonexistent/python does not exist")
+    assert "make reference-venv" in err and "Traceback" not in err
+    assert main(["check", "walker-walk", "Hopper-v5"]) == 2
+    assert "Control Suite tasks (walker-walk, ...) and Gymnasium ids in separate commands" in capsys.readouterr().err
+    assert main(["check", "walker-wlak"]) == 2
+    assert "unknown env 'walker-wlak'; did you mean walker-walk?" in capsys.readouterr().err
 
 
 # ------------------------------------------------------------------------------------------ bench

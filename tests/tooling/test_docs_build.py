@@ -30,6 +30,7 @@ PAGES = (
     "benchmarks",
     "api",
     "own_robot",
+    "control_suite",
 )
 
 #: objects the API reference must document (a sample from every module it covers)
@@ -50,7 +51,11 @@ API_OBJECTS = (
     "torchtasks.envs.readings.BodyLinVel",
     "torchtasks.envs.mujoco_declaration.Resets",
     "torchtasks.envs.mujoco_declaration.declare",
+    "torchtasks.envs.reset_steps.UntilContactFree",
     "torchtasks.envs.models.model_path",
+    "torchtasks.envs.reset_steps.UniformJoints",
+    "torchtasks.envs.control_suite.control_suite_env",
+    "torchtasks.envs.control_suite.check.compare_with_dm_control",
     "torchtasks.parity.check_parity",
     "torchtasks.cli.main",
 )
@@ -96,3 +101,13 @@ def test_docs_build_without_warnings(tmp_path: Path) -> None:
 
         assert kinds == [f"{kind}()" for kind in READING_KINDS], kinds
         assert all("shape" in row for row in rows), "a reading kind's row does not state its shape"
+        # the tables of the Control Suite's tasks (docs/conf.py, from the presets): a row per task in each
+        from torchtasks.envs.control_suite import CONTROL_SUITE_TASKS
+
+        page = (html / "control_suite.html").read_text(encoding="utf-8")
+        tables = re.findall(r"<thead>(.*?)</thead>\s*<tbody>(.*?)</tbody>", page, flags=re.DOTALL)
+        for header in ("control step", "reset steps"):
+            body = next(body for head, body in tables if header in head)
+            rows = re.findall(r"<tr[^>]*>(.*?)</tr>", body, flags=re.DOTALL)
+            names = [re.sub(r"<[^>]+>", " ", row).split()[0] for row in rows]
+            assert names == list(CONTROL_SUITE_TASKS), (header, names)

@@ -212,24 +212,46 @@ def test_the_mo_example_refuses_a_wrong_count_before_any_work(
     assert not output.exists()
 
 
-# ------------------------------------------------------------------ own_robot_ppo.py: a config refused before any work
-def test_the_own_robot_example_refuses_a_bad_flag_before_any_work(
-    monkeypatch: pytest.MonkeyPatch, capsys, tmp_path: Path
+# ------------------------------------------------------- the MuJoCo PPO examples: a bad flag refused before any work
+#: script -> (the module and name of what builds its env, replaced by one that fails, (flags, error message) pairs)
+REFUSED_FLAGS = {
+    "own_robot_ppo.py": (
+        "torchtasks.envs",
+        "BatchedMujocoEnv",
+        (
+            (["--num-envs", "0"], "--num-envs must be at least 1, got 0"),
+            (["--learning-rate", "-1"], "--learning-rate must be a positive number, got -1.0"),
+        ),
+    ),
+    "control_suite_ppo.py": (
+        "torchtasks.envs.control_suite",
+        "control_suite_env",
+        (
+            (["--num-envs", "0"], "--num-envs must be at least 1, got 0"),
+            (["--eval-steps", "0"], "--eval-steps must be at least 1, got 0"),
+            (["--max-minutes", "nan"], "--max-minutes must be a positive number, got nan"),
+            (["--task", "cheeta-run"], "--task: unknown Control Suite task 'cheeta-run'; did you mean 'cheetah-run'?"),
+            (["--task", "walker"], "--task: unknown Control Suite task 'walker'"),
+        ),
+    ),
+}
+
+
+@pytest.mark.parametrize("script", sorted(REFUSED_FLAGS))
+def test_the_mujoco_ppo_examples_refuse_a_bad_flag_before_any_work(
+    script: str, monkeypatch: pytest.MonkeyPatch, capsys, tmp_path: Path
 ) -> None:
-    """``--num-envs 0`` (and a non-positive learning rate): one error line naming the flag, exit status 2, no
-    traceback, no env built, no output folder made."""
+    """``--num-envs 0``, a non-positive learning rate, an unknown task, ...: one error line naming the flag, exit
+    status 2, no traceback, no env built, no output folder made."""
     pytest.importorskip("mujoco")
-    import torchtasks.envs as envs
+    module_name, builder, cases = REFUSED_FLAGS[script]
+    module = importlib.import_module(module_name)
 
     def no_env(*args: object, **kwargs: object) -> None:
         raise AssertionError("an env was built before the flags were checked")
 
-    monkeypatch.setattr(envs, "BatchedMujocoEnv", no_env)
-    script = "own_robot_ppo.py"
-    for flags, message in (
-        (["--num-envs", "0"], "--num-envs must be at least 1, got 0"),
-        (["--learning-rate", "-1"], "--learning-rate must be a positive number, got -1.0"),
-    ):
+    monkeypatch.setattr(module, builder, no_env)
+    for flags, message in cases:
         output = tmp_path / "out"
         monkeypatch.syspath_prepend(str(EXAMPLES))
         monkeypatch.setattr(sys, "argv", [str(EXAMPLES / script), *flags, "--output", str(output)])
@@ -237,7 +259,7 @@ def test_the_own_robot_example_refuses_a_bad_flag_before_any_work(
         monkeypatch.setattr(torchrl_logger, "level", torchrl_logger.level)  # the script quiets TorchRL's logger
         with pytest.raises(SystemExit) as exit_info:
             runpy.run_path(str(EXAMPLES / script), run_name="__main__")
-        assert exit_info.value.code == 2
+        assert exit_info.value.code == 2, flags
         err = capsys.readouterr().err
-        assert "Traceback" not in err and err.splitlines()[-1].endswith(f"error: {message}"), err
+        assert "Traceback" not in err and err.splitlines()[-1].startswith(f"{script}: error: {message}"), err
         assert not output.exists()

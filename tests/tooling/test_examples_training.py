@@ -4,7 +4,8 @@
 policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah, needs the
 ``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py``,
 ``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
-and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped)
+and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped),
+``examples/control_suite_ppo.py`` (PPO on a DeepMind Control Suite preset)
 and ``examples/train_multi_objective_ppo.py`` (PPO with
 one critic per reward group on ``mo-halfcheetah-v5``, a front over weight vectors) are run as scripts,
 as a user would, from a fresh empty directory with their default outputs (``runs/<example name>/``;
@@ -166,6 +167,37 @@ def test_own_robot_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "own_robot_ppo_curve.png").stat().st_size > 0
         assert "own_robot_ppo_curve.png (1 seed)" in result.stdout
+
+
+def test_control_suite_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
+    """PPO on a Control Suite preset (train_locomotion_ppo's loop with another preset): the returns on the papers'
+    scale, every reward factor logged per episode, the JSON, the table and the plot."""
+    pytest.importorskip("mujoco")
+    result = run_example("control_suite_ppo.py", tmp_path, "--task", "cartpole-swingup", "--seeds", "3")
+    output = tmp_path / "runs" / "control_suite_ppo" / "quick"  # the default --output of a --quick run
+    record = json.loads((output / "cartpole-swingup_seed3.json").read_text())
+    assert record["seed"] == 3 and record["task"] == record["env_id"] == "cartpole-swingup"
+    assert record["method"] == "PPO" and "flat_observation=True" in record["preset"]
+    factors = ("upright", "centered", "small_control", "small_velocity")  # dm_control's cartpole reward, a product
+    # 4 envs x 500 steps per batch: every env's first episode ends (truncated at 1000 steps) in the second batch
+    first, last = record["curve"]
+    assert [first["frames"], last["frames"]] == [2000, 4000] == [2000, record["total_frames"]]
+    assert first["train_return"] is None and first["episodes"] == 0
+    assert last["episodes"] == 4 and last["episode_length_mean"] == 1000 and last["timeout_rate"] == 1
+    # a product of factors in [0, 1] per step: the return is in [0, 1000] and below every factor's episode sum
+    assert 0 <= last["train_return"] <= min(last[f"train_return/{factor}"] for factor in factors) <= 1000
+    assert record["final_train_return"] == record["best_train_return"] == last["train_return"]
+    assert record["best_train_frames"] == record["final_train_frames"] == 4000
+    (evaluation,) = record["eval_curve"]  # the deterministic evaluation at the end: one 1000-step episode per env
+    assert evaluation["complete_episodes"] == 2 and evaluation["episode_length_mean"] == 1000
+    assert 0 <= evaluation["return_mean"] <= min(evaluation[f"return_mean/{factor}"] for factor in factors) <= 1000
+    assert record["final_eval_return"] == record["best_eval_return"] == evaluation["return_mean"]
+    assert record["frames_per_second"] > 0 and record["machine_end"]["load_1min"] >= 0
+    assert "cartpole-swingup seed 3: 4000 frames in" in result.stdout
+    assert "| cartpole-swingup | 3 | 4,000 | " in result.stdout  # the table of every run in the folder
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "control_suite_ppo_curve.png").stat().st_size > 0
+        assert "control_suite_ppo_curve.png (1 run)" in result.stdout
 
 
 def test_safety_ppo_lagrangian_quick_writes_runs_and_png(tmp_path: Path) -> None:

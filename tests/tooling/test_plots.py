@@ -81,6 +81,21 @@ def _locomotion(n: int) -> tuple[tuple[Any, ...], int]:
     return ([record],), 4  # training and evaluation, against frames and time
 
 
+def _control_suite(n: int) -> tuple[tuple[Any, ...], int]:
+    records = [
+        {
+            "task": task,
+            "seed": 0,
+            "total_seconds": 10.0,
+            "curve": [{"frames": f, "train_return": 100.0} for f in _frames(n)],
+            "eval_curve": [{"frames": f, "return_mean": 200.0} for f in _frames(n)],
+            "config": {"num_envs": 64, "rollout_steps": 32},
+        }
+        for task in ("cheetah-run", "walker-walk")
+    ]
+    return (records,), 4  # training and evaluation, a panel per task
+
+
 def _safety(n: int) -> tuple[tuple[Any, ...], int]:
     record = {
         "variant": "lagrangian",
@@ -110,6 +125,7 @@ PLOTS = {  # (module, function, fake arguments with n points -> (arguments befor
     "goal_reaching.plot": ("goal_reaching", "plot", _goal_reaching),
     "potential_shaping.plot": ("potential_shaping", "plot", _potential_shaping),
     "train_locomotion_ppo.plot": ("train_locomotion_ppo", "plot", _locomotion),
+    "control_suite_ppo.plot": ("control_suite_ppo", "plot", _control_suite),
     "train_safety_ppo_lagrangian.plot": ("train_safety_ppo_lagrangian", "plot", _safety),
     "torchtasks.demo._plot": ("torchtasks.demo", "_plot", _demo),
 }

@@ -77,7 +77,13 @@ def check_field_name(name: str) -> str:
     return name
 
 
-def check_in_field(field: DomainField, lowest: torch.Tensor, highest: torch.Tensor, what: str) -> None:
+def check_in_field(
+    field: DomainField,
+    lowest: torch.Tensor,
+    highest: torch.Tensor,
+    what: str,
+    remedy: str = "narrow the distribution or clip it (clip_lo, clip_up)",
+) -> None:
     """Refuse a range of values ``[lowest, highest]`` (elementwise) that leaves ``field``'s allowed range.
 
     Args:
@@ -86,6 +92,7 @@ def check_in_field(field: DomainField, lowest: torch.Tensor, highest: torch.Tens
             with leading dims, e.g. one row per env or per level); ``-inf`` for an unbounded distribution.
         highest: the largest one, likewise.
         what: who would write the values, for the message (``"NormalDomainParam('body_mass:torso')"``).
+        remedy: what to do about it, for the message.
 
     Example:
         >>> import math, torch
@@ -107,7 +114,7 @@ def check_in_field(field: DomainField, lowest: torch.Tensor, highest: torch.Tens
             value = values[bad].flatten()[0].item()
             raise ValueError(
                 f"{what} can write {value} into {field.name!r} ({field.description}), which must be {field.rule}; "
-                "narrow the distribution or clip it (clip_lo, clip_up)"
+                + remedy
             )
 
 

@@ -1,5 +1,5 @@
-"""Ready environments: a batched torch pendulum and, with the ``mujoco`` extra, Gymnasium and MO-Gymnasium presets
-and batched MuJoCo."""
+"""Ready environments: a batched torch pendulum and, with the ``mujoco`` extra, Gymnasium, MO-Gymnasium and
+DeepMind Control Suite presets and batched MuJoCo."""
 
 from typing import Any
 
@@ -29,6 +29,10 @@ _BATCHED_MUJOCO = ("BatchedMujocoEnv", "ZeroBrokenStepReward")
 #: access for the same reason; the readings are the module torchtasks.envs.readings
 _DECLARATION = ("Actions", "FreeJointRanges", "Noise", "Resets")
 
+#: the DeepMind Control Suite as presets on the batched env (torchtasks.envs.control_suite), imported on first access
+#: for the same reason
+_CONTROL_SUITE = ("CONTROL_SUITE_TASKS", "control_suite_env", "control_suite_task")
+
 #: MO-Gymnasium's MuJoCo v5 envs as presets with a vector reward (torchtasks.envs.multi_objective), imported on
 #: first access for the same reason
 _MULTI_OBJECTIVE = ("MULTI_OBJECTIVE_ENV_IDS", "multi_objective_env", "multi_objective_record", "multi_objective_task")
@@ -42,6 +46,7 @@ __all__ = [
     *_BATCHED_MUJOCO,
     *_DECLARATION,
     *_MULTI_OBJECTIVE,
+    *_CONTROL_SUITE,
 ]
 
 
@@ -58,6 +63,10 @@ def __getattr__(name: str) -> Any:
         from torchtasks.envs import mujoco_declaration
 
         return getattr(mujoco_declaration, name)
+    if name in _CONTROL_SUITE:
+        from torchtasks.envs import control_suite
+
+        return getattr(control_suite, name)
     if name in _MULTI_OBJECTIVE:
         from torchtasks.envs import multi_objective
 

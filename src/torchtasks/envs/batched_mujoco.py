@@ -781,9 +781,13 @@ class BatchedMujocoEnv(EnvBase):
         return context
 
     def _run_steps(self, ids: np.ndarray, state: bool) -> None:
-        """Run the declaration's reset steps for the reset envs ``ids`` (only those that write model fields alone
-        unless ``state``)."""
-        steps = [apply for _, writes_state, apply in self.declaration.reset_steps if state or not writes_state]
+        """Run the declaration's reset steps for the reset envs ``ids`` (only the parts that write model fields
+        alone unless ``state``: a reset to given states)."""
+        steps = [
+            apply if state else model_part
+            for _, apply, model_part in self.declaration.reset_steps
+            if state or model_part is not None
+        ]
         if steps:
             context, generators = self._reset_context(), [self.np_random[i] for i in ids.tolist()]
             for apply in steps:

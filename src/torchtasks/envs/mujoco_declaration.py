@@ -270,8 +270,8 @@ class MujocoDeclaration:
     contact_forces: ContactForces = "forward"
     observation: Mapping[str, tuple[Resolved, ...]] = field(init=False, repr=False, compare=False)
     state: Mapping[str, tuple[Resolved, ...]] = field(init=False, repr=False, compare=False)
-    #: ``resets.steps`` resolved: ``(step, writes_state, function)`` each
-    reset_steps: tuple[tuple[ResetStep, bool, Apply], ...] = field(init=False, repr=False, compare=False)
+    #: ``resets.steps`` resolved: ``(step, function, the function of its model part or None)`` each
+    reset_steps: tuple[tuple[ResetStep, Apply, Apply | None], ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         self._resolve()
@@ -280,7 +280,9 @@ class MujocoDeclaration:
         # resolved readings and steps hold closures over the model's indices: rebuilt from them, never pickled
         object.__setattr__(self, "observation", _resolve(self.model, self.observation_readings))
         object.__setattr__(self, "state", _resolve(self.model, self.state_readings))
-        steps = tuple((step, step.writes_state, step.resolve(self.model)) for step in self.resets.steps)
+        steps = tuple(
+            (step, step.resolve(self.model), step.resolve_model_part(self.model)) for step in self.resets.steps
+        )
         object.__setattr__(self, "reset_steps", steps)
 
     def __getstate__(self) -> dict[str, Any]:

@@ -36,7 +36,7 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.mujoco_domain", _error) from _error
 
-__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind", "nominal_value"]
+__all__ = ["FIELD_KINDS", "BatchDomain", "FieldKind", "domain_field"]
 
 #: the suffix of a kind's scale field
 SCALE = "_scale"
@@ -222,16 +222,16 @@ def _table(model: mujoco.MjModel) -> dict[str, _Entry]:
     return table
 
 
-def nominal_value(model: mujoco.MjModel, name: str, argument: str) -> np.ndarray:
-    """The nominal value of the domain field ``name`` of ``model`` (float64 ``value_shape``); ``ValueError`` naming
+def domain_field(model: mujoco.MjModel, name: str, argument: str) -> DomainField:
+    """The domain field ``name`` of ``model`` (its nominal value and allowed range); ``ValueError`` naming
     ``argument`` and the closest names for a field the model does not offer.
 
     Example:
         >>> import mujoco
-        >>> model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><geom name="target" pos="0 0 0.1" size="0.1"/>'
-        ...                                        '</worldbody></mujoco>')
-        >>> nominal_value(model, "geom_pos:target", "field").tolist()
-        [0.0, 0.0, 0.1]
+        >>> model = mujoco.MjModel.from_xml_string('<mujoco><worldbody><body name="box"><freejoint/>'
+        ...                                        '<geom type="box" size="0.1 0.1 0.1"/></body></worldbody></mujoco>')
+        >>> domain_field(model, "body_mass:box", "field").rule
+        'in (0.0, inf)'
     """
     table = _table(model)
     if not isinstance(name, str) or name not in table:
@@ -240,7 +240,7 @@ def nominal_value(model: mujoco.MjModel, name: str, argument: str) -> np.ndarray
             + ", ".join(kind.stem + ("" if kind.objects is None else f":<{kind.objects}>") for kind in FIELD_KINDS)
             + ")"
         )
-    return table[name].field.nominal.numpy().copy()
+    return table[name].field
 
 
 class BatchDomain:

@@ -14,7 +14,8 @@ a function of the model's addresses once; the env calls it with a :class:`ResetC
 for and their generators. Draws loop over the reset envs (each draws from its own generator, so an env's draws do not
 depend on which others reset); the writes are array operations. A reset to given states
 (:meth:`~torchtasks.envs.BatchedMujocoEnv.set_reset_states`) runs only the steps that write model fields alone
-(:class:`DrawDomain`): the given state replaces every draw of ``qpos`` and ``qvel``.
+(:class:`DrawDomain`, also inside :class:`UntilContactFree`, then drawn once): the given state replaces every draw of
+``qpos`` and ``qvel``.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
 
 from torchtasks._optional import missing_extra
 
@@ -34,7 +36,8 @@ try:
 except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.reset_steps", _error) from _error
 
-from torchtasks.envs.mujoco_domain import nominal_value
+from torchtasks.domain.fields import check_in_field
+from torchtasks.envs.mujoco_domain import domain_field
 from torchtasks.envs.mujoco_model import object_id
 
 __all__ = [
@@ -103,6 +106,10 @@ class ResetStep:
         """Check the step against ``model`` (names, joint types, field shapes) and return its function."""
         raise NotImplementedError
 
+    def resolve_model_part(self, model: mujoco.MjModel) -> Apply | None:
+        """The part of the step a reset to given states runs: what writes model fields alone (None: nothing)."""
+        return None if self.writes_state else self.resolve(model)
+
 
 def _finite(value: object, name: str) -> float:
     if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(float(value)):
@@ -127,6 +134,12 @@ def _joint(model: mujoco.MjModel, name: str, argument: str, types: tuple[int, ..
     if int(model.jnt_type[joint]) not in types:
         raise ValueError(f"{argument}: joint {name!r} is not {what}")
     return joint
+
+
+def _attempts(value: object, name: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+    return int(value)
 
 
 def _draws(generators: Sequence[np.random.Generator], draw: Callable[[np.random.Generator], Any]) -> np.ndarray:
@@ -302,9 +315,31 @@ class Sampler:
         """A new value: ``nominal`` (a copy) with the sampled components."""
         raise NotImplementedError
 
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The smallest and the largest value each component of a draw can take (elementwise, ``nominal``'s shape),
+        which the field's range must hold; unbounded (``-inf``, ``inf``) unless a sampler says."""
+        return np.full(nominal.shape, -math.inf), np.full(nominal.shape, math.inf)
 
-def _axes(axes: object, shape: tuple[int, ...], field: str, who: str) -> None:
-    if len(shape) != 1 or not all(isinstance(a, int) and 0 <= a < shape[0] for a in axes):  # type: ignore[union-attr]
+
+def _numbers(value: object, name: str) -> tuple[float, ...]:
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence) or not value:
+        raise TypeError(f"{name} must be a non-empty sequence of finite numbers, got {value!r}")
+    return tuple(_finite(v, name) for v in value)
+
+
+def _indices(value: object, count: int, name: str) -> None:
+    if (
+        isinstance(value, (str, bytes))
+        or not isinstance(value, Sequence)
+        or len(value) != count
+        or not all(isinstance(a, numbers.Integral) and not isinstance(a, bool) and a >= 0 for a in value)
+        or len(set(value)) != count
+    ):
+        raise ValueError(f"{name} must be {count} distinct indices (ints >= 0), got {value!r}")
+
+
+def _axes(axes: Sequence[int], shape: tuple[int, ...], field: str, who: str) -> None:
+    if len(shape) != 1 or not all(a < shape[0] for a in axes):
         raise ValueError(f"{who} axes {axes} do not index domain field {field!r} of shape {shape}")
 
 
@@ -323,11 +358,11 @@ class Box(Sampler):
     axes: Sequence[int] | None = None
 
     def __post_init__(self) -> None:
-        low = [_finite(v, "Box low") for v in self.low]
-        high = [_finite(v, "Box high") for v in self.high]
-        axes = range(len(low)) if self.axes is None else self.axes
-        if len(low) != len(high) or len(low) != len(axes) or any(a > b for a, b in zip(low, high, strict=True)):
-            raise ValueError(f"Box needs low <= high with one entry per axis, got {self.low}, {self.high}, {self.axes}")
+        low, high = _numbers(self.low, "Box low"), _numbers(self.high, "Box high")
+        if len(low) != len(high) or any(a > b for a, b in zip(low, high, strict=True)):
+            raise ValueError(f"Box needs low <= high with one entry per axis, got {self.low}, {self.high}")
+        if self.axes is not None:
+            _indices(self.axes, len(low), "Box axes (one per entry of low)")
 
     def check(self, shape: tuple[int, ...], field: str) -> None:
         _axes(range(len(self.low)) if self.axes is None else self.axes, shape, field, "Box")
@@ -336,6 +371,12 @@ class Box(Sampler):
         value = nominal.copy()
         value[list(range(len(self.low)) if self.axes is None else self.axes)] = rng.uniform(self.low, self.high)
         return value
+
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lowest, highest = nominal.copy(), nominal.copy()
+        axes = list(range(len(self.low)) if self.axes is None else self.axes)
+        lowest[axes], highest[axes] = self.low, self.high
+        return lowest, highest
 
 
 @dataclass(frozen=True)
@@ -359,9 +400,11 @@ class Ring(Sampler):
     def __post_init__(self) -> None:
         _pair(self.centre, "Ring centre")
         _pair(self.angle, "Ring angle")
-        low, high = (
-            (self.radius, self.radius) if isinstance(self.radius, numbers.Real) else _pair(self.radius, "Ring radius")
-        )
+        _indices(self.axes, 2, "Ring axes")
+        if isinstance(self.radius, numbers.Real) and not isinstance(self.radius, bool):
+            low = high = _finite(self.radius, "Ring radius")
+        else:
+            low, high = _pair(self.radius, "Ring radius")
         if not 0 <= low <= high:
             raise ValueError(f"Ring radius must be >= 0 (low <= high), got {self.radius}")
 
@@ -375,6 +418,14 @@ class Ring(Sampler):
         value[self.axes[0]] = self.centre[0] + radius * math.sin(angle)
         value[self.axes[1]] = self.centre[1] + radius * math.cos(angle)
         return value
+
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        # the square around the circle of the largest radius (whatever the angles)
+        radius = self.radius if isinstance(self.radius, numbers.Real) else self.radius[1]
+        lowest, highest = nominal.copy(), nominal.copy()
+        for axis, centre in zip(self.axes, self.centre, strict=True):
+            lowest[axis], highest[axis] = centre - radius, centre + radius
+        return lowest, highest
 
 
 @dataclass(frozen=True)
@@ -403,6 +454,10 @@ class AxisAngle(Sampler):
     def draw(self, rng: np.random.Generator, nominal: np.ndarray) -> np.ndarray:
         half = 0.5 * rng.uniform(*self.angle)
         return np.array([math.cos(half), *(math.sin(half) * np.asarray(self.axis, dtype=float))])
+
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        bound = np.array([1.0, *np.abs(np.asarray(self.axis, dtype=float))])
+        return -bound, bound
 
 
 @dataclass(frozen=True)
@@ -439,12 +494,17 @@ class Choice(Sampler):
                 return sampler.draw(rng, nominal)
         return self.options[-1][1].draw(rng, nominal)
 
+    def support(self, nominal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        supports = [sampler.support(nominal) for _, sampler in self.options]
+        return np.min([low for low, _ in supports], axis=0), np.max([high for _, high in supports], axis=0)
+
 
 @dataclass(frozen=True)
 class DrawDomain(ResetStep):
     """Draw a domain field of each reset env (``"geom_pos:target"``, ``"body_quat:target_ball"``) with a
     :class:`Sampler`, from its nominal value. The value stays until the next draw or ``set_domain``, and is saved
-    with the env's other domain values.
+    with the env's other domain values. A sampler that could draw a value the field does not allow (a negative
+    damping: see the sampler's ``support``) is refused when the env is built.
 
     Example:
         >>> DrawDomain("geom_pos:target", Ring((0.0, 0.0), (0.05, 0.2))).field
@@ -458,8 +518,12 @@ class DrawDomain(ResetStep):
     def resolve(self, model: mujoco.MjModel) -> Apply:
         if not isinstance(self.sampler, Sampler):
             raise TypeError(f"DrawDomain sampler must be a Sampler, got {type(self.sampler).__name__}")
-        nominal = nominal_value(model, self.field, "DrawDomain field")
+        field = domain_field(model, self.field, "DrawDomain field")
+        nominal = field.nominal.numpy().copy()
         self.sampler.check(nominal.shape, self.field)
+        # what set_domain would refuse (a negative damping) is refused here, before any reset draws it
+        lowest, highest = self.sampler.support(nominal)
+        check_in_field(field, torch.from_numpy(lowest), torch.from_numpy(highest), repr(self), "narrow the sampler")
         name, sampler = self.field, self.sampler
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
@@ -487,12 +551,13 @@ class UntilContactFree(ResetStep):
     attempts: int = 1000
 
     def resolve(self, model: mujoco.MjModel) -> Apply:
-        if not self.steps or not all(isinstance(step, ResetStep) for step in self.steps):
-            raise TypeError(f"UntilContactFree steps must be ResetSteps, got {self.steps!r}")
-        if isinstance(self.attempts, bool) or not isinstance(self.attempts, int) or self.attempts < 1:
-            raise ValueError(f"UntilContactFree attempts must be a positive int, got {self.attempts!r}")
+        steps = self.steps
+        if isinstance(steps, (str, bytes)) or not isinstance(steps, Sequence) or not steps:
+            raise TypeError(f"UntilContactFree steps must be a non-empty sequence of ResetSteps, got {steps!r}")
+        if not all(isinstance(step, ResetStep) for step in steps):
+            raise TypeError(f"UntilContactFree steps must be ResetSteps, got {steps!r}")
+        attempts = _attempts(self.attempts, "UntilContactFree attempts")
         inner = [step.resolve(model) for step in self.steps]
-        attempts = self.attempts
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
             pending, rngs = ids, list(generators)
@@ -508,6 +573,18 @@ class UntilContactFree(ResetStep):
             raise RuntimeError(
                 f"UntilContactFree: envs {pending.tolist()} still touched something after {attempts} draws"
             )
+
+        return apply
+
+    def resolve_model_part(self, model: mujoco.MjModel) -> Apply | None:
+        # a reset to given states draws the model fields of the steps once (a target), without the rejection
+        parts = [part for step in self.steps if (part := step.resolve_model_part(model)) is not None]
+        if not parts:
+            return None
+
+        def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
+            for part in parts:
+                part(context, ids, generators)
 
         return apply
 
@@ -530,9 +607,11 @@ class RaiseUntilContactFree(ResetStep):
     def resolve(self, model: mujoco.MjModel) -> Apply:
         joint = _joint(model, self.joint, "RaiseUntilContactFree joint", (_FREE,), "a free joint")
         column = int(model.jnt_qposadr[joint]) + 2
-        step, start, attempts = _finite(self.step, "step"), _finite(self.start, "start"), self.attempts
+        step = _finite(self.step, "RaiseUntilContactFree step")
+        start = _finite(self.start, "RaiseUntilContactFree start")
         if step <= 0:
             raise ValueError(f"RaiseUntilContactFree step must be > 0, got {self.step}")
+        attempts = _attempts(self.attempts, "RaiseUntilContactFree attempts")
 
         def apply(context: ResetContext, ids: np.ndarray, generators: Sequence[np.random.Generator]) -> None:
             pending, height = ids, np.full(ids.size, start)
@@ -550,8 +629,8 @@ class RaiseUntilContactFree(ResetStep):
 
 @dataclass(frozen=True)
 class Settle(ResetStep):
-    """Step the reset envs ``substeps`` MuJoCo substeps with zero controls, then set their clock back to 0
-    (dm_control's cheetah starts from its drawn pose after 200 such steps).
+    """Step the reset envs ``substeps`` MuJoCo substeps with the reset's controls (zero, or the keyframe's), then
+    set their clock back to 0 (dm_control's cheetah starts from its drawn pose after 200 such steps).
 
     Example:
         >>> Settle(200).substeps
