@@ -56,6 +56,7 @@ def test_quick_run_measures_the_preset_against_its_floor_and_says_why_no_peer(tm
 
 @pytest.mark.slow
 @pytest.mark.multiprocess  # the peer worker and its ParallelEnv's worker processes
+@pytest.mark.xdist_group("multiprocess")
 def test_quick_run_measures_torchrl_dm_control_peers(tmp_path: Path) -> None:
     """With the peer venv (``make bench-dmc-venv``), every default peer variant is measured in it."""
     module = _benchmark()
