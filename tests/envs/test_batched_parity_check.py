@@ -274,7 +274,7 @@ def test_compare_and_sync_reject_bad_arguments() -> None:
 
 def test_envs_option_needs_the_batched_backend(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["check", "Hopper-v5", "--envs", "2"]) == 2
-    assert "--envs applies to --backend batched only" in capsys.readouterr().err
+    assert "--envs applies to --backend batched and to Control Suite tasks only" in capsys.readouterr().err
 
 
 def test_help_names_the_batched_tolerance(capsys: pytest.CaptureFixture[str]) -> None:
