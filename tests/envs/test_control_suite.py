@@ -36,8 +36,8 @@ pytestmark = pytest.mark.xdist_group("dm_control_reference")
 @pytest.mark.dm_control_reference
 @pytest.mark.parametrize("name", CONTROL_SUITE_TASKS)
 def test_every_preset_equals_dm_control_state_by_state(name: str, dm_control_reference) -> None:
-    row = compare_with_dm_control(name, dm_control_reference, num_envs=3, steps=24, seed=1, reset_every=8)
-    assert row["states"] > 3 * 24, row  # every step of every env, and the resets
+    row = compare_with_dm_control(name, dm_control_reference, num_envs=2, steps=24, seed=1, reset_every=8)
+    assert row["states"] > 2 * 24, row  # every step of every env, and the resets
     assert passed(row), row
     # the formulas agree to float64 rounding: the only larger differences are the physics' (two MuJoCo versions)
     assert row["reward"] <= 1e-12, row
@@ -81,7 +81,7 @@ def test_trajectories_equal_mujoco_per_env_bit_for_bit(name: str) -> None:
     env.close()
 
 
-@pytest.mark.parametrize("name", ["walker-walk", "reacher-hard", "manipulator-bring_ball", "humanoid-stand"])
+@pytest.mark.parametrize("name", ["walker-walk", "manipulator-bring_ball"])
 def test_reward_offline_equals_online_with_its_terms(name: str) -> None:
     env = control_suite_env(name, 3, seed=0)
     rollout = env.rollout(20, break_when_any_done=False)
@@ -186,7 +186,7 @@ def _reset_twice(env) -> tuple:
     return td, env.domain_values()
 
 
-@pytest.mark.parametrize("name", ["manipulator-bring_ball", "quadruped-run", "swimmer-swimmer6"])
+@pytest.mark.parametrize("name", ["manipulator-bring_ball", "quadruped-run"])
 def test_copies_and_pickles_continue_with_their_reset_steps(name: str) -> None:
     """A copy or an unpickled env (a spawned worker's) rebuilds the reset steps and continues bit for bit."""
     import pickle
