@@ -131,17 +131,8 @@ def compare_with_dm_control(
     env.close()
 
     stepped = _stack(before)
-    theirs = reference.evaluate(
-        record.domain,
-        record.task,
-        qpos=stepped["qpos"],
-        qvel=stepped["qvel"],
-        act=stepped["act"],
-        time=stepped["time"],
-        qacc_warmstart=stepped["qacc_warmstart"],
-        model_fields=stepped["model_fields"],
-        action=np.concatenate(actions),
-    )
+    # physics_state's keys are evaluate's keyword arguments
+    theirs = reference.evaluate(record.domain, record.task, **stepped, action=np.concatenate(actions))
     ours_after = _stack(after_state)
     count = len(ours_after["qpos"])
     observation = {
@@ -149,16 +140,7 @@ def compare_with_dm_control(
         for key in keys
     }
     started = _stack(reset_states)
-    at_reset = reference.evaluate(
-        record.domain,
-        record.task,
-        qpos=started["qpos"],
-        qvel=started["qvel"],
-        act=started["act"],
-        time=started["time"],
-        qacc_warmstart=started["qacc_warmstart"],
-        model_fields=started["model_fields"],
-    )
+    at_reset = reference.evaluate(record.domain, record.task, **started)
     started_count = len(started["qpos"])
     reset_observation = {
         key: _largest(np.concatenate([o[key] for o in reset_obs]), _flat(at_reset["observation"][key], started_count))
