@@ -12,6 +12,7 @@ are in :data:`CONTROL_SUITE`. Docs: the page "The DeepMind Control Suite".
 
 from __future__ import annotations
 
+import importlib
 import math
 from collections.abc import Mapping
 from typing import Any
@@ -22,24 +23,7 @@ from torchrl.envs import Compose, RewardSum, StepCounter, TransformedEnv
 from torchtasks._checks import check_positive_int
 from torchtasks._did_you_mean import did_you_mean
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
-from torchtasks.envs.control_suite import (
-    acrobot,
-    ball_in_cup,
-    cartpole,
-    cheetah,
-    finger,
-    fish,
-    hopper,
-    humanoid,
-    manipulator,
-    pendulum,
-    point_mass,
-    quadruped,
-    reacher,
-    swimmer,
-    walker,
-)
-from torchtasks.envs.control_suite.models import control_suite_model
+from torchtasks.envs.control_suite.models import TASKS, control_suite_model
 from torchtasks.envs.control_suite.record import EPISODE_STEPS, ControlSuiteTask
 from torchtasks.rewards import RewardFunction
 from torchtasks.spaces import Box, EnvSpec
@@ -59,24 +43,8 @@ __all__ = [
 #: every task, by ``"<domain>-<task>"``, in dm_control's order of domains
 CONTROL_SUITE: dict[str, ControlSuiteTask] = {
     record.name: record
-    for module in (
-        acrobot,
-        ball_in_cup,
-        cartpole,
-        cheetah,
-        finger,
-        fish,
-        hopper,
-        humanoid,
-        manipulator,
-        pendulum,
-        point_mass,
-        reacher,
-        swimmer,
-        walker,
-        quadruped,
-    )
-    for record in module.TASKS.values()
+    for domain in TASKS  # one module per domain, named as the domain
+    for record in importlib.import_module(f"{__name__}.{domain}").TASKS.values()
 }
 #: the names :func:`control_suite_env` accepts
 CONTROL_SUITE_TASKS: tuple[str, ...] = tuple(CONTROL_SUITE)
