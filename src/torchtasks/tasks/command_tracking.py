@@ -15,7 +15,6 @@ from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks.goals import GOAL_ENTRY, GoalSlot
 from torchtasks.tasks.leaf import RewardTask
 from torchtasks.tasks.memory import make_memory
-from torchtasks.tasks.protocol import Task
 
 __all__ = ["CommandTrackingTask"]
 
@@ -200,7 +199,7 @@ class CommandTrackingTask(RewardTask):
         return failures
 
     def _has_failed(self, state: torch.Tensor, memory: TensorDictBase) -> torch.Tensor:
-        failed = Task._has_failed(self, state, memory)
+        failed = super()._has_failed(state, memory)
         for flag in self._named_failures(state).values():
             failed = failed | flag
         return failed
@@ -212,7 +211,7 @@ class CommandTrackingTask(RewardTask):
     def _termination_terms(
         self, state: torch.Tensor, memory: TensorDictBase, success: torch.Tensor, failure: torch.Tensor
     ) -> dict[str, torch.Tensor]:
-        return {"out_of_bounds": Task._has_failed(self, state, memory), **self._named_failures(state)}
+        return {"out_of_bounds": super()._has_failed(state, memory), **self._named_failures(state)}
 
     def extra_repr(self) -> str:
         return f"tracked={self.tracked}, terminations={self.terminations}"
