@@ -178,5 +178,5 @@ def velocity_tracking_env(
                 }
             )
         )
-    transforms += [command, *perturbations, CatTensors(list(POLICY_KEYS), "observation", del_keys=False)]
+    transforms += [command, *perturbations, CatTensors(list(POLICY_KEYS), "observation", del_keys=False, sort=False)]
     return TransformedEnv(base, Compose(*transforms))
