@@ -15,7 +15,7 @@ Set-up (:class:`VelocityPPOConfig`):
   policy only, ``VecNormV2`` on ``"observation"``, clipping to ±10 and float32 (as ``own_robot_ppo.py``).
 - PPO as ``train_locomotion_ppo.py`` (its networks and return scaling; the actions bounded to ±1 per joint, see
   :func:`make_policy`): batches of 64 envs x 32 steps, GAE
-  (γ = 0.99, λ = 0.95), ``ClipPPOLoss`` (clip 0.2, normalised advantages), 5 epochs of minibatches of 512, Adam
+  (γ = 0.99, λ = 0.95), ``ClipPPOLoss`` (clip 0.2, normalised advantages), 5 epochs of minibatches of 512, Adam at 1e-3
   annealed linearly to 0, gradient norm clipped at 0.5; one torch thread, MuJoCo on 2 threads.
 - Evaluation (:func:`evaluate`) every ``eval_every`` frames and at the end: the deterministic policy for 1000 steps
   in ``eval_envs`` envs from fixed initial states and a fixed command stream, with the full command range; the
@@ -29,7 +29,8 @@ of this run; today both hold only the unperturbed one, ``"nominal"``.
 
 Outputs in ``--output`` (default ``runs/velocity_tracking``): ``velocity_tracking_seed<N>.json`` (config, seed,
 machine load, wall time, frames, the per-batch ``curve`` with the training returns and every term's, the
-``eval_curve``, and ``results``: each variant evaluated under each condition), ``velocity_tracking_seed<N>.md`` (the
+``eval_curve``, and ``results``: each variant, and the baseline ``"standing still"`` (zero actions: its errors are
+those of the commands), evaluated under each condition), ``velocity_tracking_seed<N>.md`` (the
 tables) and ``velocity_tracking_seed<N>.png`` (tracking errors and returns against frames; needs matplotlib, the
 ``plot`` extra, else skipped with a message).
 
@@ -91,7 +92,7 @@ class VelocityPPOConfig:
     total_frames: int = 500_000
     epochs: int = 5
     minibatch_size: int = 512
-    learning_rate: float = 3e-4
+    learning_rate: float = 1e-3
     gamma: float = 0.99
     lmbda: float = 0.95
     clip_epsilon: float = 0.2
@@ -208,11 +209,17 @@ def tracking_errors(data: TensorDictBase) -> dict[str, float]:
 
 @torch.no_grad()
 def evaluate(
-    actor: torch.nn.Module, vecnorm: VecNormV2, config: VelocityPPOConfig, perturbations: Sequence[Transform] = ()
+    actor: Callable[[TensorDictBase], TensorDictBase],
+    vecnorm: VecNormV2 | None,
+    config: VelocityPPOConfig,
+    perturbations: Sequence[Transform] = (),
 ) -> dict[str, float]:
     """The deterministic policy for ``eval_steps`` steps in ``eval_envs`` envs (full command range) under
-    ``perturbations``: tracking errors, falls per episode, mean return and episode length."""
-    env = normalised(make_env(config, config.eval_envs, EVAL_SEED, perturbations, False), vecnorm.to_observation_norm())
+    ``perturbations``: tracking errors, falls per episode, mean return and episode length. ``vecnorm``: the
+    policy's observation normalisation (``None``: a policy that reads no observation, :func:`stand_still`)."""
+    env = make_env(config, config.eval_envs, EVAL_SEED, perturbations, False)
+    if vecnorm is not None:
+        env = normalised(env, vecnorm.to_observation_norm())
     with set_exploration_type(ExplorationType.DETERMINISTIC):
         rollout = env.rollout(config.eval_steps, actor, break_when_any_done=False)
     env.close()
@@ -230,6 +237,18 @@ def evaluate(
         "episode_length_mean": ended.numel() / int(ended.sum()),
         "failure_rate": stats.get("failure_rate"),
     }
+
+
+class ZeroAction(nn.Module):
+    """Zero joint offsets for every observation row: the joint targets at home."""
+
+    def forward(self, observation: torch.Tensor) -> torch.Tensor:
+        return observation.new_zeros((*observation.shape[:-1], 12))
+
+
+def stand_still() -> TensorDictModule:
+    """The baseline policy: zero actions, the joint targets at home (it stands; its errors are the commands')."""
+    return TensorDictModule(ZeroAction(), in_keys=["observation"], out_keys=["action"])
 
 
 def train(
@@ -330,7 +349,8 @@ def train(
 
 
 def run(config: VelocityPPOConfig, seed: int) -> dict[str, Any]:
-    """Train every variant of :data:`VARIANTS` and evaluate each under every condition of :data:`CONDITIONS`."""
+    """Train every variant of :data:`VARIANTS` and evaluate each under every condition of :data:`CONDITIONS`, beside
+    the baseline :func:`stand_still` (zero actions) under the same conditions."""
     start = time.perf_counter()
     record: dict[str, Any] = {
         "task": "velocity tracking, shipped quadruped",
@@ -341,6 +361,9 @@ def run(config: VelocityPPOConfig, seed: int) -> dict[str, Any]:
         "machine_start": machine_info(),
         "variants": {},
         "results": {},
+    }
+    record["results"]["standing still"] = {
+        condition: evaluate(stand_still(), None, config, make()) for condition, make in CONDITIONS.items()
     }
     for variant, perturbations in VARIANTS.items():
         trained, actor, vecnorm = train(config, seed, perturbations(), variant)
@@ -420,6 +443,9 @@ def plot(record: dict[str, Any], path: Path) -> Path | None:
         for axis, (key, label) in zip(axes, keys, strict=True):
             axis.plot(frames, [point[key] for point in trained["eval_curve"]], marker="o", label=variant)
             axis.set_ylabel(label)
+    baseline = record["results"]["standing still"]["nominal"]
+    for axis, (key, _) in zip(axes, keys, strict=True):
+        axis.axhline(baseline[key], color="grey", linestyle="--", linewidth=1, label="standing still (zero actions)")
     for axis in axes:
         axis.set_xlabel("env frames")
         axis.xaxis.set_major_formatter(EngFormatter())

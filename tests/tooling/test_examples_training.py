@@ -191,8 +191,10 @@ def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -
     assert evaluation["frames"] == 400 and evaluation["episodes"] >= 2
     assert 0 <= evaluation["falls_per_episode"] <= 1 and evaluation["lin_vel_error"] >= 0
     assert record["results"]["nominal"]["nominal"]["yaw_rate_error"] >= 0
+    standing = record["results"]["standing still"]["nominal"]  # zero actions: it stands, the errors are the commands'
+    assert standing["falls_per_episode"] == 0 and standing["lin_vel_error"] > 0
     table = (output / "velocity_tracking_seed3.md").read_text()
-    assert "| nominal | nominal |" in table and "planar velocity error [m/s]" in table
+    assert "| nominal | nominal |" in table and "| standing still | nominal |" in table
     assert "nominal, seed 3: 400 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "velocity_tracking_seed3.png").stat().st_size > 0
