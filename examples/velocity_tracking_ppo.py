@@ -27,7 +27,7 @@ randomized physics: placed by :func:`~torchtasks.envs.velocity_tracking_env` aft
 policy's observation is concatenated). :data:`VARIANTS` (trained) and :data:`CONDITIONS` (evaluated) name the lists
 of this run; today both hold only the unperturbed one, ``"nominal"``.
 
-Outputs in ``--output`` (default ``runs/velocity_tracking``): ``velocity_tracking_seed<N>.json`` (config, seed,
+Outputs in ``--output`` (default ``runs/velocity_tracking_ppo``): ``velocity_tracking_seed<N>.json`` (config, seed,
 machine load, wall time, frames, the per-batch ``curve`` with the training returns and every term's, the
 ``eval_curve``, and ``results``: each variant, and the baseline ``"standing still"`` (zero actions: its errors are
 those of the commands), evaluated under each condition), ``velocity_tracking_seed<N>.md`` (the
@@ -73,7 +73,7 @@ from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS
 TERMS = tuple(VELOCITY_TRACKING_WEIGHTS)  # the task's named reward terms
 FALLS = ("base_contact", "bad_orientation")  # the end conditions that are falls
 EVAL_SEED = 12345  # the evaluations always start from the same initial states and command stream
-DEFAULT_OUTPUT = Path("runs/velocity_tracking")
+DEFAULT_OUTPUT = Path("runs/velocity_tracking_ppo")
 
 #: ``() -> perturbation transforms``: a fresh list for every env built (a transform has one env)
 Perturbations = Callable[[], Sequence[Transform]]
@@ -134,17 +134,17 @@ HELP = {
     "initial_action_std": "the policy's initial standard deviation (before its tanh)",
 }
 
-#: --quick: two batches of 4 envs x 50 steps, one evaluation of 2 envs x 100 steps at the end
+#: --quick: two batches of 4 envs x 25 steps, evaluations of 2 envs x 30 steps
 QUICK = VelocityPPOConfig(
     num_envs=4,
-    rollout_steps=50,
-    total_frames=400,
+    rollout_steps=25,
+    total_frames=200,
     epochs=1,
-    minibatch_size=200,
-    curriculum_frames=400,
-    eval_every=400,
+    minibatch_size=100,
+    curriculum_frames=200,
+    eval_every=200,
     eval_envs=2,
-    eval_steps=100,
+    eval_steps=30,
 )
 
 

@@ -176,26 +176,26 @@ def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -
     errors and falls, each variant under each condition, the markdown table and the plot."""
     pytest.importorskip("mujoco")
     result = run_example("velocity_tracking_ppo.py", tmp_path, "--seed", "3")
-    output = tmp_path / "runs" / "velocity_tracking" / "quick"  # the default --output of a --quick run
+    output = tmp_path / "runs" / "velocity_tracking_ppo" / "quick"  # the default --output of a --quick run
     record = json.loads((output / "velocity_tracking_seed3.json").read_text())
     assert record["seed"] == 3 and record["method"] == "PPO" and record["total_seconds"] > 0
     trained = record["variants"]["nominal"]
-    assert [point["frames"] for point in trained["curve"]] == [200, 400] == [200, trained["total_frames"]]
-    for point in trained["curve"]:  # 4 envs x 50 steps of 1000-step episodes: only falls end them
+    assert [point["frames"] for point in trained["curve"]] == [100, 200] == [100, trained["total_frames"]]
+    for point in trained["curve"]:  # 4 envs x 25 steps of 1000-step episodes: only falls end them
         assert point["falls"] == point["episodes"] and point["train_lin_vel_error"] >= 0
         assert point["command_high"] is not None and point["command_high"][0] <= 1.0  # the curriculum's range
         if point["train_return"] is not None:
             terms = sum(point[f"train_return/{term}"] for term in VELOCITY_TRACKING_WEIGHTS)
             assert point["train_return"] == pytest.approx(terms)
-    (evaluation,) = trained["eval_curve"]  # 2 envs x 100 steps at the end
-    assert evaluation["frames"] == 400 and evaluation["episodes"] >= 2
+    (evaluation,) = trained["eval_curve"]  # 2 envs x 30 steps at the end
+    assert evaluation["frames"] == 200 and evaluation["episodes"] >= 2
     assert 0 <= evaluation["falls_per_episode"] <= 1 and evaluation["lin_vel_error"] >= 0
     assert record["results"]["nominal"]["nominal"]["yaw_rate_error"] >= 0
     standing = record["results"]["standing still"]["nominal"]  # zero actions: it stands, the errors are the commands'
     assert standing["falls_per_episode"] == 0 and standing["lin_vel_error"] > 0
     table = (output / "velocity_tracking_seed3.md").read_text()
     assert "| nominal | nominal |" in table and "| standing still | nominal |" in table
-    assert "nominal, seed 3: 400 frames in" in result.stdout
+    assert "nominal, seed 3: 200 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "velocity_tracking_seed3.png").stat().st_size > 0
 
