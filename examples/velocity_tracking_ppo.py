@@ -100,6 +100,7 @@ class VelocityPPOConfig:
     max_grad_norm: float = 0.5
     hidden: int = 128
     initial_action_std: float = 0.5
+    action_scale: float = 0.5
     mujoco_threads: int = 2
     curriculum_frames: int = 200_000
     eval_every: int = 100_000
@@ -122,6 +123,7 @@ FLAGS = (
     "learning_rate",
     "hidden",
     "initial_action_std",
+    "action_scale",
     "curriculum_frames",
     "eval_every",
     "eval_envs",
@@ -132,6 +134,7 @@ HELP = {
     **PPO_CONFIG_HELP,
     "curriculum_frames": "frames over which the command range widens from 30%% to all of it",
     "initial_action_std": "the policy's initial standard deviation (before its tanh)",
+    "action_scale": "joint targets: home + action_scale * action [rad], actions in [-1, 1]",
 }
 
 #: --quick: two batches of 4 envs x 25 steps, evaluations of 2 envs x 30 steps
@@ -160,6 +163,7 @@ def make_env(
         num_envs,
         seed=seed,
         max_steps=1000,
+        action_scale=config.action_scale,
         curriculum_frames=config.curriculum_frames if curriculum else 0,
         num_threads=config.mujoco_threads,
         perturbations=perturbations,
@@ -226,12 +230,14 @@ def evaluate(
     nxt = rollout["next"]
     ended = nxt["done"].squeeze(-1).clone()
     ended[:, -1] = True  # the episodes still running at the end count, cut there
-    falls = sum(nxt["ended_by", name].squeeze(-1).sum() for name in FALLS)
+    falls_by = {name: int(nxt["ended_by", name].squeeze(-1).sum()) for name in FALLS}
+    falls = sum(falls_by.values())
     returns = nxt["episode_reward"].squeeze(-1)[ended]
     stats = episode_statistics(rollout)
     return {
         **tracking_errors(rollout),
-        "falls_per_episode": float(falls) / int(ended.sum()),
+        "falls_per_episode": falls / int(ended.sum()),
+        **{f"falls/{name}": count for name, count in falls_by.items()},
         "return_mean": returns.mean().item(),
         "episodes": int(ended.sum()),
         "episode_length_mean": ended.numel() / int(ended.sum()),
