@@ -1,0 +1,73 @@
+"""Observation history with TorchRL's CatFrames on a batched env whose envs reset at different steps: after env i
+resets, its history restarts with the reset observation repeated and the others' go on, in env.rollout and inside a
+Collector, against a reference history written here from the definition (the last N observations of the episode,
+oldest first, the reset observation standing in for the ones before it)."""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.collectors import Collector
+from torchrl.envs import CatFrames, Compose, StepCounter, TransformedEnv
+from torchrl.envs.transforms import Transform
+
+from torchtasks.envs import PendulumEnv
+from torchtasks.transforms import Noise, ObservationNoise
+
+N = 3  # the history's length
+LIMITS = (2, 3, 5)  # each env's episode length: the envs reset at different steps
+
+
+class EndAt(Transform):
+    """Truncate env i's episode after ``LIMITS[i]`` steps (StepCounter alone ends every env at the same step)."""
+
+    def __init__(self) -> None:
+        super().__init__(in_keys=["step_count"], out_keys=[])
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        end = (next_tensordict["step_count"][..., 0] >= torch.tensor(LIMITS)).unsqueeze(-1)
+        next_tensordict.set("truncated", next_tensordict["truncated"] | end)
+        return next_tensordict.set("done", next_tensordict["done"] | end)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return tensordict_reset
+
+
+def make_env() -> TransformedEnv:
+    history = CatFrames(N=N, dim=-1, in_keys=["noisy"], out_keys=["history"])
+    noise = ObservationNoise({"observation": Noise(std=0.1, out_key="noisy")}, seed=0)
+    return TransformedEnv(
+        PendulumEnv(batch_size=[len(LIMITS)], seed=0), Compose(StepCounter(100), EndAt(), noise, history)
+    )
+
+
+def reference(data: TensorDict) -> tuple[torch.Tensor, torch.Tensor]:
+    """Each frame's history at the root and under "next", from the noisy observations and the step counts alone."""
+    seen, after = data["noisy"], data["next", "noisy"]
+    roots, nexts = torch.zeros(*seen.shape[:2], N * 2), torch.zeros(*seen.shape[:2], N * 2)
+    for env in range(seen.shape[0]):
+        stack: list[torch.Tensor] = []
+        for t in range(seen.shape[1]):
+            if data["step_count"][env, t, 0] == 0:  # a reset observation: the history restarts with it
+                stack = [seen[env, t]] * N
+            assert torch.equal(stack[-1], seen[env, t])  # the frame continues the one before
+            roots[env, t] = torch.cat(stack)
+            stack = [*stack[1:], after[env, t]]
+            nexts[env, t] = torch.cat(stack)
+    return roots, nexts
+
+
+def test_catframes_restarts_each_envs_history_at_its_own_reset_in_a_rollout():
+    data = make_env().rollout(11, break_when_any_done=False)
+    assert (data["step_count"][:, :, 0] == 0).sum(1).tolist() == [6, 4, 3]  # each env resets on its own
+    roots, nexts = reference(data)
+    assert torch.equal(data["history"], roots) and torch.equal(data["next", "history"], nexts)
+
+
+def test_catframes_restarts_each_envs_history_at_its_own_reset_in_a_collector():
+    """Across the collector's batches too (its carried data and CatFrames' buffer go on between batches)."""
+    collector = Collector(make_env, frames_per_batch=3 * 5, total_frames=3 * 10)
+    data = torch.cat([batch.clone() for batch in collector], 1)
+    collector.shutdown()
+    roots, nexts = reference(data)
+    assert torch.equal(data["history"], roots) and torch.equal(data["next", "history"], nexts)
