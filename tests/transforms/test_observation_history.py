@@ -12,7 +12,7 @@ from torchrl.envs import CatFrames, Compose, StepCounter, TransformedEnv
 from torchrl.envs.transforms import Transform
 
 from torchtasks.envs import PendulumEnv
-from torchtasks.transforms import Noise, ObservationNoise
+from torchtasks.transforms import EntryNoise, ObservationNoise
 
 N = 3  # the history's length
 LIMITS = (2, 3, 5)  # each env's episode length: the envs reset at different steps
@@ -35,7 +35,7 @@ class EndAt(Transform):
 
 def make_env() -> TransformedEnv:
     history = CatFrames(N=N, dim=-1, in_keys=["noisy"], out_keys=["history"])
-    noise = ObservationNoise({"observation": Noise(std=0.1, out_key="noisy")}, seed=0)
+    noise = ObservationNoise({"observation": EntryNoise(std=0.1, out_key="noisy")}, seed=0)
     return TransformedEnv(
         PendulumEnv(batch_size=[len(LIMITS)], seed=0), Compose(StepCounter(100), EndAt(), noise, history)
     )

@@ -19,7 +19,7 @@ from torchtasks.transforms import (
     Curriculum,
     DifficultyLevels,
     DomainRandomization,
-    Noise,
+    EntryNoise,
     ObservationNoise,
     TaskTransform,
     linear,
@@ -36,7 +36,7 @@ def _vector(*values: float) -> torch.Tensor:
 
 def _noise(**kwargs) -> ObservationNoise:
     """Noise on the pendulum's observation, written to "noisy" (the pendulum steps from the data's observation)."""
-    return ObservationNoise({"observation": Noise(out_key="noisy", **kwargs)}, seed=0)
+    return ObservationNoise({"observation": EntryNoise(out_key="noisy", **kwargs)}, seed=0)
 
 
 def _env(*transforms, batch: int = 4, steps: int = 3) -> TransformedEnv:
@@ -101,7 +101,7 @@ def test_the_bias_is_held_per_episode_and_redrawn_for_the_envs_that_reset():
 def test_noise_in_place_replaces_the_entry():
     """In place, the reset's entry is what the copy would hold (the same seed draws the same numbers)."""
     copy = _env(_noise(std=0.1, bias=0.2)).reset()
-    in_place = _env(ObservationNoise({"observation": Noise(std=0.1, bias=0.2)}, seed=0)).reset()
+    in_place = _env(ObservationNoise({"observation": EntryNoise(std=0.1, bias=0.2)}, seed=0)).reset()
     assert torch.equal(in_place["observation"], copy["noisy"])
 
 
@@ -203,7 +203,7 @@ def test_an_unknown_field_lists_the_close_names_of_all_owners(name: str, match: 
 def test_a_field_offered_by_two_owners_and_an_owner_after_the_randomization_are_refused():
     twice = DomainRandomization([UniformDomainParam("mass", 1.0, 0.5)])
     with pytest.raises(ValueError, match=f"'{NOISE}' is offered by ObservationNoise and by ObservationNoise"):
-        _env(_noise(), ObservationNoise({"observation": Noise(out_key="other")}), twice).reset()
+        _env(_noise(), ObservationNoise({"observation": EntryNoise(out_key="other")}), twice).reset()
     after = DomainRandomization([UniformDomainParam("mass", 1.0, 0.5)])
     with pytest.raises(ValueError, match="ObservationNoise, which owns domain fields, comes after it"):
         _env(after, _noise()).reset()
@@ -273,11 +273,15 @@ def test_a_checkpoint_of_another_noise_is_refused_and_changes_nothing():
 @pytest.mark.parametrize(
     ("noise", "error", "match"),
     [
-        (Noise(std=-0.1), ValueError, r"the std of 'observation' is a standard deviation and must be finite and >= 0"),
-        (Noise(bias=torch.tensor([0.1, math.nan])), ValueError, r"the bias of 'observation' .* finite and >= 0"),
-        (Noise(distribution="laplace"), ValueError, r"distribution of 'observation' must be one of"),
-        (Noise(std=torch.tensor([1, 2])), TypeError, "float tensor"),
-        ({"std": 0.1}, TypeError, r"must be a Noise"),
+        (
+            EntryNoise(std=-0.1),
+            ValueError,
+            r"the std of 'observation' is a standard deviation .* >= 0",
+        ),
+        (EntryNoise(bias=torch.tensor([0.1, math.nan])), ValueError, r"the bias of 'observation' .* finite and >= 0"),
+        (EntryNoise(distribution="laplace"), ValueError, r"distribution of 'observation' must be one of"),
+        (EntryNoise(std=torch.tensor([1, 2])), TypeError, "float tensor"),
+        ({"std": 0.1}, TypeError, r"must be an EntryNoise"),
     ],
 )
 def test_bad_noise_is_refused_at_construction(noise, error: type, match: str):
@@ -289,27 +293,27 @@ def test_bad_noise_is_refused_at_construction(noise, error: type, match: str):
     ("noises", "transforms", "error", "match"),
     [
         (
-            {"obs": Noise()},
+            {"obs": EntryNoise()},
             [],
             ValueError,
             r"no observation entry 'obs' in the env; the entries are \['observation', 'step_count'\]",
         ),
         (
-            {"observation": Noise(std=torch.ones(3))},
+            {"observation": EntryNoise(std=torch.ones(3))},
             [],
             ValueError,
             r"std of 'observation' must be a number .* "
             r"per-env shape \[2\], got shape \[3\]",
         ),
         (
-            {"observation": Noise()},
+            {"observation": EntryNoise()},
             [TaskTransform(swing_up_task())],
             ValueError,
             r"reads 'observation' as its state.*"
             r"keeps judging the true state. Give the task its own state entry",
         ),
-        ({"observation": Noise(out_key="step_count")}, [], ValueError, "out_key 'step_count' .* already names"),
-        ({"step_count": Noise()}, [], TypeError, "dtype torch.int64"),
+        ({"observation": EntryNoise(out_key="step_count")}, [], ValueError, "out_key 'step_count' .* already names"),
+        ({"step_count": EntryNoise()}, [], TypeError, "dtype torch.int64"),
     ],
 )
 def test_bad_entries_are_refused_when_the_env_is_built(noises, transforms, error: type, match: str):

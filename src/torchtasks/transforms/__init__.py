@@ -7,8 +7,8 @@
   :class:`DifficultyLevels` (:mod:`.levels`): values of the run written into the task (or the command);
 - :class:`DomainRandomization` (:mod:`.domain`): per-env physics drawn from domain distributions, routed to the
   owners of the fields (:mod:`.domain_owners`);
-- :class:`ObservationNoise` and :class:`Noise` (:mod:`.noise`): per-step noise and a per-episode bias per observation
-  entry and per env, their stds domain fields;
+- :class:`ObservationNoise` and :class:`EntryNoise` (:mod:`.noise`): per-step noise and a per-episode bias per
+  observation entry and per env, their stds domain fields;
 - :class:`SeededTransform` and :func:`seed_transforms` (:mod:`.seeding`): per-worker seeds from ``set_seed``;
 - :class:`BaseEnvState`, :func:`collector_state`, :func:`load_collector_state` (:mod:`.checkpoint`): saving
   and resuming a run, episodes included.
@@ -29,7 +29,7 @@ from torchtasks.transforms.command import GoalCommand
 from torchtasks.transforms.curriculum import Curriculum
 from torchtasks.transforms.domain import DomainRandomization
 from torchtasks.transforms.levels import DifficultyLevels, LevelRule
-from torchtasks.transforms.noise import Noise, ObservationNoise
+from torchtasks.transforms.noise import EntryNoise, ObservationNoise
 from torchtasks.transforms.schedules import GatedSchedule, Schedule, constant, gated, linear, staged
 from torchtasks.transforms.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
 from torchtasks.transforms.targets import TargetTable, target_names
@@ -40,10 +40,10 @@ __all__ = [
     "Curriculum",
     "DifficultyLevels",
     "DomainRandomization",
+    "EntryNoise",
     "GatedSchedule",
     "GoalCommand",
     "LevelRule",
-    "Noise",
     "ObservationNoise",
     "Schedule",
     "SeedHook",

@@ -1,4 +1,4 @@
-"""Observation noise per entry and per env: :class:`ObservationNoise`, a TorchRL transform, and :class:`Noise`.
+"""Observation noise per entry and per env: :class:`ObservationNoise`, a TorchRL transform, and :class:`EntryNoise`.
 
 Sensors are noisy and biased. IsaacLab and mjlab corrupt each observation term with a noise model
 (``NoiseModelWithAdditiveBias``: a bias drawn per episode plus noise drawn per step); Pyrado's
@@ -30,7 +30,7 @@ from torchtasks.transforms.names import NOISE_KEY
 from torchtasks.transforms.seeding import SeededTransform
 from torchtasks.transforms.task import TaskTransform
 
-__all__ = ["BIAS_FIELD", "NOISE_FIELD", "Noise", "ObservationNoise"]
+__all__ = ["BIAS_FIELD", "NOISE_FIELD", "EntryNoise", "ObservationNoise"]
 
 #: the distributions of the noise and of the bias
 DISTRIBUTIONS = ("normal", "uniform")
@@ -41,7 +41,7 @@ BIAS_FIELD = "observation_bias"
 _SQRT3 = math.sqrt(3.0)
 
 
-class Noise(NamedTuple):
+class EntryNoise(NamedTuple):
     """The noise of one observation entry: a per-step std, a per-episode bias std, their distributions, where to write.
 
     ``std`` and ``bias`` are standard deviations in both distributions: ``"normal"`` draws ``N(0, std²)``,
@@ -49,8 +49,8 @@ class Noise(NamedTuple):
     every element of the entry; a tensor gives one value per element and must have the entry's per-env shape exactly.
 
     Example:
-        >>> Noise(std=0.01, bias=0.05)
-        Noise(std=0.01, bias=0.05, distribution='normal', bias_distribution=None, out_key=None)
+        >>> EntryNoise(std=0.01, bias=0.05)
+        EntryNoise(std=0.01, bias=0.05, distribution='normal', bias_distribution=None, out_key=None)
     """
 
     #: the per-element std of the noise drawn at every step (a number: every element; ``>= 0``)
@@ -86,13 +86,13 @@ class _Entry(NamedTuple):
 class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
     """Add noise drawn at every step and a bias drawn per episode to observation entries, per entry and per env.
 
-    For each entry ``x`` of ``noises`` (``{key: Noise(std, bias, ...)}``) and each env ``i``, the entry written at a
-    reset and under ``"next"`` at every step is ``x + b_i + σ_i ⊙ ε`` where ``ε`` is drawn anew at that reset or step
+    For each entry ``x`` of ``noises`` (``{key: EntryNoise(std, bias, ...)}``) and each env ``i``, the entry written at
+    a reset and under ``"next"`` at every step is ``x + b_i + σ_i ⊙ ε`` where ``ε`` is drawn anew at that reset or step
     (standard normal, or uniform on ``[-√3, √3)``: std 1) and ``b_i = β_i ⊙ η`` is drawn at env ``i``'s reset (``η``
     likewise, with the bias's distribution) and held for its episode; ``σ_i`` and ``β_i`` are env ``i``'s per-element
-    stds. Every element draws its own ``ε`` and ``η``. With ``Noise(..., out_key=k)`` the noisy value goes to ``k`` and
-    the clean entry stays (an asymmetric actor-critic: the actor reads ``k``, the critic the clean one); else the entry
-    is replaced. The noisy entries' specs are unbounded (noise can leave an entry's bounds).
+    stds. Every element draws its own ``ε`` and ``η``. With ``EntryNoise(..., out_key=k)`` the noisy value goes to
+    ``k`` and the clean entry stays (an asymmetric actor-critic: the actor reads ``k``, the critic the clean one); else
+    the entry is replaced. The noisy entries' specs are unbounded (noise can leave an entry's bounds).
 
     Domain fields (the :class:`~torchtasks.domain.DomainEnv` methods): per entry ``"observation_noise:<entry>"`` (the
     per-element ``σ``) and ``"observation_bias:<entry>"`` (``β``), of the entry's per-env shape, ``>= 0``, nominal the
@@ -124,8 +124,8 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
         >>> import torch
         >>> from torchrl.envs import TransformedEnv
         >>> from torchtasks.envs import PendulumEnv
-        >>> from torchtasks.transforms import Noise, ObservationNoise
-        >>> noise = ObservationNoise({"observation": Noise(std=0.01, bias=0.1, out_key="noisy")}, seed=0)
+        >>> from torchtasks.transforms import EntryNoise, ObservationNoise
+        >>> noise = ObservationNoise({"observation": EntryNoise(std=0.01, bias=0.1, out_key="noisy")}, seed=0)
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), noise)
         >>> data = env.rollout(3)
         >>> offset = data["next", "noisy"] - data["next", "observation"]  # the bias plus the step's noise
@@ -138,14 +138,15 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     def __init__(
         self,
-        noises: Mapping[NestedKey, Noise],
+        noises: Mapping[NestedKey, EntryNoise],
         *,
         entry_key: NestedKey = NOISE_KEY,
         seed: int | None = None,
     ) -> None:
         if not isinstance(noises, Mapping) or not noises:
             raise TypeError(
-                f"ObservationNoise: noises must be a non-empty mapping of observation keys to Noise, got {noises!r}"
+                "ObservationNoise: noises must be a non-empty mapping of observation keys to EntryNoise, got "
+                f"{noises!r}"
             )
         self.entry_key = nested_key(entry_key, "ObservationNoise: entry_key")
         entries = [self._entry(key, noise) for key, noise in noises.items()]
@@ -167,8 +168,10 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     def _entry(self, key: object, noise: object) -> _Entry:
         key = nested_key(key, "ObservationNoise: a key of noises")
-        if not isinstance(noise, Noise):
-            raise TypeError(f"ObservationNoise: noises[{key!r}] must be a Noise(std=..., bias=...), got {noise!r}")
+        if not isinstance(noise, EntryNoise):
+            raise TypeError(
+                f"ObservationNoise: noises[{key!r}] must be an EntryNoise(std=..., bias=...), got {noise!r}"
+            )
         name = ":".join(key_parts(key))
         try:
             check_field_name(name)
@@ -225,7 +228,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
                         f"ObservationNoise: the TaskTransform of {type(task.task).__name__} reads {key!r} as its "
                         f"{what}, and noise in place there would make the task judge noisy values: the task keeps "
                         f"judging the true {what}. Give the task its own {what} entry (an entry the noise leaves "
-                        f"alone), or write the noisy value elsewhere: Noise(..., out_key='noisy_...')"
+                        f"alone), or write the noisy value elsewhere: EntryNoise(..., out_key='noisy_...')"
                     )
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
