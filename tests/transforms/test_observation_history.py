@@ -5,6 +5,8 @@ oldest first, the reset observation standing in for the ones before it)."""
 
 from __future__ import annotations
 
+import copy
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.collectors import Collector
@@ -71,3 +73,27 @@ def test_catframes_restarts_each_envs_history_at_its_own_reset_in_a_collector():
     collector.shutdown()
     roots, nexts = reference(data)
     assert torch.equal(data["history"], roots) and torch.equal(data["next", "history"], nexts)
+
+
+def test_catframes_history_is_run_state_a_checkpoint_resumes():
+    """CatFrames' buffer is in the env's state_dict: a fresh env loading it continues the histories bit for bit. The
+    buffer is lazy (empty until the first reset, and a load into it fails): load after a reset, as into a Collector's
+    env, which its construction resets."""
+
+    def run(env: TransformedEnv, carried: TensorDict, steps: int) -> list[TensorDict]:
+        frames = []
+        for _ in range(steps):
+            frame, carried = env.step_and_maybe_reset(carried.set("action", torch.full((len(LIMITS), 1), 0.5)))
+            frames.append(frame)
+        return frames, carried
+
+    env = make_env()
+    _, carried = run(env, env.reset(), 4)
+    state = copy.deepcopy({"transforms": env.state_dict(), "base": env.base_env.state_dict()})  # (live references)
+    expected, _ = run(env, carried.clone(), 4)
+    fresh = make_env()
+    fresh.reset()
+    fresh.load_state_dict(state["transforms"])
+    fresh.base_env.load_state_dict(state["base"])
+    resumed, _ = run(fresh, carried.clone(), 4)
+    assert all(torch.equal(a["next", "history"], b["next", "history"]) for a, b in zip(resumed, expected, strict=True))
