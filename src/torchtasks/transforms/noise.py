@@ -265,6 +265,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
             observation_spec[entry.out_key] = noisy
             observation_spec[entry.bias_key] = noisy.clone()
         self.__dict__["_shapes"], self.__dict__["_dtypes"] = shapes, dtypes
+        self.__dict__.pop("_fields", None)
         self._make_state(batch, device)
         return observation_spec
 
@@ -305,7 +306,11 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     # ------------------------------------------------------------------ domain fields (the DomainEnv methods)
     def _table(self) -> dict[str, DomainField]:
-        """Every field by name: per entry its noise std, then its bias std (the nominal values: the constructor's)."""
+        """Every field by name: per entry its noise std, then its bias std (the nominal values: the constructor's);
+        cached until the specs are built again."""
+        table = self.__dict__.get("_fields")
+        if table is not None:
+            return table
         shapes = self._entry_shapes()
         table = {}
         for entry in self.entries:
@@ -317,6 +322,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
                     name, shape, nominal.expand(shape).clone(), 0.0, math.inf, False, (), False, description
                 )
                 table[name] = field
+        self.__dict__["_fields"] = table
         return table
 
     def domain_fields(self, names: Sequence[str] | None = None) -> list[DomainField]:
