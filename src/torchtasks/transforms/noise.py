@@ -208,10 +208,12 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
     # ------------------------------------------------------------------ set-up
     def _forget_setup(self) -> None:
         self.__dict__.pop("_cast", None)
+        self.__dict__.pop("_bias_cast", None)
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
         state.pop("_cast", None)
+        state.pop("_bias_cast", None)
         return state
 
     def _check_placement(self) -> None:
@@ -287,7 +289,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
                     )
                 module._buffers[entry.name] = value.to(device=device, dtype=torch.float64).expand(shape).clone()
         self.__dict__["_batch"] = batch
-        self.__dict__.pop("_cast", None)
+        self._forget_setup()
 
     def _entry_shapes(self) -> dict[str, torch.Size]:
         """The entries' per-env shapes, from the env's specs (built now if they are not yet)."""
@@ -366,24 +368,20 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
             return torch.randn(shape, generator=self.generator, dtype=dtype)
         return torch.rand(shape, generator=self.generator, dtype=dtype).mul_(2.0 * _SQRT3).sub_(_SQRT3)
 
-    def _casts(self) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
-        """Each entry's noise std and bias in the entry's dtype and device (cached until either changes)."""
-        cast = self.__dict__.get("_cast")
+    def _casts(self, name: str) -> dict[str, torch.Tensor]:
+        """Each entry's noise std (``"_cast"``) or bias (``"_bias_cast"``) in the entry's dtype and device, cached until
+        it changes (a draw of the randomization, a reset, a load)."""
+        cast = self.__dict__.get(name)
         if cast is None:
             dtypes = self.__dict__["_dtypes"]
-            cast = {
-                entry.name: (
-                    self.noise_std._buffers[entry.name].to(dtypes[entry.name]),
-                    self.bias._buffers[entry.name].to(dtypes[entry.name]),
-                )
-                for entry in self.entries
-            }
-            self.__dict__["_cast"] = cast
+            module = self.noise_std if name == "_cast" else self.bias
+            cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name]) for entry in self.entries}
+            self.__dict__[name] = cast
         return cast
 
     def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write each entry's noisy value (the bias plus a fresh draw times the std) and the episode's bias."""
-        casts = self._casts()
+        stds, biases = self._casts("_cast"), self._casts("_bias_cast")
         for entry in self.entries:
             value = tensordict.get(entry.key, None)
             if value is None:
@@ -391,9 +389,9 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
                     f"ObservationNoise: the entry {entry.key!r} is missing from the data; the entries are "
                     f"{keys_text(tensordict.keys(True, True))}"
                 )
-            std, bias = casts[entry.name]
+            bias = biases[entry.name]
             draw = self._standard(entry.distribution, value.shape, value.dtype).to(value.device)
-            tensordict.set(entry.out_key, torch.addcmul(value + bias, std, draw))
+            tensordict.set(entry.out_key, torch.addcmul(value + bias, stds[entry.name], draw))
             tensordict.set(entry.bias_key, bias.clone())
         return tensordict
 
@@ -406,6 +404,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
             if self.__dict__.get("_batch") != batch:
                 self._make_state(batch, tensordict_reset.device)
         reset = None if tensordict is None else tensordict.get("_reset", None)
+        dtypes, biases = self.__dict__["_dtypes"], {}
         for entry in self.entries:
             held = self.bias._buffers[entry.name]
             new = self.bias_std._buffers[entry.name] * self._standard(
@@ -414,7 +413,8 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
             if reset is not None:
                 new = torch.where(reset.reshape(batch + (1,) * (held.dim() - len(batch))).to(held.device), new, held)
             self.bias._buffers[entry.name] = new
-        self.__dict__.pop("_cast", None)
+            biases[entry.name] = new.to(dtypes[entry.name])
+        self.__dict__["_bias_cast"] = biases
         return self._write(tensordict_reset)
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -483,7 +483,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
 
     def _check_loaded(self) -> None:
         """Refuse loaded values of another batch or entry shape, and stds below 0 or not finite."""
-        self.__dict__.pop("_cast", None)
+        self._forget_setup()
         shapes = self.__dict__.get("_shapes")
         batch = self.__dict__.get("_batch")
         for entry in self.entries:
