@@ -15,6 +15,10 @@ holding ``"."`` or ``"/"`` is not offered. Positions and orientations (``body_po
 ``site_pos``: a target placed per episode, an object moved) are an object's row (3 or 4 values) and have no scale.
 The model's value of an object is its own value (nominal until set) times the kind's scale (1.0 until set): a scale
 and one object's value set by two ``set_domain`` calls compose.
+
+The env may own fields beside the model's (:class:`~torchtasks.envs.BatchedMujocoEnv`'s ``"action_delay"``): given to
+:class:`BatchDomain` as ``env_fields``, they are named, checked, kept and saved with the model's, in the same table;
+their values write no model field (the env reads them where its own semantics say).
 """
 
 from __future__ import annotations
@@ -254,6 +258,8 @@ class BatchDomain:
         model: the batch's model (its values are the nominal ones).
         batch: the batch to write into.
         owner: who offers the fields, for messages (``"BatchedMujocoEnv(Hopper-v5)"``).
+        env_fields: fields the env owns beside the model's, listed after them: checked, kept in ``values`` and
+            saved like the model's, written into no model field (the env reads their values).
 
     Example:
         >>> import mujoco, numpy as np
@@ -274,9 +280,12 @@ class BatchDomain:
         (array([3., 2.]), True)
     """
 
-    def __init__(self, model: mujoco.MjModel, batch: Batch, owner: str) -> None:
+    def __init__(self, model: mujoco.MjModel, batch: Batch, owner: str, env_fields: Sequence[DomainField] = ()) -> None:
         self.model, self.batch, self.owner = model, batch, owner
         self.table = _table(model)
+        clash = [field.name for field in env_fields if field.name in self.table]
+        if clash:
+            raise ValueError(f"{owner}: the env's own domain fields {clash} have the names of model fields")
         #: the model values each field writes: (model field, column of the kind's values); two fields named together
         #: must write none in common
         self.writes = {
@@ -290,8 +299,11 @@ class BatchDomain:
             )
             for name, entry in self.table.items()
         }
+        self.writes.update({field.name: frozenset({(field.name, 0)}) for field in env_fields})
         self.values: dict[str, np.ndarray] = {}
+        #: every field by name: the model's (``table``), then the env's own
         self._fields = {name: entry.field for name, entry in self.table.items()}
+        self._fields.update({field.name: field for field in env_fields})
         #: per kind: the model's (nominal) values, the one-object fields, and the model values that follow the kind
         self._nominals = {
             kind.stem: _kind_values(_model_value(model, kind.model_field), kind).copy() for kind in FIELD_KINDS
@@ -305,7 +317,7 @@ class BatchDomain:
             kind.stem + ("" if kind.objects is None else f":<{kind.objects}>")
             + ("" if kind.scale_low_open is None else f", {kind.stem}{SCALE}")
             for kind in FIELD_KINDS
-        )  # fmt: skip
+        ) + "".join(f", {field.name}" for field in env_fields)  # fmt: skip
 
     # ------------------------------------------------------------------ names and checks
     def fields(self, names: Sequence[str] | None = None, *, overlap: bool = False) -> list[DomainField]:
@@ -337,15 +349,15 @@ class BatchDomain:
     def write(self, rows: Mapping[str, np.ndarray], ids: np.ndarray | None) -> set[FieldKind]:
         """Set the (checked) values ``rows`` of simulations ``ids`` (None: all) and write their kinds' model fields.
 
-        Runs the batch's ``set_const`` once over ``ids`` if a kind written needs it. Returns the kinds written.
+        Runs the batch's ``set_const`` once over ``ids`` if a kind written needs it. Returns the kinds written (an
+        env field's value is only kept).
         """
         nsim = self.batch.nsim
         for name, value in rows.items():
-            field = self.table[name].field
             if name not in self.values:
-                self.values[name] = _nominal_rows(field, nsim)
+                self.values[name] = _nominal_rows(self._fields[name], nsim)
             self.values[name][slice(None) if ids is None else ids] = value
-        kinds = {self.table[name].kind for name in rows}
+        kinds = {self.table[name].kind for name in rows if name in self.table}
         for kind in kinds:
             self._write_kind(kind, ids)
         if any(kind.set_const for kind in kinds):
@@ -401,7 +413,7 @@ class BatchDomain:
         """Make the values those of ``saved`` (checked with ``overlap=True``): fields set now but not saved go back
         to nominal. Writes every simulation's fields of the kinds involved; returns them."""
         dropped = [name for name in self.values if name not in saved]
-        nominal = {name: _nominal_rows(self.table[name].field, self.batch.nsim) for name in dropped}
+        nominal = {name: _nominal_rows(self._fields[name], self.batch.nsim) for name in dropped}
         kinds = self.write({**nominal, **saved}, None) if (saved or dropped) else set()
         for name in dropped:
             del self.values[name]
