@@ -892,9 +892,11 @@ class BatchedMujocoEnv(EnvBase):
     def set_domain(self, values: Mapping[str, torch.Tensor], mask: torch.Tensor | None = None) -> None:
         """Give the envs of ``mask`` the physics ``values[name][i]``, from their next step or reset on.
 
-        The values persist until set again (resets keep them) and checkpoints keep them. Only the model fields of
-        the kinds written become per-env (``Batch.expand``), and ``Batch.set_const`` runs once over the envs written
-        if some field written needs it (masses, armatures, gears). A running episode continues from its state.
+        ``"action_delay"`` (``max_action_delay > 0``) takes effect at each env's next reset only: a running episode
+        keeps its delay. The values persist until set again (resets keep them) and checkpoints keep them. Only the
+        model fields of the kinds written become per-env (``Batch.expand``), and ``Batch.set_const`` runs once over
+        the envs written if some field written needs it (masses, armatures, gears). A running episode continues from
+        its state.
 
         Args:
             values: by field name (:meth:`domain_fields`), a float64 tensor ``[num_envs, *value_shape]`` on any
@@ -921,6 +923,8 @@ class BatchedMujocoEnv(EnvBase):
         """Every env's current value of each field named (``None``: all), as float64 ``[num_envs, *value_shape]``.
 
         A field never set holds its nominal value. An object's model value is its value times its kind's scale.
+        ``"action_delay"`` is the value set last: the delay of each env's next episode (and of its running one, unless
+        it was set during that episode).
 
         Example:
             >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2)
