@@ -280,20 +280,30 @@ def test_a_checkpoint_of_another_max_action_delay_is_refused_and_changes_nothing
 # the test carries the running episodes' data across the load itself (what load_collector_state does for a collector)
 @pytest.mark.filterwarnings("ignore:BaseEnvState. this env is stepped after load_state_dict:UserWarning")
 def test_a_resumed_copied_or_unpickled_env_continues_bit_for_bit() -> None:
-    """Mid-episode checkpoint (histories filled, delays drawn, partial resets after it) through torch.save/load into
-    a freshly built env (what a new process reads), a deep copy and a pickle (a ParallelEnv worker's)."""
-    running = make_env("reset")
+    """Mid-episode checkpoint (histories filled, delays drawn at an interval: the active and the waiting ones differ,
+    partial resets after it take the waiting ones) through torch.save/load into a freshly built env (what a new
+    process reads), a deep copy and a pickle (a ParallelEnv worker's)."""
+    running = make_env("interval", every=2)
     td = running.reset()
     actions = policy_actions(12, seed=2)
     for t, action in enumerate(actions[:5]):
         td = running.step(td.set("action", action))["next"]
         if t == 2:
             td = running.reset(TensorDict({"_reset": torch.tensor([[True], [False], [True], [False]])}, [NUM_ENVS]))
+    delay = running.base_env._delay
+    waiting = running.base_env.domain_values(["action_delay"])["action_delay"].numpy()
+    # what the checkpoint must carry: histories, and waiting delays other than the active ones in envs reset below
+    assert delay.history.any() and (waiting != delay.delay)[[0, 1, 3]].any()
     checkpoint = saved(running.state_dict())
-    resumed = make_env("reset")
+    resumed = make_env("interval", every=2)
     resumed.load_state_dict(checkpoint)
     copies = [resumed, copy.deepcopy(running), pickle.loads(pickle.dumps(running))]
-    tds = [td.clone() for _ in copies]
+    # a partial reset first, before another interval draw: the saved waiting delays start the new episodes
+    mask = TensorDict({"_reset": torch.tensor([[True], [True], [False], [True]])}, [NUM_ENVS])
+    td = running.reset(mask.clone())
+    tds = [env.reset(mask.clone()) for env in copies]
+    assert all((other == td).all() for other in tds)
+    assert np.array_equal(delay.delay[[0, 1, 3]], waiting[[0, 1, 3]])
     for t, action in enumerate(actions[5:]):
         expected = running.step(td.set("action", action))["next"]
         for k, env in enumerate(copies):
@@ -301,7 +311,7 @@ def test_a_resumed_copied_or_unpickled_env_continues_bit_for_bit() -> None:
             assert (out == expected).all(), (t, k)
             tds[k] = out
         td = expected
-        if t == 2:
+        if t == 3:
             mask = TensorDict({"_reset": torch.tensor([[False], [True], [True], [True]])}, [NUM_ENVS])
             td = running.reset(mask.clone())
             tds = [env.reset(mask.clone()) for env in copies]
