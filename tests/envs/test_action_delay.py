@@ -28,6 +28,7 @@ from torchrl.envs import Compose, TransformedEnv
 
 from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import BatchedMujocoEnv, readings
+from torchtasks.envs.control_suite import control_suite_env
 from torchtasks.envs.mujoco_declaration import Actions, Noise, Resets
 from torchtasks.rewards import QuadraticErrorReward
 from torchtasks.spaces import EnvSpec
@@ -319,3 +320,12 @@ def test_a_resumed_copied_or_unpickled_env_continues_bit_for_bit() -> None:
     assert td["domain", "action_delay"].shape == (NUM_ENVS, 1)
     for env in (running, *copies):
         env.close()
+
+
+def test_a_control_suite_task_can_be_delayed() -> None:
+    env = control_suite_env("cartpole-balance", 2, seed=0, max_action_delay=1)
+    env.base_env.set_domain({"action_delay": torch.tensor([0.0, 1.0], dtype=torch.float64)})
+    data = env.rollout(2, break_when_any_done=False)
+    applied, action = data["next", "applied_action"], data["action"].to(torch.float64)
+    assert torch.equal(applied[0], action[0]) and torch.equal(applied[1], torch.stack([0 * action[1, 0], action[1, 0]]))
+    env.close()
