@@ -1,11 +1,29 @@
 """Per-env action delay of the batched MuJoCo engine: the policy's last actions and the one each env applies.
 
-Pyrado's ``ActDelayWrapper`` for a batch: env ``i`` applies the policy's action of ``delay[i]`` steps earlier, and
-after each of its resets its queue holds zeros, so the first ``delay[i]`` steps of an episode apply zero actions.
-The delay is a domain field (:func:`action_delay_field`, integer in ``[0, max_delay]``) that an env takes at its
-resets only: :class:`ActionQueue` keeps, per env, the active delay, the last ``max_delay`` policy actions and the
-action applied in the last step, and gathers the applied actions of all envs with one array operation.
-:class:`~torchtasks.envs.BatchedMujocoEnv` (``max_action_delay=``) owns one.
+Pyrado's ``ActDelayWrapper`` for a batch. With ``BatchedMujocoEnv(..., max_action_delay=d)``, env ``i`` applies the
+policy's action of ``delay[i]`` steps earlier, and after each of its resets its queue holds zeros, so the first
+``delay[i]`` steps of an episode apply zero actions (the declared action map then acts on the applied action).
+``delay`` is the domain field ``"action_delay"`` (:func:`action_delay_field`: integer in ``[0, d]``, nominal 0), drawn
+like a mass by a ``DomainParam`` with ``roundint=True``; a value set takes effect at the env's next reset only.
+``("next", "applied_action")`` (float64 ``[num_envs, nu]``, zeros at reset) is the action the physics ran, in the
+policy's action space; ``"action"``, which a task judges, and the ``last_action`` readings stay the policy's. A
+non-finite policy action breaks the step it is given in, as without a delay: it is never queued, so every applied
+action is finite. With ``d = 0`` there is no field, no entry and no work.
+
+:class:`ActionQueue` keeps, per env, the active delay, the last ``d`` policy actions and the action applied in the
+last step, and gathers the applied actions of all envs with array operations; the env owns one.
+
+Example:
+    >>> import torch
+    >>> from torchtasks.envs import BatchedMujocoEnv, readings
+    >>> xml = '''<mujoco><worldbody><body><joint name="hinge"/><geom size="0.1"/></body></worldbody>
+    ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+    >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), max_action_delay=1, seed=0)
+    >>> env.set_domain({"action_delay": torch.tensor([0.0, 1.0], dtype=torch.float64)})  # env 1: one step late
+    >>> td = env.reset()
+    >>> [env.step(td.set("action", torch.full((2, 1), a)))["next", "applied_action"][:, 0].tolist() for a in (0.5, 1.0)]
+    [[0.5, 0.0], [1.0, 0.5]]
+    >>> env.close()
 """
 
 from __future__ import annotations

@@ -227,18 +227,8 @@ class BatchedMujocoEnv(EnvBase):
     tensordict start the masked envs from those states instead (:meth:`set_reset_states` queues them for the next
     reset wherever TorchRL resets). ``state_dict()`` holds the generators and the running episodes (a load
     continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them in a ``TransformedEnv``);
-    copies and pickles are independent envs in the same state. As a
-    :class:`~torchtasks.domain.DomainEnv` it gives each env its own physics (:meth:`set_domain`). Details: the docs
-    pages "Your own robot" and "The batched MuJoCo env".
-
-    Action delay (``max_action_delay=d > 0``, Pyrado's ``ActDelayWrapper``): env ``i`` applies the policy's action of
-    ``delay[i]`` steps earlier, zeros while its episode has had fewer steps. ``delay`` is the domain field
-    ``"action_delay"`` (integer in ``[0, d]``, nominal 0), drawn like a mass (a ``DomainParam`` with
-    ``roundint=True``); a value set takes effect at the env's next reset. ``("next", "applied_action")`` (float64
-    ``[num_envs, nu]``, zeros at reset) is the action the physics ran, in the policy's action space; ``"action"``,
-    which a task judges, and the ``last_action`` readings stay the policy's. A non-finite policy action breaks the
-    step it is given in, as without a delay (it is never queued, so every applied action is finite). With ``d = 0``
-    there is no field, no entry and no work.
+    copies and pickles are independent envs in the same state. As a :class:`~torchtasks.domain.DomainEnv` it gives
+    each env its own physics (:meth:`set_domain`). Docs: "Your own robot", "The batched MuJoCo env".
 
     Args:
         model: the model, or a Gymnasium id (then ``observation`` ... ``stage`` are the preset's).
@@ -253,7 +243,7 @@ class BatchedMujocoEnv(EnvBase):
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
         device: device of the output tensors (the simulation runs on the CPU).
         num_threads: threads that step the envs; default: the CPUs this process may use, at most ``num_envs``.
-        max_action_delay: the largest action delay (steps) the ``"action_delay"`` field may take; 0: no delay.
+        max_action_delay: the largest per-env action delay, in steps (:mod:`~torchtasks.envs.action_delay`); 0: none.
         task_state_keys: a Gymnasium id's task-state entries.
         **gym_kwargs: a Gymnasium id's keyword arguments.
 
@@ -270,14 +260,7 @@ class BatchedMujocoEnv(EnvBase):
         >>> hopper = BatchedMujocoEnv("Hopper-v5", num_envs=2, seed=0)
         >>> hopper.rollout(3)["next", "observation"].shape
         torch.Size([2, 3, 11])
-        >>> import torch  # env 1 applies the policy's actions one step late, from its next reset on
-        >>> delayed = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), max_action_delay=1, seed=0)
-        >>> delayed.set_domain({"action_delay": torch.tensor([0.0, 1.0], dtype=torch.float64)})
-        >>> td = delayed.reset()
-        >>> [delayed.step(td.set("action", torch.full((2, 1), a)))["next", "applied_action"][:, 0].tolist()
-        ...  for a in (0.5, 1.0)]
-        [[0.5, 0.0], [1.0, 0.5]]
-        >>> for e in (env, hopper, delayed): e.close()
+        >>> for e in (env, hopper): e.close()
     """
 
     batch_locked = True
