@@ -58,8 +58,8 @@ __all__ = ["FIELD_KINDS", "BatchDomain", "Coupled", "FieldKind", "domain_field"]
 SCALE = "_scale"
 
 
-#: which objects of a kind are meant: ``(model, object id) -> bool``
-Objects = Callable[[mujoco.MjModel, int], bool]
+#: which objects of a kind are meant: ``model -> bool [number of objects]``
+Objects = Callable[[mujoco.MjModel], np.ndarray]
 
 
 class Coupled(NamedTuple):
@@ -127,38 +127,37 @@ class FieldKind(NamedTuple):
         return tuple(dict.fromkeys((self.model_field, *(c.model_field for c in self.coupled), *self.scaled_with)))
 
 
-def _fixed_gain(model: mujoco.MjModel, i: int, bias: mujoco.mjtBias) -> bool:
-    """Whether actuator ``i`` has a fixed gain (``force = gainprm[0] * ctrl + bias``) and bias type ``bias``."""
-    return bool(model.actuator_gaintype[i] == mujoco.mjtGain.mjGAIN_FIXED and model.actuator_biastype[i] == bias)
+def _fixed_gain(model: mujoco.MjModel, bias: mujoco.mjtBias) -> np.ndarray:
+    """Per actuator: a fixed gain (``force = gainprm[0] * ctrl + bias``) and bias type ``bias``."""
+    return (model.actuator_gaintype == int(mujoco.mjtGain.mjGAIN_FIXED)) & (model.actuator_biastype == int(bias))
 
 
-def _position_servo(model: mujoco.MjModel, i: int) -> bool:
-    """Whether actuator ``i`` is a position servo: a fixed gain ``kp > 0`` and an affine bias with
-    ``biasprm[1] == -kp`` (``force = kp * (ctrl - length) - kv * velocity + biasprm[0]``): MuJoCo's ``<position>``,
-    ``<intvelocity>`` (on its activation), a ``<general>`` written so."""
-    gain, bias = model.actuator_gainprm[i], model.actuator_biasprm[i]
-    return _fixed_gain(model, i, mujoco.mjtBias.mjBIAS_AFFINE) and bool(gain[0] > 0 and bias[1] == -gain[0])
+def _position_servo(model: mujoco.MjModel) -> np.ndarray:
+    """Per actuator: a position servo, a fixed gain ``kp > 0`` and an affine bias with ``biasprm[1] == -kp``
+    (``force = kp * (ctrl - length) - kv * velocity + biasprm[0]``): MuJoCo's ``<position>``, ``<intvelocity>`` (on
+    its activation), a ``<general>`` written so."""
+    gain, bias = model.actuator_gainprm, model.actuator_biasprm
+    return _fixed_gain(model, mujoco.mjtBias.mjBIAS_AFFINE) & (gain[:, 0] > 0) & (bias[:, 1] == -gain[:, 0])
 
 
-def _velocity_servo(model: mujoco.MjModel, i: int) -> bool:
-    """Whether actuator ``i`` is a velocity servo: a fixed gain ``kv > 0`` and an affine bias with ``biasprm[1] == 0``
-    and ``biasprm[2] == -kv`` (``force = kv * (ctrl - velocity) + biasprm[0]``): MuJoCo's ``<velocity>``."""
-    gain, bias = model.actuator_gainprm[i], model.actuator_biasprm[i]
-    return _fixed_gain(model, i, mujoco.mjtBias.mjBIAS_AFFINE) and bool(
-        gain[0] > 0 and bias[1] == 0 and bias[2] == -gain[0]
-    )
+def _velocity_servo(model: mujoco.MjModel) -> np.ndarray:
+    """Per actuator: a velocity servo, a fixed gain ``kv > 0`` and an affine bias with ``biasprm[1] == 0`` and
+    ``biasprm[2] == -kv`` (``force = kv * (ctrl - velocity) + biasprm[0]``): MuJoCo's ``<velocity>``."""
+    gain, bias = model.actuator_gainprm, model.actuator_biasprm
+    affine = _fixed_gain(model, mujoco.mjtBias.mjBIAS_AFFINE)
+    return affine & (gain[:, 0] > 0) & (bias[:, 1] == 0) & (bias[:, 2] == -gain[:, 0])
 
 
-def _damped_servo(model: mujoco.MjModel, i: int) -> bool:
-    """Whether actuator ``i`` is a servo with a damping ``kv = -biasprm[2] >= 0``: a position servo (``kv`` 0 when
-    none was given) or a velocity servo."""
-    return _velocity_servo(model, i) or (_position_servo(model, i) and bool(model.actuator_biasprm[i, 2] <= 0))
+def _damped_servo(model: mujoco.MjModel) -> np.ndarray:
+    """Per actuator: a servo with a damping ``kv = -biasprm[2] >= 0``, a position servo (``kv`` 0 when none was
+    given) or a velocity servo."""
+    return _velocity_servo(model) | (_position_servo(model) & (model.actuator_biasprm[:, 2] <= 0))
 
 
-def _motor(model: mujoco.MjModel, i: int) -> bool:
-    """Whether actuator ``i`` is a motor: a fixed gain ``> 0`` and no bias (``force = gainprm[0] * ctrl``): MuJoCo's
-    ``<motor>`` (gain 1), a ``<general>`` with a gain."""
-    return _fixed_gain(model, i, mujoco.mjtBias.mjBIAS_NONE) and bool(model.actuator_gainprm[i, 0] > 0)
+def _motor(model: mujoco.MjModel) -> np.ndarray:
+    """Per actuator: a motor, a fixed gain ``> 0`` and no bias (``force = gainprm[0] * ctrl``): MuJoCo's ``<motor>``
+    (gain 1), a ``<general>`` with a gain."""
+    return _fixed_gain(model, mujoco.mjtBias.mjBIAS_NONE) & (model.actuator_gainprm[:, 0] > 0)
 
 
 #: The field kinds, in the order :meth:`BatchDomain.fields` lists them. ``set_const`` follows
@@ -301,12 +300,11 @@ def _covered(model: mujoco.MjModel, kind: FieldKind, where: Objects | None = Non
     what a scale multiplies and a coupled value is written for; ``None``: every column (a kind for every object)."""
     if kind.offered is None and where is None:
         return None
-    ids = [
-        i
-        for i in range(getattr(model, _COUNTS[kind.objects]))
-        if (kind.offered is None or kind.offered(model, i)) and (where is None or where(model, i))
-    ]
-    return np.concatenate([_object_slots(model, kind, i) for i in ids]) if ids else np.zeros(0, dtype=np.int64)
+    chosen = np.ones(getattr(model, _COUNTS[kind.objects]), dtype=bool)
+    for select in (kind.offered, where):
+        chosen &= True if select is None else select(model)
+    slots = [_object_slots(model, kind, i) for i in np.flatnonzero(chosen).tolist()]
+    return np.concatenate(slots) if slots else np.zeros(0, dtype=np.int64)
 
 
 def _nominal_values(model: mujoco.MjModel, kind: FieldKind) -> np.ndarray:
@@ -319,13 +317,14 @@ def _objects(model: mujoco.MjModel, kind: FieldKind, nominal: np.ndarray) -> lis
     if kind.objects is None:
         return []
     offered = []
+    meant = None if kind.offered is None else kind.offered(model)
     for i in range(getattr(model, _COUNTS[kind.objects])):
         name = getattr(model, kind.objects)(i).name
         if not name and kind.objects == "actuator" and model.actuator_trntype[i] == mujoco.mjtTrn.mjTRN_JOINT:
             name = model.joint(int(model.actuator_trnid[i, 0])).name  # an unnamed actuator: named by its joint
         if not name or "." in name or "/" in name or (kind.objects == "body" and i == 0):
             continue
-        if kind.offered is not None and not kind.offered(model, i):  # a motor has no kp
+        if meant is not None and not meant[i]:  # a motor has no kp
             continue
         slots = _object_slots(model, kind, i)
         if kind.scaled_with and not (nominal[slots] > 0).all():  # nothing can follow a value of 0 by its ratio
@@ -457,9 +456,8 @@ class BatchDomain:
         written = {(kind.model_field, kind.column, int(slot)) for slot in slots}
         for k, coupled in enumerate(kind.coupled):
             where = self._covers[kind.stem, k]
-            written |= {
-                (coupled.model_field, coupled.column, int(slot)) for slot in slots if where is None or slot in where
-            }
+            both = slots if where is None else np.intersect1d(slots, where)
+            written |= {(coupled.model_field, coupled.column, int(slot)) for slot in both}
         return frozenset(written)
 
     # ------------------------------------------------------------------ names and checks
