@@ -218,6 +218,29 @@ def test_each_gain_is_offered_for_the_actuators_it_means_something_for() -> None
     with pytest.raises(ValueError, match=r"'actuator_kp_scale' and 'actuator_kp:elbow' both write"):
         env.domain_fields(["actuator_kp_scale", "actuator_kp:elbow"])
     env.close()
+    # other actuators: an integrated-velocity servo is a position servo on its activation (gainprm[0] = kp,
+    # biasprm = [0, -kp, -kv]); a damper (an affine gain) and a cylinder (biasprm[1] != -gainprm[0]) have none of the
+    # three; a model without servos offers no kp or kv scale
+    others = BatchedMujocoEnv(
+        '<mujoco><worldbody><body><joint name="a" axis="1 0 0"/><joint name="b" axis="0 1 0"/>'
+        '<joint name="c" axis="0 0 1"/><joint name="d" type="slide"/>'
+        '<geom size=".1" mass="1"/></body></worldbody><actuator><motor joint="a"/>'
+        '<intvelocity name="iv" joint="b" kp="10" kv="2" actrange="-1 1"/><damper joint="c" kv="3" ctrlrange="0 1"/>'
+        '<cylinder joint="d" area="2" bias="1 -3 -4"/></actuator></mujoco>',
+        1,
+        observation={"qpos": R.joint_pos()},
+    )
+    names = [field.name for field in others.domain_fields() if field.name.startswith(("actuator_k", "actuator_gain"))]
+    assert names == [
+        "actuator_kp:iv",
+        "actuator_kp_scale",
+        "actuator_kv:iv",
+        "actuator_kv_scale",
+        "actuator_gain:a",
+        "actuator_gain_scale",
+    ]
+    assert others.domain_fields(["actuator_kv:iv"])[0].nominal.item() == 2.0
+    others.close()
     motors = BatchedMujocoEnv(
         '<mujoco><worldbody><body><joint name="j"/><geom size=".1" mass="1"/></body></worldbody>'
         '<actuator><motor joint="j"/></actuator></mujoco>',
