@@ -212,9 +212,18 @@ def test_each_gain_is_offered_for_the_actuators_it_means_something_for() -> None
     assert (rules["actuator_kv:wrist"], rules["actuator_kv_scale"]) == ("in [0.0, inf)", "in (0.0, inf)")
     assert fields["actuator_kp:elbow"].model_fields == ("actuator_gainprm", "actuator_biasprm")
     assert not any(fields[name].set_const for name in rules)  # mj_setConst reads neither gainprm nor biasprm
-    for wrong in ("actuator_kp:slider", "actuator_gain:elbow", "actuator_kv:slider"):
-        with pytest.raises(ValueError, match=rf"unknown domain field '{wrong}'.*did you mean"):
+    for wrong, meant, has in [
+        ("actuator_kp:slider", "'shoulder', 'elbow'", "actuator_gear:slider, actuator_gain:slider"),
+        ("actuator_gain:elbow", "'slider'", "actuator_gear:elbow, actuator_kp:elbow, actuator_kv:elbow"),
+    ]:
+        actuator = wrong.split(":")[1]
+        match = rf"actuator '{actuator}' has no domain field '{wrong}'.*\(here: {meant}\); '{actuator}' has {has}$"
+        with pytest.raises(ValueError, match=match):
             env.domain_fields([wrong])
+        with pytest.raises(ValueError, match=match):
+            env.set_domain({wrong: torch.ones(2, dtype=torch.float64)})
+    with pytest.raises(ValueError, match=r"unknown domain field 'actuator_kp:wirst'.*did you mean 'actuator_kv:wrist'"):
+        env.domain_fields(["actuator_kp:wirst"])  # no such actuator: the closest names
     with pytest.raises(ValueError, match=r"'actuator_kp_scale' and 'actuator_kp:elbow' both write"):
         env.domain_fields(["actuator_kp_scale", "actuator_kp:elbow"])
     env.close()

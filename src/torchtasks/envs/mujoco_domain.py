@@ -465,6 +465,7 @@ class BatchDomain:
         """The fields ``names`` names, in order (``None``: all); refuses unknown names and, unless ``overlap``,
         the same name twice and a scale with one object's value of the same kind (:func:`select_fields`)."""
         writes = None if overlap else self.writes
+        self._refuse_unmeant(names)
         return select_fields(self._fields, names, self.owner, writes=writes, kinds=self._kinds)
 
     def checked(
@@ -475,6 +476,7 @@ class BatchDomain:
         as numpy rows of those simulations, with their ids (None: all)."""
         writes = None if overlap else self.writes
         nsim = self.batch.nsim
+        self._refuse_unmeant(list(values) if isinstance(values, Mapping) else None)
         mask = check_domain_values(
             self._fields, values, mask, torch.Size([nsim]), self.owner, what=what, writes=writes, kinds=self._kinds
         )
@@ -485,6 +487,31 @@ class BatchDomain:
             array = value.detach().cpu().numpy()
             rows[name] = array if ids is None else array[ids]
         return rows, ids
+
+    def _refuse_unmeant(self, names: object) -> None:
+        """Refuse a kind's field of an object the kind is not meant for (``actuator_kp`` of a motor), saying which
+        objects the kind is offered for and which fields the object has; other names are left to the generic checks."""
+        if isinstance(names, (str, bytes)) or not isinstance(names, Sequence):
+            return
+        for name in names:
+            if not isinstance(name, str) or name in self._fields or ":" not in name:
+                continue
+            stem, obj = name.split(":", 1)
+            kind = next((kind for kind in FIELD_KINDS if kind.stem == stem and kind.offered is not None), None)
+            if kind is None:
+                continue
+            has = [
+                other
+                for other, entry in self.table.items()
+                if entry.kind.objects == kind.objects and other.endswith(":" + obj)
+            ]
+            if has:
+                meant = ", ".join(repr(field.split(":", 1)[1]) for field in self._kind_fields[stem]) or "none"
+                raise ValueError(
+                    f"{self.owner}: {kind.objects} {obj!r} has no domain field {name!r}: {stem} is offered only for "
+                    f"the {kind.objects}s whose parameters have its meaning (here: {meant}); {obj!r} has "
+                    + ", ".join(has)
+                )
 
     # ------------------------------------------------------------------ writes
     def write(self, rows: Mapping[str, np.ndarray], ids: np.ndarray | None) -> set[FieldKind]:
