@@ -937,7 +937,7 @@ class BatchedMujocoEnv(EnvBase):
                 models = self._env_models = [self.model] * self.num_envs
             for i in range(self.num_envs) if ids is None else ids.tolist():
                 models[i] = self.batch.get_model(i, None if models[i] is self.model else models[i])
-        written = {name for kind in kinds for name in (kind.model_field, *kind.scaled_with)}
+        written = {name for kind in kinds for name in kind.model_fields}
         followed = [k for k, part in enumerate(self._differences) if written & set(_model_fields(part))]
         if followed:
             rows = slice(None) if ids is None else ids
