@@ -10,9 +10,11 @@ pytest.importorskip("mujoco")
 
 from torchrl.envs import ClipTransform
 
+from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import velocity_tracking_env
 from torchtasks.envs.velocity_tracking import POLICY_KEYS
 from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS, velocity_tracking_state
+from torchtasks.transforms import DomainRandomization, EntryNoise, ObservationNoise
 
 SIZES = {"lin_vel": 3, "ang_vel": 3, "gravity": 3, "command": 3, "joint_pos": 12, "joint_vel": 12, "last_action": 12}
 
@@ -35,6 +37,23 @@ def test_entries_specs_and_names():
     assert set(VELOCITY_TRACKING_WEIGHTS) <= set(data["next", "task_reward"].keys())
     assert set(data["next", "ended_by"].keys()) == {"out_of_bounds", "base_contact", "bad_orientation"}
     assert data["gravity"][:, 0, 2].tolist() == pytest.approx([-1.0, -1.0], abs=1e-2)  # reset standing at home
+    env.close()
+
+
+def test_observation_noise_and_an_action_delay_plug_in():
+    """ObservationNoise on a policy entry among the perturbations, an action delay drawn per env by
+    DomainRandomization: the policy sees noisy joint velocities, the task the true ones; the physics ran the delayed
+    action, the data holds the policy's."""
+    noise = ObservationNoise({"joint_vel": EntryNoise(std=0.5)}, seed=0)
+    delay = DomainRandomization([UniformDomainParam("action_delay", 2, 0, roundint=True)], when="reset", seed=0)
+    env = velocity_tracking_env(2, seed=0, max_action_delay=2, perturbations=[noise, delay])
+    data = env.rollout(3, break_when_any_done=False)
+    assert data["domain", "action_delay"].flatten().tolist() == [2] * 6
+    assert not torch.equal(data["next", "applied_action"], data["action"])  # zeros while the queue fills
+    noisy = data["next", "joint_vel"]
+    offset = data["next", "observation"][..., 24:36] - noisy.to(data["next", "observation"])
+    assert offset.abs().max() == 0  # the observation is built from the noisy entry
+    assert env.base_env.max_action_delay == 2
     env.close()
 
 

@@ -51,6 +51,7 @@ def velocity_tracking_env(
     standing_probability: float = 0.1,
     curriculum_frames: int = 0,
     num_threads: int | None = None,
+    max_action_delay: int = 0,
     perturbations: Sequence[Transform] = (),
 ) -> TransformedEnv:
     """``num_envs`` shipped quadrupeds tracking a per-env velocity command, with IsaacLab's rewards and terminations.
@@ -83,7 +84,11 @@ def velocity_tracking_env(
         standing_probability: the probability of a zero command at every draw.
         curriculum_frames: frames over which the command range widens (0: no curriculum, the full range).
         num_threads: threads stepping MuJoCo (``None``: the env's default).
-        perturbations: transforms placed after the command and before the concatenation.
+        max_action_delay: the largest per-env action delay in steps, the base env's (its domain field
+            ``"action_delay"``, drawn by a :class:`~torchtasks.transforms.DomainRandomization` among the
+            ``perturbations``); 0: none.
+        perturbations: transforms placed after the command and before the concatenation (e.g. an
+            :class:`~torchtasks.transforms.ObservationNoise` of the policy entries).
 
     Example:
         >>> from torchtasks.envs import velocity_tracking_env
@@ -146,6 +151,7 @@ def velocity_tracking_env(
         frame_skip=4,
         seed=seed,
         num_threads=num_threads,
+        max_action_delay=max_action_delay,
     )
     bounds = base.action_spec.space
     task = velocity_tracking_task(
