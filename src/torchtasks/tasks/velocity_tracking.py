@@ -25,8 +25,8 @@ from torchtasks.tasks.command_tracking import CommandTrackingTask
 __all__ = ["VELOCITY_TRACKING_WEIGHTS", "velocity_tracking_state", "velocity_tracking_task"]
 
 #: the reward terms and their weights per second (IsaacLab's ``velocity_env_cfg.RewardsCfg``, with
-#: ``flat_orientation_l2`` at mjlab's -1 instead of IsaacLab's 0); the task multiplies them by the control step
-#: ``dt``, as IsaacLab's reward manager does
+#: ``flat_orientation_l2`` at -1 where the base config has 0 and IsaacLab's robot configs set it); the task
+#: multiplies them by the control step ``dt``, as IsaacLab's reward manager does
 VELOCITY_TRACKING_WEIGHTS: dict[str, float] = {
     "track_lin_vel_xy": 1.0,
     "track_ang_vel_z": 0.5,
