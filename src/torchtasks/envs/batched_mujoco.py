@@ -98,6 +98,7 @@ _REBUILT = (
     "_qvel",
     "_clock",
     "_ctrl",
+    "_xfrc_applied",
     "_physics",
     "_warnings",
     "_readers",
@@ -399,6 +400,8 @@ class BatchedMujocoEnv(EnvBase):
                 f"mjSTATE_INTEGRATION ({mujoco.mj_stateSize(model, _INTEGRATION_STATE)}); this MuJoCo is not supported"
             )
         self._qpos, self._qvel, self._clock, self._ctrl = (batch.bind(f) for f in ("qpos", "qvel", "time", "ctrl"))
+        #: the external wrenches of every body (set_body_wrench), a view of the state rows
+        self._xfrc_applied = batch.bind("xfrc_applied")
         # [time, qpos, qvel] lead each mjSTATE_INTEGRATION row: one view checks them all for non-finite values
         self._physics = batch.state[:, : 1 + model.nq + model.nv]
         for part in (self._clock, self._qpos, self._qvel):
@@ -976,7 +979,7 @@ class BatchedMujocoEnv(EnvBase):
         """
         self._check_open()
         mask = self._push_mask(mask, "set_body_wrench: mask")
-        self._pushes.set_wrench(self.batch.bind("xfrc_applied"), body, wrench, mask)
+        self._pushes.set_wrench(self._xfrc_applied, body, wrench, mask)
 
     def _push_mask(self, mask: torch.Tensor | None, argument: str) -> np.ndarray:
         return np.ones(self.num_envs, dtype=bool) if mask is None else self._checked_mask(mask, argument)

@@ -106,7 +106,7 @@ class PushableBodies:
         if list(value.shape) != shape:
             raise ValueError(f"{self.owner}: {name} must be {expected}, got shape {list(value.shape)}")
         rows = value.detach().cpu().numpy()
-        if not np.isfinite(rows[mask]).all():
+        if not np.isfinite(rows).all() and not np.isfinite(rows[mask]).all():  # the whole array first: cheaper
             raise ValueError(f"{self.owner}: {name} must be finite in the rows of the envs in mask")
         return rows
 
