@@ -310,6 +310,8 @@ def test_build_and_setup_refusals() -> None:
     # at the env (its specs, the first reset): a body without a free joint, an env that cannot push, no whole step
     with pytest.raises(ValueError, match=r"'FL_hip' has no free joint.*pushable bodies: \['torso'\]"):
         TransformedEnv(quadruped(2), Pushes("FL_hip", velocity=VELOCITY, interval_steps=3)).reset()
+    with pytest.raises(ValueError, match=r"no body 'torsoo'; did you mean 'torso'"):  # a force: any body of the model
+        TransformedEnv(quadruped(2), Pushes("torsoo", force=FORCE, interval_steps=3)).reset()
     with pytest.raises(TypeError, match="base env must offer pushable_bodies"):
         TransformedEnv(PendulumEnv(batch_size=[2]), Pushes("torso", velocity=VELOCITY, interval_steps=3)).reset()
     with pytest.raises(ValueError, match=r"no whole number of steps >= 1 .*dt=0.01"):
