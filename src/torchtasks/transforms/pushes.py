@@ -44,9 +44,13 @@ class PushableEnv(Protocol):
     """What a base env offers :class:`Pushes`: its pushable bodies, velocity changes and wrenches for masked envs.
 
     Example:
-        >>> from torchtasks.envs import BatchedMujocoEnv
-        >>> isinstance(BatchedMujocoEnv("Ant-v5", num_envs=2), PushableEnv)
-        True
+        >>> from torchtasks.envs import BatchedMujocoEnv, readings
+        >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
+        ...   <body><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
+        ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+        >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"))
+        >>> isinstance(env, PushableEnv), env.pushable_bodies()
+        (True, ('box',))
     """
 
     #: the env's control timestep in seconds (one step)
@@ -81,8 +85,9 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
     Entries (float64 ``[*B, 6]``, observation spec): ``(entry_key, "velocity")``, the change applied in the step
     (zeros elsewhere), and ``(entry_key, "wrench")``, the wrench held during the step. Run state (``state_dict``):
     the timers, the force's steps left, the wrench, the per-env half-widths and the generator, seeded per worker
-    by ``env.set_seed``; a checkpoint of another body, kinds, duration or interval is refused. Draws per push:
-    velocity, then force (``[*B, 6]`` uniforms each), then timers (``[*B]``), for all envs.
+    by ``env.set_seed``; a checkpoint of another body, kinds, duration or interval is refused. The draws, at each step
+    where some env is pushed or a force ends: velocity, then force (``[*B, 6]`` uniforms ``u`` each, a component
+    ``(2u - 1) h``), then timers (``[*B]``), for all envs.
 
     Args:
         body: the body pushed (a free-joint body of ``env.pushable_bodies()`` for ``velocity``).
