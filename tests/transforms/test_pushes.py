@@ -5,7 +5,8 @@ and stepped with ``mj_step`` ``frame_skip`` times, given the push of the definit
 ``qvel[free joint] += delta``, and ``xfrc_applied[body] = wrench`` while a force is held (zeros otherwise). The
 pushes themselves (which env, when, what) come from :class:`ReferencePushes`, written from the docstring of
 ``Pushes``: timers drawn from ``randint(low, high + 1)`` at each env's reset and after each push, counted down
-before each step, a push where one runs out; the draws of a push (velocity, force, timers) for all envs.
+before each step, a push where one runs out; the draws of a step with pushes (uniforms for velocity and force in
+one draw, then timers) for all envs.
 """
 
 from __future__ import annotations
@@ -79,11 +80,10 @@ class ReferencePushes:
         self.held = (self.held - 1).clamp(min=0)
         delta = torch.zeros(NUM_ENVS, 6, dtype=torch.float64)
         if (fired | ending).any():
-            unit = torch.rand(NUM_ENVS, 6, generator=self.generator, dtype=torch.float64)
-            delta[fired] = ((2 * unit - 1) * self.velocity)[fired]
-            unit = torch.rand(NUM_ENVS, 6, generator=self.generator, dtype=torch.float64)
+            unit = torch.rand(NUM_ENVS, 12, generator=self.generator, dtype=torch.float64)  # velocity, then force
+            delta[fired] = ((2 * unit[:, :6] - 1) * self.velocity)[fired]
             self.wrench[ending] = 0.0
-            self.wrench[fired] = ((2 * unit - 1) * self.force)[fired]
+            self.wrench[fired] = ((2 * unit[:, 6:] - 1) * self.force)[fired]
             self.held[fired] = DURATION
             timers = torch.randint(INTERVAL[0], INTERVAL[1] + 1, (NUM_ENVS,), generator=self.generator)
             self.steps_left[fired] = timers[fired]

@@ -73,6 +73,8 @@ class PushableBodies:
                 self._free[name] = int(model.jnt_dofadr[joint])
         #: the names of the bodies with a free joint, in body order
         self.free_bodies: tuple[str, ...] = tuple(self._free)
+        #: name -> id of the bodies a wrench was written to (found once)
+        self._ids: dict[str, int] = {}
 
     def velocity_columns(self, body: object) -> slice:
         """The columns of ``qvel`` of ``body``'s free joint; ``ValueError`` naming the close pushable bodies."""
@@ -91,9 +93,13 @@ class PushableBodies:
 
     def body_id(self, body: object) -> int:
         """The id of the named body that can take a wrench (any body but the world)."""
+        known = self._ids.get(body) if isinstance(body, str) else None
+        if known is not None:
+            return known
         found = object_id(self.model, "body", body, f"{self.owner}: body")
         if found == 0:
             raise ValueError(f"{self.owner}: body {body!r} is the world, which no force moves")
+        self._ids[body] = found  # type: ignore[index]
         return found
 
     def checked_rows(self, value: object, name: str, mask: np.ndarray) -> np.ndarray:

@@ -86,8 +86,8 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
     (zeros elsewhere), and ``(entry_key, "wrench")``, the wrench held during the step. Run state (``state_dict``):
     the timers, the force's steps left, the wrench, the per-env half-widths and the generator, seeded per worker
     by ``env.set_seed``; a checkpoint of another body, kinds, duration or interval is refused. The draws, at each step
-    where some env is pushed or a force ends: velocity, then force (``[*B, 6]`` uniforms ``u`` each, a component
-    ``(2u - 1) h``), then timers (``[*B]``), for all envs.
+    where some env is pushed or a force ends, for all envs: uniforms ``u`` ``[*B, 6 per kind]`` (velocity columns
+    first; a component is ``(2u - 1) h``), then timers ``[*B]``.
 
     Args:
         body: the body pushed (a free-joint body of ``env.pushable_bodies()`` for ``velocity``).
@@ -376,15 +376,17 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
         env, buffers, generator = self._pushable_env(), self._buffers, self.generator
         batch, device = fired.shape, fired.device
         column = fired.unsqueeze(-1)
+        # one draw for the kinds, velocity columns first: 2u - 1 in [-1, 1) per component, scaled by each env's h
+        unit = torch.rand(*batch, PUSH_SIZE * len(self.nominal), generator=generator, dtype=torch.float64)
+        signed = unit.to(device).mul_(2.0).sub_(1.0)
         if "push_velocity" in self.nominal:
-            unit = torch.rand(*batch, PUSH_SIZE, generator=generator, dtype=torch.float64).to(device)
-            delta = torch.where(column, (2.0 * unit - 1.0) * buffers["velocity_half_widths"], 0.0)
+            delta = torch.where(column, signed[..., :PUSH_SIZE] * buffers["velocity_half_widths"], 0.0)
             env.add_body_velocity(self.body, delta, fired)
             buffers["applied_velocity"] = delta
         if "push_force" in self.nominal:
-            unit = torch.rand(*batch, PUSH_SIZE, generator=generator, dtype=torch.float64).to(device)
-            drawn = (2.0 * unit - 1.0) * buffers["force_half_widths"]
-            wrench = torch.where(column, drawn, buffers["wrench"].masked_fill(ending.unsqueeze(-1), 0.0))  # type: ignore[union-attr]
+            drawn = signed[..., -PUSH_SIZE:] * buffers["force_half_widths"]
+            ended = buffers["wrench"].masked_fill(ending.unsqueeze(-1), 0.0)  # type: ignore[union-attr]
+            wrench = torch.where(column, drawn, ended)
             env.set_body_wrench(self.body, wrench, fired | ending)
             buffers["wrench"] = wrench
             buffers["force_steps_left"] = buffers["force_steps_left"].masked_fill(fired, self.duration)
