@@ -305,6 +305,8 @@ def test_build_and_setup_refusals() -> None:
         Pushes("torso", velocity=VELOCITY, interval_seconds=(0.0, 0.2))
     with pytest.raises(ValueError, match=r"velocity= .* and/or force="):
         Pushes("torso", interval_steps=3)
+    with pytest.raises(ValueError, match=r"body 'robot/torso' holds '\.' or '/'"):
+        Pushes("robot/torso", velocity=VELOCITY, interval_steps=3)
     with pytest.raises(TypeError, match="body must be"):
         Pushes(3, velocity=VELOCITY, interval_steps=3)  # type: ignore[arg-type]
     # at the env (its specs, the first reset): a body without a free joint, an env that cannot push, no whole step

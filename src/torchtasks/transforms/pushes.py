@@ -22,7 +22,7 @@ from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_positive_int, did_you_mean
 from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
-from torchtasks.domain.fields import check_domain_values, check_field_name, select_fields
+from torchtasks.domain.fields import check_domain_values, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
 from torchtasks.transforms.seeding import SeededTransform
 
@@ -131,7 +131,11 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
     ) -> None:
         if not isinstance(body, str) or not body:
             raise TypeError(f"Pushes: body must be a body's name (a non-empty str), got {body!r}")
-        check_field_name(f"push_velocity:{body}")
+        if "." in body or "/" in body:
+            raise ValueError(
+                f"Pushes: body {body!r} holds '.' or '/', which its domain fields' names (push_velocity:<body>) cannot "
+                "hold: targets and entries use them as separators; rename the body in the model"
+            )
         nominal = {}
         for kind, value in (("push_velocity", velocity), ("push_force", force)):
             if value is not None:
