@@ -24,10 +24,10 @@ import mujoco
 from tensordict import TensorDict
 from torchrl.envs import Compose, SerialEnv, StepCounter, TransformedEnv
 
-from torchtasks.domain import DomainEnv
+from torchtasks.domain import DomainEnv, UniformDomainParam
 from torchtasks.envs import BatchedMujocoEnv, PendulumEnv, readings
 from torchtasks.envs.models import model_path
-from torchtasks.transforms import BaseEnvState, Pushes, derived_seed
+from torchtasks.transforms import BaseEnvState, DomainRandomization, Pushes, derived_seed
 
 pytestmark = pytest.mark.mujoco
 
@@ -347,4 +347,18 @@ def test_domain_fields_of_the_push_ranges() -> None:
     with pytest.raises(TypeError, match="float64"):
         pushes.set_domain({"push_force:torso": wider.float()})
     assert pushes.domain_values()["push_force:torso"][2].tolist() == FORCE  # a refused write changes nothing
+    env.close()
+
+
+def test_domain_randomization_draws_the_push_ranges_per_env_and_episode() -> None:
+    pushes = Pushes("torso", velocity=[0.1] * 6, interval_steps=(1, 2), seed=0)
+    mean = torch.full((6,), 2.0, dtype=torch.float64)
+    ranges = DomainRandomization([UniformDomainParam("push_velocity:torso", mean=mean, halfspan=1.0)], seed=1)
+    env = TransformedEnv(quadruped(3), Compose(StepCounter(4), pushes, ranges))
+    data = env.rollout(12, break_when_any_done=False)
+    half_widths, velocity = data["next", "domain", "push_velocity:torso"], data["next", "push", "velocity"]
+    assert bool((velocity.abs() <= half_widths).all())  # each push within its env's drawn range
+    assert bool((velocity.abs() > 0.1).any())  # beyond the nominal range: the drawn ones were used
+    assert not torch.equal(half_widths[:, 0], half_widths[:, 4])  # a new range per episode (reset every 4 steps)
+    assert torch.equal(pushes.domain_values()["push_velocity:torso"], half_widths[:, -1])
     env.close()
