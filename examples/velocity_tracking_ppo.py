@@ -23,9 +23,11 @@ Set-up (:class:`VelocityPPOConfig`):
   the falls (episodes ended by ``base_contact`` or ``bad_orientation``) per episode, the mean return.
 
 Perturbations: :func:`train` and :func:`evaluate` take a list of perturbation transforms (observation noise, pushes,
-randomized physics: placed by :func:`~torchtasks.envs.velocity_tracking_env` after the command and before the
-policy's observation is concatenated). :data:`VARIANTS` (trained) and :data:`CONDITIONS` (evaluated) name the lists
-of this run; today both hold only the unperturbed one, ``"nominal"``.
+randomized physics and action delays: placed by :func:`~torchtasks.envs.velocity_tracking_env` after the command and
+before the policy's observation is concatenated; the envs have an action queue of ``MAX_ACTION_DELAY`` steps).
+:data:`VARIANTS` (trained): ``"nominal"`` (none) and ``"robust"`` (:func:`robust_training`). :data:`CONDITIONS`
+(evaluated): ``"nominal"`` and ``"pushes and delay"`` (:func:`unseen_pushes_and_delay`: stronger, more frequent
+pushes and a longer delay than the robust variant trained with).
 
 Outputs in ``--output`` (default ``runs/velocity_tracking_ppo``): ``velocity_tracking_seed<N>.json`` (config, seed,
 machine load, wall time, frames, the per-batch ``curve`` with the training returns and every term's, the
@@ -66,21 +68,57 @@ from torchrl.objectives.value import GAE
 from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, mlp, normalised, training_returns
 
 from torchtasks._plotting import mark_short_series
+from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import velocity_tracking_env
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS
+from torchtasks.transforms import DomainRandomization, EntryNoise, ObservationNoise, Pushes
 
 TERMS = tuple(VELOCITY_TRACKING_WEIGHTS)  # the task's named reward terms
 FALLS = ("base_contact", "bad_orientation")  # the end conditions that are falls
 EVAL_SEED = 12345  # the evaluations always start from the same initial states and command stream
 DEFAULT_OUTPUT = Path("runs/velocity_tracking_ppo")
 
+#: the envs' action queue (steps): a delay is drawn per env only where a variant or a condition draws one
+MAX_ACTION_DELAY = 2
 #: ``() -> perturbation transforms``: a fresh list for every env built (a transform has one env)
 Perturbations = Callable[[], Sequence[Transform]]
+#: IsaacLab's observation noise of the velocity task (uniform, these half-widths), per policy entry
+NOISE_HALF_WIDTHS = {"lin_vel": 0.1, "ang_vel": 0.2, "gravity": 0.05, "joint_pos": 0.01, "joint_vel": 1.5}
+
+
+def robust_training() -> list[Transform]:
+    """The robust variant's training perturbations: IsaacLab's observation noise on the policy's entries, a push of
+    the torso every 5 to 10 s (up to ±0.5 m/s along x and y), servo stiffness x0.8 to x1.2 and an action delay of 0
+    or 1 step, both drawn per env and episode."""
+    noise = ObservationNoise(
+        {key: EntryNoise(std=half / math.sqrt(3.0), distribution="uniform") for key, half in NOISE_HALF_WIDTHS.items()},
+        seed=1,
+    )
+    pushes = Pushes("torso", velocity=[0.5, 0.5, 0.0, 0.0, 0.0, 0.0], interval_steps=(250, 500), seed=2)
+    randomization = DomainRandomization(
+        [
+            UniformDomainParam("actuator_kp_scale", mean=1.0, halfspan=0.2),
+            UniformDomainParam("action_delay", mean=0.5, halfspan=0.5, roundint=True),
+        ],
+        when="reset",
+        seed=3,
+    )
+    return [noise, pushes, randomization]  # the owners of domain fields before the randomization
+
+
+def unseen_pushes_and_delay() -> list[Transform]:
+    """An evaluation condition neither variant trained under: a push of the torso every 2 to 4 s of up to
+    ±1 m/s along x and y, and a 2-step action delay in every env."""
+    pushes = Pushes("torso", velocity=[1.0, 1.0, 0.0, 0.0, 0.0, 0.0], interval_steps=(100, 200), seed=4)
+    delay = DomainRandomization([UniformDomainParam("action_delay", 2, 0, roundint=True)], when="reset", seed=5)
+    return [pushes, delay]
+
+
 #: the variants trained: name -> the perturbations of the training env
-VARIANTS: dict[str, Perturbations] = {"nominal": list}
+VARIANTS: dict[str, Perturbations] = {"nominal": list, "robust": robust_training}
 #: the conditions each variant is evaluated under: name -> the perturbations of the evaluation env
-CONDITIONS: dict[str, Perturbations] = {"nominal": list}
+CONDITIONS: dict[str, Perturbations] = {"nominal": list, "pushes and delay": unseen_pushes_and_delay}
 
 
 @dataclass(frozen=True)
@@ -164,6 +202,7 @@ def make_env(
         seed=seed,
         max_steps=1000,
         action_scale=config.action_scale,
+        max_action_delay=MAX_ACTION_DELAY,
         curriculum_frames=config.curriculum_frames if curriculum else 0,
         num_threads=config.mujoco_threads,
         perturbations=perturbations,

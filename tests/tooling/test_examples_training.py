@@ -190,11 +190,16 @@ def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -
     (evaluation,) = trained["eval_curve"]  # 2 envs x 30 steps at the end
     assert evaluation["frames"] == 200 and evaluation["episodes"] >= 2
     assert 0 <= evaluation["falls_per_episode"] <= 1 and evaluation["lin_vel_error"] >= 0
-    assert record["results"]["nominal"]["nominal"]["yaw_rate_error"] >= 0
+    assert set(record["variants"]) == {"nominal", "robust"}  # trained without and with perturbations
+    assert record["variants"]["robust"]["total_frames"] == 200
+    conditions = {"nominal", "pushes and delay"}
+    assert {variant: set(results) for variant, results in record["results"].items()} == dict.fromkeys(
+        ("standing still", "nominal", "robust"), conditions
+    )
     standing = record["results"]["standing still"]["nominal"]  # zero actions: it stands, the errors are the commands'
     assert standing["falls_per_episode"] == 0 and standing["lin_vel_error"] > 0
     table = (output / "velocity_tracking_seed3.md").read_text()
-    assert "| nominal | nominal |" in table and "| standing still | nominal |" in table
+    assert "| robust | pushes and delay |" in table and "| standing still | nominal |" in table
     assert "nominal, seed 3: 200 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "velocity_tracking_seed3.png").stat().st_size > 0
