@@ -69,10 +69,10 @@ from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, mlp, normalised, t
 
 from torchtasks._plotting import mark_short_series
 from torchtasks.domain import UniformDomainParam
-from torchtasks.envs import velocity_tracking_env
+from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 from torchtasks.stats import episode_statistics
 from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS
-from torchtasks.transforms import DomainRandomization, EntryNoise, ObservationNoise, Pushes
+from torchtasks.transforms import DomainRandomization, Pushes
 
 TERMS = tuple(VELOCITY_TRACKING_WEIGHTS)  # the task's named reward terms
 FALLS = ("base_contact", "bad_orientation")  # the end conditions that are falls
@@ -83,28 +83,14 @@ DEFAULT_OUTPUT = Path("runs/velocity_tracking_ppo")
 MAX_ACTION_DELAY = 2
 #: ``() -> perturbation transforms``: a fresh list for every env built (a transform has one env)
 Perturbations = Callable[[], Sequence[Transform]]
-#: IsaacLab's observation noise of the velocity task (uniform, these half-widths), per policy entry
-NOISE_HALF_WIDTHS = {"lin_vel": 0.1, "ang_vel": 0.2, "gravity": 0.05, "joint_pos": 0.01, "joint_vel": 1.5}
 
 
 def robust_training() -> list[Transform]:
-    """The robust variant's training perturbations: IsaacLab's observation noise on the policy's entries, a push of
-    the torso every 5 to 10 s (up to ±0.5 m/s along x and y), servo stiffness x0.8 to x1.2 and an action delay of 0
-    or 1 step, both drawn per env and episode."""
-    noise = ObservationNoise(
-        {key: EntryNoise(std=half / math.sqrt(3.0), distribution="uniform") for key, half in NOISE_HALF_WIDTHS.items()},
-        seed=1,
-    )
-    pushes = Pushes("torso", velocity=[0.5, 0.5, 0.0, 0.0, 0.0, 0.0], interval_steps=(250, 500), seed=2)
-    randomization = DomainRandomization(
-        [
-            UniformDomainParam("actuator_kp_scale", mean=1.0, halfspan=0.2),
-            UniformDomainParam("action_delay", mean=0.5, halfspan=0.5, roundint=True),
-        ],
-        when="reset",
-        seed=3,
-    )
-    return [noise, pushes, randomization]  # the owners of domain fields before the randomization
+    """The robust variant's training perturbations, :func:`~torchtasks.envs.velocity_tracking_perturbations`:
+    IsaacLab's observation noise on the policy's sensed entries with per-episode biases, a push of the torso every
+    5 to 10 s (up to ±0.5 m/s along x and y), an action delay of 0 or 1 step, servo stiffness x0.8 to x1.2, masses
+    x0.9 to x1.1 and frictions x0.6 to x1.2, drawn per env and episode."""
+    return velocity_tracking_perturbations(seed=1)
 
 
 def unseen_pushes_and_delay() -> list[Transform]:

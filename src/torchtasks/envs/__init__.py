@@ -34,7 +34,7 @@ _DECLARATION = ("Actions", "FreeJointRanges", "Noise", "Resets")
 _CONTROL_SUITE = ("CONTROL_SUITE_TASKS", "control_suite_env", "control_suite_task")
 
 #: the velocity-tracking quadruped (torchtasks.envs.velocity_tracking), imported on first access for the same reason
-_VELOCITY_TRACKING = ("velocity_tracking_env",)
+_VELOCITY_TRACKING = ("velocity_tracking_env", "velocity_tracking_perturbations")
 
 #: MO-Gymnasium's MuJoCo v5 envs as presets with a vector reward (torchtasks.envs.multi_objective), imported on
 #: first access for the same reason

@@ -14,15 +14,25 @@ from collections.abc import Sequence
 from torchrl.envs import CatTensors, Compose, RewardSum, StepCounter, Transform, TransformedEnv
 
 from torchtasks._checks import as_constant, check_non_negative_int, check_positive_int, check_weight
+from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import readings
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
 from torchtasks.envs.models import model_path
 from torchtasks.envs.mujoco_declaration import Actions, FreeJointRanges, Noise, Resets
 from torchtasks.spaces import Box
 from torchtasks.tasks.velocity_tracking import velocity_tracking_state, velocity_tracking_task
-from torchtasks.transforms import Curriculum, GoalCommand, TaskTransform, linear
+from torchtasks.transforms import (
+    Curriculum,
+    DomainRandomization,
+    EntryNoise,
+    GoalCommand,
+    ObservationNoise,
+    Pushes,
+    TaskTransform,
+    linear,
+)
 
-__all__ = ["COMMAND_KEY", "POLICY_KEYS", "velocity_tracking_env"]
+__all__ = ["COMMAND_KEY", "POLICY_KEYS", "SENSOR_NOISE", "velocity_tracking_env", "velocity_tracking_perturbations"]
 
 LEGS = ("FL", "FR", "RL", "RR")
 #: the twelve leg joints, in the order of the actuators
@@ -37,6 +47,17 @@ COMMAND_HIGH = (1.0, 0.5, 1.0)
 #: a Curriculum of command ranges starts from this fraction of the range
 CURRICULUM_START = 0.3
 CONTROL_STEP = 0.02  # s: 4 substeps of 5 ms
+_SQRT3 = math.sqrt(3.0)
+#: the sensed policy entries' noise: IsaacLab's uniform noise of the velocity task (half-widths 0.1 m/s, 0.2 rad/s,
+#: 0.05, 0.01 rad, 1.5 rad/s; as stds: half-width / √3) and per-episode biases of our own (an IMU mounted slightly
+#: tilted, encoder offsets), as ``(std, bias std)``
+SENSOR_NOISE = {
+    "lin_vel": (0.1 / _SQRT3, 0.0),
+    "ang_vel": (0.2 / _SQRT3, 0.0),
+    "gravity": (0.05 / _SQRT3, 0.02),
+    "joint_pos": (0.01 / _SQRT3, 0.02),
+    "joint_vel": (1.5 / _SQRT3, 0.0),
+}
 
 
 def velocity_tracking_env(
@@ -186,3 +207,71 @@ def velocity_tracking_env(
         )
     transforms += [command, *perturbations, CatTensors(list(POLICY_KEYS), "observation", del_keys=False, sort=False)]
     return TransformedEnv(base, Compose(*transforms))
+
+
+def velocity_tracking_perturbations(
+    *,
+    seed: int,
+    delay: bool = True,
+    noise: bool = True,
+    pushes: bool = True,
+    gains: bool = True,
+    physics: bool = True,
+    max_action_delay: int = 1,
+    push_velocity: float = 0.5,
+    push_interval: tuple[float, float] = (5.0, 10.0),
+) -> list[Transform]:
+    """The sim-to-real perturbations of the velocity task as transforms for ``velocity_tracking_env(perturbations=)``.
+
+    The peers' set (IsaacLab's velocity task, mjlab): ``noise``: :class:`~torchtasks.transforms.ObservationNoise` on
+    the sensed policy entries (:data:`SENSOR_NOISE`: uniform per-step noise and a normal per-episode bias);
+    ``pushes``: :class:`~torchtasks.transforms.Pushes` of the torso, a planar velocity change of up to
+    ``push_velocity`` m/s every ``push_interval`` seconds per env; then one
+    :class:`~torchtasks.transforms.DomainRandomization` drawing per env at each reset: ``delay``: the action delay
+    (0 to ``max_action_delay`` steps; the env needs ``max_action_delay`` at least this large), ``gains``: the servos'
+    stiffness ``actuator_kp_scale`` in [0.8, 1.2], ``physics``: ``body_mass_scale`` in [0.9, 1.1] and
+    ``geom_friction_scale`` in [0.6, 1.2]. The owners of fields (noise, pushes) come before the randomization, as it
+    requires. An empty list when everything is off.
+
+    Args:
+        seed: the seed of the transforms' generators (``env.set_seed`` re-seeds them per worker).
+        delay, noise, pushes, gains, physics: which perturbations to include.
+        max_action_delay: the largest delay drawn, in steps.
+        push_velocity: the half-width of the pushes' planar velocity change [m/s].
+        push_interval: the seconds between pushes, per env (low, high).
+
+    Example:
+        >>> from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
+        >>> perturbations = velocity_tracking_perturbations(seed=0)
+        >>> env = velocity_tracking_env(2, seed=0, max_action_delay=1, perturbations=perturbations)
+        >>> data = env.rollout(3)
+        >>> sorted(data["next", "domain"].keys())
+        ['action_delay', 'actuator_kp_scale', 'body_mass_scale', 'geom_friction_scale']
+        >>> data["next", "push", "velocity"].shape
+        torch.Size([2, 3, 6])
+        >>> env.close()
+    """
+    transforms: list[Transform] = []
+    if noise:
+        entries = {
+            key: EntryNoise(std=std, bias=bias, distribution="uniform", bias_distribution="normal")
+            for key, (std, bias) in SENSOR_NOISE.items()
+        }
+        transforms.append(ObservationNoise(entries, seed=seed))
+    if pushes:
+        push_velocity = check_weight(push_velocity, "push_velocity")
+        velocity = [push_velocity, push_velocity, 0.0, 0.0, 0.0, 0.0]
+        transforms.append(Pushes("torso", velocity=velocity, interval_seconds=tuple(push_interval), seed=seed + 1))
+    params = []
+    if delay:
+        max_action_delay = check_positive_int(max_action_delay, "max_action_delay")
+        half = max_action_delay / 2
+        params.append(UniformDomainParam("action_delay", mean=half, halfspan=half, roundint=True))
+    if gains:
+        params.append(UniformDomainParam("actuator_kp_scale", mean=1.0, halfspan=0.2))
+    if physics:
+        params.append(UniformDomainParam("body_mass_scale", mean=1.0, halfspan=0.1))
+        params.append(UniformDomainParam("geom_friction_scale", mean=0.9, halfspan=0.3))
+    if params:
+        transforms.append(DomainRandomization(params, when="reset", seed=seed + 2))
+    return transforms
