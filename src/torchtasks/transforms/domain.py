@@ -26,7 +26,7 @@ from torchtasks.domain import DomainEnv, DomainField, DomainParam
 from torchtasks.transforms._base import EnvDerivedTransform
 from torchtasks.transforms.domain_owners import domain_owners
 from torchtasks.transforms.names import DOMAIN_KEY
-from torchtasks.transforms.seeding import SeededTransform
+from torchtasks.transforms.seeding import GeneratorTransform
 
 __all__ = ["DomainRandomization"]
 
@@ -45,7 +45,7 @@ class _Draw(NamedTuple):
     next_domain: torch.Tensor | None
 
 
-class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
+class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     """Draw per-env physics from domain distributions and give them to the base env, at startup, resets or intervals.
 
     Each :class:`~torchtasks.domain.DomainParam` names a domain field of the base env
@@ -511,27 +511,15 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return tensordict
 
     # ------------------------------------------------------------------ checkpoints
-    def get_extra_state(self) -> dict[str, Any]:
-        """The configuration a checkpoint must match and the generator (``None`` without an own generator)."""
-        generator = self.generator
+    def _saved_configuration(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match: the params' kinds, the moments, the stored set and shard."""
         return {
             "params": {name: [type(param).__name__, param.roundint] for name, param in self.params.items()},
             "when": self.when,
             "every": self.every,
             "cycle": self.cycle_size,
             "shard": self.shard,
-            "generator_state": None if generator is None else generator.get_state(),
         }
-
-    def set_extra_state(self, state: Any) -> None:
-        """Restore the generator (checked with the configuration in :meth:`_check_saved`)."""
-        saved = state.get("generator_state") if isinstance(state, Mapping) else None
-        if saved is None:
-            self.generator = None
-            return
-        generator = torch.Generator()
-        generator.set_state(saved.cpu())
-        self.generator = generator
 
     def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         """Refuse the checkpoint of another randomization: other fields, kinds, moments or stored set."""
@@ -562,13 +550,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
                 raise ValueError(
                     f"DomainRandomization.load_state_dict: the saved distribution of {name!r}: {error}"
                 ) from None
-        generator = saved.get("generator_state")
-        if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
-            raise ValueError(
-                "DomainRandomization.load_state_dict: 'generator_state' must be a uint8 tensor "
-                "(torch.Generator.get_state), "
-                f"got {type(generator).__name__}"
-            )
+        self._check_saved_generator(saved)
 
     def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         # the per-env buffers take the saved shapes (a transform not yet in an env has empty ones)

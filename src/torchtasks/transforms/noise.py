@@ -27,7 +27,7 @@ from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
 from torchtasks.domain import DomainField, check_domain_values, check_field_name, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
 from torchtasks.transforms.names import NOISE_KEY
-from torchtasks.transforms.seeding import SeededTransform
+from torchtasks.transforms.seeding import GeneratorTransform
 from torchtasks.transforms.task import TaskTransform
 
 __all__ = ["BIAS_FIELD", "NOISE_FIELD", "EntryNoise", "ObservationNoise"]
@@ -83,7 +83,7 @@ class _Entry(NamedTuple):
     bias_key: NestedKey
 
 
-class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
+class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     """Add noise drawn at every step and a bias drawn per episode to observation entries, per entry and per env.
 
     For each entry ``x`` of ``noises`` (``{key: EntryNoise(std, bias, ...)}``) and each env ``i``, the entry written at
@@ -425,23 +425,9 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
         return tensordict
 
     # ------------------------------------------------------------------ checkpoints
-    def get_extra_state(self) -> dict[str, Any]:
-        """The configuration a checkpoint must match (entries and distributions) and the generator."""
-        generator = self.generator
-        return {
-            "entries": {entry.name: [entry.distribution, entry.bias_distribution] for entry in self.entries},
-            "generator_state": None if generator is None else generator.get_state(),
-        }
-
-    def set_extra_state(self, state: Any) -> None:
-        """Restore the generator (checked with the configuration in :meth:`_check_saved`)."""
-        saved = state.get("generator_state") if isinstance(state, Mapping) else None
-        if saved is None:
-            self.generator = None
-            return
-        generator = torch.Generator()
-        generator.set_state(saved.cpu())
-        self.generator = generator
+    def _saved_configuration(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match: the entries and their distributions."""
+        return {"entries": {entry.name: [entry.distribution, entry.bias_distribution] for entry in self.entries}}
 
     def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         """Refuse the checkpoint of another noise: other entries or distributions, a generator state of another kind."""
@@ -465,12 +451,7 @@ class ObservationNoise(CheckedLoad, SeededTransform, EnvDerivedTransform):
                         f"ObservationNoise.load_state_dict: the saved {head[:-1]} of {entry.key!r} must be float64, "
                         f"got {value.dtype}"
                     )
-        generator = saved.get("generator_state")
-        if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
-            raise ValueError(
-                "ObservationNoise.load_state_dict: 'generator_state' must be a uint8 tensor "
-                f"(torch.Generator.get_state), got {type(generator).__name__}"
-            )
+        self._check_saved_generator(saved)
 
     def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         # the per-env buffers take the saved shapes (a transform not yet in an env has empty ones); dtypes are checked

@@ -24,7 +24,7 @@ from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
 from torchtasks.domain.fields import check_domain_values, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.seeding import SeededTransform
+from torchtasks.transforms.seeding import GeneratorTransform
 
 __all__ = ["PushableEnv", "Pushes"]
 
@@ -69,7 +69,7 @@ class PushableEnv(Protocol):
         ...
 
 
-class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
+class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     """Push a body of every env at random intervals: a velocity change and/or a force held for some steps.
 
     Per env, a timer counts down the steps to the next push, drawn uniformly from ``interval_steps=(low, high)``
@@ -424,23 +424,9 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
             "interval_seconds": None if self.interval_seconds is None else list(self.interval_seconds),
         }
 
-    def get_extra_state(self) -> dict[str, Any]:
-        """The configuration a checkpoint must match and the generator (``None`` without an own generator)."""
-        generator = self.generator
-        return {
-            "configuration": self._configuration(),
-            "generator_state": None if generator is None else generator.get_state(),
-        }
-
-    def set_extra_state(self, state: Any) -> None:
-        """Restore the generator (checked with the configuration in :meth:`_check_saved`)."""
-        saved = state.get("generator_state") if isinstance(state, Mapping) else None
-        if saved is None:
-            self.generator = None
-            return
-        generator = torch.Generator()
-        generator.set_state(saved.cpu())
-        self.generator = generator
+    def _saved_configuration(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match, under ``"configuration"``."""
+        return {"configuration": self._configuration()}
 
     def _check_saved(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         """Refuse the checkpoint of other pushes: another body, kinds, ranges' shape, duration or interval."""
@@ -459,12 +445,7 @@ class Pushes(CheckedLoad, SeededTransform, EnvDerivedTransform):
                 + ", ".join(f"{key}: saved {configuration[key]!r}, here {own[key]!r}" for key in differ)
                 + "); build the Pushes as saved"
             )
-        generator = saved.get("generator_state")
-        if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
-            raise ValueError(
-                "Pushes.load_state_dict: 'generator_state' must be a uint8 tensor (torch.Generator.get_state), "
-                f"got {type(generator).__name__}"
-            )
+        self._check_saved_generator(saved)
 
     def _prepare_load(self, state_dict: Mapping[str, Any], prefix: str) -> None:
         # the per-env buffers take the saved shapes (a transform not yet in an env has empty ones)

@@ -69,7 +69,10 @@ Example:
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Mapping
+from typing import Any
 
+import torch
 from torchrl.envs import EnvBase, TransformedEnv
 from torchrl.envs.transforms import Transform
 
@@ -150,6 +153,73 @@ class SeededTransform(Transform):
         super().train(mode)
         _install_seed_hook(container_env(self))
         return self
+
+
+class GeneratorTransform(SeededTransform):
+    """A :class:`SeededTransform` whose randomness is one ``torch.Generator``, ``self.generator``, saved in checkpoints.
+
+    ``self.generator`` is the transform's own generator, or ``None`` for torch's global one (until ``set_seed``).
+    The transform's extra state (``state_dict()["_extra_state"]``) is the configuration a checkpoint must match,
+    which a subclass gives in :meth:`_saved_configuration`, followed by ``"generator_state"`` (the generator's
+    state, ``None`` without an own generator); loading it restores the generator. A subclass that refuses
+    checkpoints of another configuration (``CheckedLoad._check_saved``) ends its check with
+    :meth:`_check_saved_generator`.
+
+    Example:
+        >>> import torch
+        >>> from torchtasks.transforms.seeding import GeneratorTransform
+        >>> class Jitter(GeneratorTransform):
+        ...     def __init__(self, scale: float):
+        ...         super().__init__()
+        ...         self.scale, self.generator = scale, None
+        ...     def set_seed(self, seed: int) -> None:
+        ...         self.generator = torch.Generator().manual_seed(seed)
+        ...     def _saved_configuration(self) -> dict:
+        ...         return {"scale": self.scale}
+        >>> jitter = Jitter(0.5)
+        >>> jitter.set_seed(3)
+        >>> state = jitter.state_dict()
+        >>> state["_extra_state"]["scale"], state["_extra_state"]["generator_state"].dtype
+        (0.5, torch.uint8)
+        >>> first = torch.rand(2, generator=jitter.generator)
+        >>> jitter.load_state_dict(state)  # the generator as it was when saved
+        <All keys matched successfully>
+        >>> torch.equal(torch.rand(2, generator=jitter.generator), first)
+        True
+    """
+
+    generator: torch.Generator | None
+
+    def _saved_configuration(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match (the extra state's entries before ``"generator_state"``)."""
+        raise NotImplementedError(f"{type(self).__name__} must implement _saved_configuration()")
+
+    def get_extra_state(self) -> dict[str, Any]:
+        """The configuration a checkpoint must match and the generator (``None`` without an own generator)."""
+        generator = self.generator
+        return {
+            **self._saved_configuration(),
+            "generator_state": None if generator is None else generator.get_state(),
+        }
+
+    def set_extra_state(self, state: Any) -> None:
+        """Restore the generator (the configuration is checked before the load, in ``_check_saved``)."""
+        saved = state.get("generator_state") if isinstance(state, Mapping) else None
+        if saved is None:
+            self.generator = None
+            return
+        generator = torch.Generator()
+        generator.set_state(saved.cpu())
+        self.generator = generator
+
+    def _check_saved_generator(self, saved: Mapping[str, Any]) -> None:
+        """Refuse a saved extra state whose ``"generator_state"`` is neither ``None`` nor a generator's state."""
+        generator = saved.get("generator_state")
+        if generator is not None and (not isinstance(generator, torch.Tensor) or generator.dtype != torch.uint8):
+            raise ValueError(
+                f"{type(self).__name__}.load_state_dict: 'generator_state' must be a uint8 tensor "
+                f"(torch.Generator.get_state), got {type(generator).__name__}"
+            )
 
 
 class SeedHook:
