@@ -930,13 +930,11 @@ class BatchedMujocoEnv(EnvBase):
         """The bodies whose velocity :meth:`add_body_velocity` can change: the named bodies with a free joint.
 
         Example:
-            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
-            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
-            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
             >>> from torchtasks.envs import readings
-            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
-            >>> env.pushable_bodies()
-            ('box',)
+            >>> from torchtasks.envs.models import model_path
+            >>> env = BatchedMujocoEnv(model_path("quadruped"), 2, observation=readings.joint_pos(), seed=0)
+            >>> env.pushable_bodies()  # the torso; the legs' bodies hang on hinges
+            ('torso',)
             >>> env.close()
         """
         return self._pushes.free_bodies
@@ -956,14 +954,12 @@ class BatchedMujocoEnv(EnvBase):
 
         Example:
             >>> import torch
-            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
-            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
-            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
             >>> from torchtasks.envs import readings
-            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
+            >>> from torchtasks.envs.models import model_path
+            >>> env = BatchedMujocoEnv(model_path("quadruped"), 2, observation=readings.joint_pos(), seed=0)
             >>> _ = env.reset()
             >>> delta = torch.tensor([[1.0, 0, 0, 0, 0, 0], [0, 2.0, 0, 0, 0, 0]], dtype=torch.float64)
-            >>> env.add_body_velocity("box", delta, mask=torch.tensor([False, True]))
+            >>> env.add_body_velocity("torso", delta, mask=torch.tensor([False, True]))
             >>> env.batch.bind("qvel")[:, :3].tolist()
             [[0.0, 0.0, 0.0], [0.0, 2.0, 0.0]]
             >>> env.close()
@@ -985,15 +981,13 @@ class BatchedMujocoEnv(EnvBase):
 
         Example:
             >>> import torch
-            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
-            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
-            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
             >>> from torchtasks.envs import readings
-            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
+            >>> from torchtasks.envs.models import model_path
+            >>> env = BatchedMujocoEnv(model_path("quadruped"), 2, observation=readings.joint_pos(), seed=0)
             >>> data = env.reset()
             >>> push = torch.tensor([[0.0, 0, 5, 0, 0, 0], [0, 0, 9, 0, 0, 1]], dtype=torch.float64)
-            >>> env.set_body_wrench("box", push, mask=torch.tensor([False, True]))
-            >>> env.batch.bind("xfrc_applied")[:, 1].tolist()  # body 1 is "box"
+            >>> env.set_body_wrench("torso", push, mask=torch.tensor([False, True]))
+            >>> env.batch.bind("xfrc_applied")[:, 1].tolist()  # body 1 is "torso"
             [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 9.0, 0.0, 0.0, 1.0]]
             >>> _ = env.rand_step(data)  # applied in this step, and the next ones
             >>> _ = env.reset()  # a reset clears it
