@@ -1,4 +1,5 @@
-"""Which state entries a reward term reads: non-negative positions, given as ints or as labels of a Box."""
+"""Which state entries a reward term reads (:class:`EntrySelection`), and the stateless rewards of them
+(:class:`SelectionReward`)."""
 
 from __future__ import annotations
 
@@ -7,10 +8,10 @@ from collections.abc import Iterable
 import torch
 
 from torchtasks._checks import check_input, check_non_negative_int
-from torchtasks.rewards.base import entries
+from torchtasks.rewards.base import RewardFunction, check_ignored_action, entries
 from torchtasks.spaces import Box
 
-__all__ = ["EntrySelection"]
+__all__ = ["EntrySelection", "SelectionReward"]
 
 
 class EntrySelection:
@@ -66,3 +67,38 @@ class EntrySelection:
         """``state[..., positions]`` (``[*B, k]``)."""
         index = self.index if self.index.device == state.device else self.index.to(state.device)
         return state.index_select(-1, index)
+
+
+class SelectionReward(RewardFunction):
+    """A stateless reward of selected state entries (``self.selection``, an :class:`EntrySelection`), action ignored.
+
+    A subclass sets ``self.selection`` in its constructor and gives its maths in ``_value``; this class checks the
+    states against the selection (at a task's construction, :meth:`~RewardFunction.check_sizes`, and at each call)
+    and the ignored action (``None``, or a float tensor of the state's batch).
+
+    Example:
+        >>> import torch
+        >>> class Largest(SelectionReward):
+        ...     def __init__(self, indices):
+        ...         super().__init__()
+        ...         self.selection = EntrySelection(indices, None, "indices")
+        ...     def _value(self, error_state, error_action):
+        ...         return self.selection.select(error_state).amax(-1)
+        >>> Largest([0, 2])(torch.tensor([[1.0, 9.0, 3.0]]), None)
+        tensor([3.])
+        >>> Largest([0, 3])(torch.tensor([[1.0, 9.0, 3.0]]), None)
+        Traceback (most recent call last):
+        ...
+        ValueError: Largest: indices=[0, 3] is out of range for error_state of shape (1, 3)
+    """
+
+    uses_action = False
+    selection: EntrySelection
+
+    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
+        return self.selection.size_problem(state_size, who)
+
+    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
+        self.selection.check(error_state, "error_state", type(self).__name__)
+        check_ignored_action(error_state, error_action)
+        return self._value(error_state, error_action)

@@ -7,14 +7,14 @@ from collections.abc import Iterable
 import torch
 
 from torchtasks._checks import cast_like, check_finite_scalar
-from torchtasks.rewards._selection import EntrySelection
-from torchtasks.rewards.base import RewardFunction, check_ignored_action, row_sum
+from torchtasks.rewards._selection import EntrySelection, SelectionReward
+from torchtasks.rewards.base import row_sum
 from torchtasks.spaces import Box
 
 __all__ = ["ContactCountReward"]
 
 
-class ContactCountReward(RewardFunction):
+class ContactCountReward(SelectionReward):
     """``Σ_i [f_i > threshold]``: how many of the selected entries (contact forces) exceed ``threshold``.
 
     IsaacLab's ``undesired_contacts`` (a body touching where it should not, e.g. a thigh on the ground, counted
@@ -34,20 +34,10 @@ class ContactCountReward(RewardFunction):
         tensor([1., 3.])
     """
 
-    uses_action = False
-
     def __init__(self, threshold: float, indices: Iterable[int | str] | int | str, *, space: Box | None = None) -> None:
         super().__init__()
         self._register_scalar("threshold", check_finite_scalar(threshold, "threshold"))
         self.selection = EntrySelection(indices, space, "indices")
-
-    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
-        return self.selection.size_problem(state_size, who)
-
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        self.selection.check(error_state, "error_state", type(self).__name__)
-        check_ignored_action(error_state, error_action)
-        return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         forces = self.selection.select(error_state)

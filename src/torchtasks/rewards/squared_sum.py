@@ -6,14 +6,14 @@ from collections.abc import Iterable
 
 import torch
 
-from torchtasks.rewards._selection import EntrySelection
-from torchtasks.rewards.base import RewardFunction, check_ignored_action, squared_sum
+from torchtasks.rewards._selection import EntrySelection, SelectionReward
+from torchtasks.rewards.base import squared_sum
 from torchtasks.spaces import Box
 
 __all__ = ["SquaredSumReward"]
 
 
-class SquaredSumReward(RewardFunction):
+class SquaredSumReward(SelectionReward):
     """``Σ_i x_i²`` of selected state entries: a penalty's kernel, to be given a negative weight.
 
     IsaacLab's ``*_l2`` terms, read from named entries: ``lin_vel_z_l2`` (the base's vertical velocity),
@@ -35,19 +35,9 @@ class SquaredSumReward(RewardFunction):
         tensor([5.])
     """
 
-    uses_action = False
-
     def __init__(self, indices: Iterable[int | str] | int | str, *, space: Box | None = None) -> None:
         super().__init__()
         self.selection = EntrySelection(indices, space, "indices")
-
-    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
-        return self.selection.size_problem(state_size, who)
-
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        self.selection.check(error_state, "error_state", type(self).__name__)
-        check_ignored_action(error_state, error_action)
-        return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         return squared_sum(self.selection.select(error_state))

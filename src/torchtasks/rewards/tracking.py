@@ -7,14 +7,14 @@ from collections.abc import Iterable
 import torch
 
 from torchtasks._checks import cast_like, check_finite_scalar
-from torchtasks.rewards._selection import EntrySelection
-from torchtasks.rewards.base import RewardFunction, check_ignored_action, squared_sum
+from torchtasks.rewards._selection import EntrySelection, SelectionReward
+from torchtasks.rewards.base import squared_sum
 from torchtasks.spaces import Box
 
 __all__ = ["ExpTrackingReward"]
 
 
-class ExpTrackingReward(RewardFunction):
+class ExpTrackingReward(SelectionReward):
     """``exp(-Σ_i e_i² / std²)`` of selected entries ``e`` (tracking errors): 1 on the command, falling with the error.
 
     IsaacLab's and mjlab's ``track_lin_vel_xy_exp`` and ``track_ang_vel_z_exp`` (``std = sqrt(0.25)`` in
@@ -35,20 +35,10 @@ class ExpTrackingReward(RewardFunction):
         tensor([1.0000, 0.3679])
     """
 
-    uses_action = False
-
     def __init__(self, std: float, indices: Iterable[int | str] | int | str, *, space: Box | None = None) -> None:
         super().__init__()
         self._register_scalar("std", std, check=_check_std)
         self.selection = EntrySelection(indices, space, "indices")
-
-    def _size_problem(self, state_size: int, action_size: int | None, who: str) -> str | None:
-        return self.selection.size_problem(state_size, who)
-
-    def forward(self, error_state: torch.Tensor, error_action: torch.Tensor | None = None) -> torch.Tensor:
-        self.selection.check(error_state, "error_state", type(self).__name__)
-        check_ignored_action(error_state, error_action)
-        return self._value(error_state, error_action)
 
     def _value(self, error_state: torch.Tensor, error_action: torch.Tensor | None) -> torch.Tensor:
         std = cast_like(self.std, error_state)
