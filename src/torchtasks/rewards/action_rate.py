@@ -7,7 +7,7 @@ from tensordict import TensorDict
 
 from torchtasks._checks import check_input, check_positive_int, check_same_batch
 from torchtasks._memory import make_memory, read
-from torchtasks.rewards.base import RewardFunction, squared_sum
+from torchtasks.rewards.base import RewardFunction, check_reward_memory, squared_sum
 
 __all__ = ["ActionRateReward"]
 
@@ -51,13 +51,7 @@ class ActionRateReward(RewardFunction):
         check_input(state, "state")
         check_input(action, "action", self.action_size)
         check_same_batch(state, action, "state", "action")
-        if not isinstance(memory, TensorDict) or "last_action" not in memory.keys():
-            raise TypeError("memory must be the TensorDict returned by ActionRateReward.reset(init_state)")
-        if memory.batch_size != state.shape[:-1]:
-            raise ValueError(
-                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
-                f"{tuple(state.shape[:-1])}"
-            )
+        check_reward_memory(memory, state, "last_action", "ActionRateReward")
         return self._step(state, action, memory)
 
     def _step(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> tuple[torch.Tensor, TensorDict]:

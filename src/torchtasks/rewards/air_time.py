@@ -10,7 +10,7 @@ from tensordict import TensorDict
 from torchtasks._checks import cast_like, check_finite_scalar, check_input, check_same_batch, check_weight
 from torchtasks._memory import make_memory, read
 from torchtasks.rewards._selection import EntrySelection
-from torchtasks.rewards.base import RewardFunction, row_sum, squared_sum
+from torchtasks.rewards.base import RewardFunction, check_reward_memory, row_sum, squared_sum
 from torchtasks.spaces import Box
 
 __all__ = ["FeetAirTimeReward"]
@@ -100,13 +100,7 @@ class FeetAirTimeReward(RewardFunction):
         if action is not None:
             check_input(action, "action")
             check_same_batch(state, action, "state", "action")
-        if not isinstance(memory, TensorDict) or "air_time" not in memory.keys():
-            raise TypeError("memory must be the TensorDict returned by FeetAirTimeReward.reset(init_state)")
-        if memory.batch_size != state.shape[:-1]:
-            raise ValueError(
-                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
-                f"{tuple(state.shape[:-1])}"
-            )
+        check_reward_memory(memory, state, "air_time", "FeetAirTimeReward")
         return self._step(state, action, memory)
 
     def _step(

@@ -106,6 +106,27 @@ def check_ignored_action(error_state: torch.Tensor, error_action: object, state_
         check_same_batch(error_state, error_action, state_name, "error_action")
 
 
+def check_reward_memory(memory: object, state: torch.Tensor, key: str, owner: str) -> None:
+    """Check a stateful reward's memory: the TensorDict ``owner.reset`` returns (holding ``key``), of the state's batch.
+
+    Example:
+        >>> import torch
+        >>> from tensordict import TensorDict
+        >>> memory = TensorDict({"x_last": torch.zeros(2)}, batch_size=[2])
+        >>> check_reward_memory(memory, torch.zeros(2, 3), "x_last", "MyReward")
+        >>> check_reward_memory(memory, torch.zeros(4, 3), "x_last", "MyReward")
+        Traceback (most recent call last):
+        ...
+        ValueError: memory has batch size (2,) but the state has batch shape (4,)
+    """
+    if not isinstance(memory, TensorDict) or key not in memory.keys():
+        raise TypeError(f"memory must be the TensorDict returned by {owner}.reset(init_state)")
+    if memory.batch_size != state.shape[:-1]:
+        raise ValueError(
+            f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape {tuple(state.shape[:-1])}"
+        )
+
+
 def empty_memory(reference: torch.Tensor) -> TensorDict:
     """Return an empty memory TensorDict whose batch size is ``reference.shape[:-1]``."""
     return TensorDict({}, batch_size=reference.shape[:-1])

@@ -20,7 +20,15 @@ from torchtasks._checks import (
     check_weight,
 )
 from torchtasks._memory import read
-from torchtasks.rewards.base import RewardFunction, entries, index_problem, row_scalar, squared_sum, sum_terms
+from torchtasks.rewards.base import (
+    RewardFunction,
+    check_reward_memory,
+    entries,
+    index_problem,
+    row_scalar,
+    squared_sum,
+    sum_terms,
+)
 
 __all__ = ["AntForwardReward", "ForwardVelocityReward", "HumanoidForwardReward"]
 
@@ -68,13 +76,7 @@ class _ForwardProgressReward(RewardFunction):
         self._check_state(state, "state")
         check_input(action, "action")
         check_same_batch(state, action, "state", "action")
-        if not isinstance(memory, TensorDict) or "x_last" not in memory.keys():
-            raise TypeError(f"memory must be the TensorDict returned by {type(self).__name__}.reset(init_state)")
-        if memory.batch_size != state.shape[:-1]:
-            raise ValueError(
-                f"memory has batch size {tuple(memory.batch_size)} but the state has batch shape "
-                f"{tuple(state.shape[:-1])}"
-            )
+        check_reward_memory(memory, state, "x_last", type(self).__name__)
 
     def _common_terms(self, state: torch.Tensor, action: torch.Tensor, memory: TensorDict) -> dict[str, torch.Tensor]:
         x = self._x(state)
