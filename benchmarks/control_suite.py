@@ -100,22 +100,29 @@ DEFAULT_PEER_PYTHON = ROOT / ".venv-bench-dmc" / "bin" / "python"
 
 
 class Floor:
-    """``ctrl = action`` + ``Batch.step(nstep=frame_skip, stage=mjSTAGE_VEL)`` on a fresh base env's own batch."""
+    """``ctrl = action`` + ``Batch.step(nstep=frame_skip, stage=mjSTAGE_VEL)`` on the batch of ``env``'s MuJoCo env.
 
-    def __init__(self, task: str, num_envs: int, num_threads: int, steps: int) -> None:
-        self.env = control_suite_base_env(task, num_envs, seed=0, num_threads=num_threads)
-        if self.env.declaration.stage != "velocity":  # what the presets read, so the floor steps the same stages
-            raise RuntimeError(f"{task}: the preset's stage is {self.env.declaration.stage!r}, not 'velocity'")
-        self.env.reset()
-        model = self.env.model
+    ``env`` is a ``BatchedMujocoEnv`` or a ``TransformedEnv`` over one (reset whole once, then only its base env's
+    batch is stepped); ``steps`` uniform random actions per env in the actuators' ranges, drawn from seed 0. Closing
+    the floor closes ``env``.
+    """
+
+    def __init__(self, env: EnvBase, steps: int) -> None:
+        self.env = env
+        self.base = env.base_env if isinstance(env, TransformedEnv) else env
+        stage = self.base.declaration.stage
+        if stage != "velocity":  # what the presets read, so the floor steps the same stages
+            raise RuntimeError(f"Floor: the env's stage is {stage!r}, not 'velocity'")
+        env.reset()
+        model = self.base.model
         low, high = model.actuator_ctrlrange.T
-        self.actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, model.nu))
-        self.ctrl = self.env.batch.bind("ctrl")
+        self.actions = np.random.default_rng(0).uniform(low, high, size=(steps, self.base.num_envs, model.nu))
+        self.ctrl = self.base.batch.bind("ctrl")
         self.stage = int(mujoco.mjtStage.mjSTAGE_VEL)
         self.batch()
 
     def batch(self) -> int:
-        batch, nstep = self.env.batch, self.env.frame_skip
+        batch, nstep = self.base.batch, self.base.frame_skip
         for action in self.actions:
             self.ctrl[:] = action
             batch.step(None, nstep, self.stage)
@@ -191,7 +198,7 @@ def build_ours(
     frames_per_batch = num_envs * steps
     kwargs = {"seed": 0, "num_threads": num_threads}
     makers: dict[str, Callable[[], Floor | Collected]] = {
-        "floor": lambda: Floor(task, num_envs, num_threads, steps),
+        "floor": lambda: Floor(control_suite_base_env(task, num_envs, **kwargs), steps),
         "env": lambda: Collected(control_suite_base_env(task, num_envs, **kwargs), frames_per_batch),
     }
     if breakdown:

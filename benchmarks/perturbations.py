@@ -38,14 +38,13 @@ from pathlib import Path
 from typing import Any
 
 import mujoco
-import numpy as np
 import torch
 from torchrl.envs import TransformedEnv
 
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from control_suite import Collected, measure  # the same Collector loop and timer
+from control_suite import Collected, Floor, measure  # the same floor, Collector loop and timer
 
 #: the variants, measured in this order in every repeat
 VARIANTS = ("floor", "plain", "delay", "noise", "pushes", "gains", "all four", "all four + physics")
@@ -78,35 +77,11 @@ def preset(num_envs: int, num_threads: int, parts: dict[str, bool]) -> Transform
     )
 
 
-class Floor:
-    """``ctrl = random`` + ``Batch.step(nstep=frame_skip, stage=mjSTAGE_VEL)`` on the plain preset's batch."""
-
-    def __init__(self, num_envs: int, num_threads: int, steps: int) -> None:
-        self.env = preset(num_envs, num_threads, {})
-        self.env.reset()
-        base = self.env.base_env
-        low, high = base.model.actuator_ctrlrange.T
-        self.actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, base.model.nu))
-        self.ctrl = base.batch.bind("ctrl")
-        self.stage = int(mujoco.mjtStage.mjSTAGE_VEL)
-        self.batch()
-
-    def batch(self) -> int:
-        batch, nstep = self.env.base_env.batch, self.env.base_env.frame_skip
-        for action in self.actions:
-            self.ctrl[:] = action
-            batch.step(None, nstep, self.stage)
-        return self.actions.shape[0] * self.actions.shape[1]
-
-    def close(self) -> None:
-        self.env.close()
-
-
 def run(num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int) -> dict[str, Any]:
     """Every variant built once, then measured back to back in each repeat."""
     load_before = os.getloadavg()
     frames_per_batch = num_envs * steps
-    built: dict[str, Floor | Collected] = {"floor": Floor(num_envs, num_threads, steps)}
+    built: dict[str, Floor | Collected] = {"floor": Floor(preset(num_envs, num_threads, {}), steps)}
     for variant in VARIANTS[1:]:
         built[variant] = Collected(preset(num_envs, num_threads, PARTS[variant]), frames_per_batch)
     raw: dict[str, list[float]] = {variant: [] for variant in VARIANTS}
