@@ -20,10 +20,10 @@ Set-up (:class:`OwnRobotPPOConfig`):
 - Reward per step: ``upright * move`` in [0, 1]: ``upright`` is 1 at a torso height of 0.25 m and above, falling
   linearly to 0 at 0.18 m; ``move`` is ``(5 * speed + 1) / 6`` with ``speed`` 1 at 0.5 m/s forward and above,
   linearly 0 at standstill (dm_control's quadruped walk, in torchtasks' terms). An episode's return is at most 500.
-- PPO as ``train_locomotion_ppo.py`` (its policy, critic, observation normalisation and return scaling, imported
-  from there): batches of 64 envs x 32 steps, GAE (γ = 0.99, λ = 0.95), ``ClipPPOLoss`` (clip 0.2, normalised
-  advantages), 5 epochs of minibatches of 512, Adam 3e-4 annealed to 0, gradient norm clipped at 0.5; one torch
-  thread, MuJoCo on 2 threads.
+- PPO as ``train_locomotion_ppo.py`` (its policy, critic, observation normalisation and ``PPOLearner`` with its
+  return scaling, imported from there): batches of 64 envs x 32 steps, GAE (γ = 0.99, λ = 0.95), ``ClipPPOLoss``
+  (clip 0.2, normalised advantages), 5 epochs of minibatches of 512, Adam 3e-4 annealed to 0, gradient norm clipped
+  at 0.5; one torch thread, MuJoCo on 2 threads.
 - Evaluation every ``eval_every`` frames and at the end: the deterministic policy (the mean action, observations
   normalised with the statistics of that moment) for 500 steps in ``eval_envs`` envs from fixed initial states;
   ``episode_statistics`` of it, and the mean forward velocity over all its frames.
@@ -57,9 +57,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar
-from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info
 from tensordict.nn import AddStateIndependentNormalScale
-from torchrl.collectors import Collector
 from torchrl.envs import (
     Compose,
     ExplorationType,
@@ -69,9 +68,7 @@ from torchrl.envs import (
     VecNormV2,
     set_exploration_type,
 )
-from torchrl.objectives import ClipPPOLoss
-from torchrl.objectives.value import GAE
-from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, normalised, plot, training_returns
+from train_locomotion_ppo import PPOLearner, make_policy, normalised, plot, training_returns
 
 from torchtasks.envs import BatchedMujocoEnv, ZeroBrokenStepReward, readings
 from torchtasks.envs.models import model_path
@@ -233,22 +230,8 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
     env = normalised(env, vecnorm)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
-    advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
-    loss_module = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=config.clip_epsilon,
-        entropy_bonus=False,
-        critic_coeff=config.critic_coeff,
-        loss_critic_type="l2",
-        normalize_advantage=True,
-    )
-    optimizer = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
-    collector = Collector(
-        env, actor, frames_per_batch=config.frames_per_batch, total_frames=-1, auto_register_policy_transforms=False
-    )
-    scaler = ReturnScaler(config.num_envs, config.gamma)
-    iterations = math.ceil(config.total_frames / config.frames_per_batch)
+    learner = PPOLearner(env, actor, critic, config)
+    iterations = learner.iterations
     record: dict[str, Any] = {
         "model": MODEL,
         "env_id": f"the shipped {MODEL}",  # the plot's subject
@@ -264,26 +247,11 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
     frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
     last_train, last_eval = None, None
     bar = frame_bar(f"PPO {MODEL} seed {seed}", iterations * config.frames_per_batch)
-    for iteration, batch in enumerate(collector, start=1):
+    for iteration, batch in enumerate(learner.collector, start=1):
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
         returns = training_returns(batch, TERMS)
-        for group in optimizer.param_groups:
-            group["lr"] = config.learning_rate * (1.0 - (iteration - 1) / iterations)
-        data = batch.select("observation", "action", "action_log_prob", *GAE_NEXT_KEYS)
-        reward = scaler(batch["next", "reward"].squeeze(-1), batch["next", "done"].squeeze(-1))
-        data["next", "reward"] = reward.unsqueeze(-1)
-        with torch.no_grad():
-            advantage(data)
-        losses = ppo_update(
-            loss_module,
-            optimizer,
-            data.exclude("next").reshape(-1),
-            epochs=config.epochs,
-            minibatch_size=config.minibatch_size,
-            max_grad_norm=config.max_grad_norm,
-        )
-        collector.update_policy_weights_()
+        losses = learner.update(batch, iteration)
         point = {
             "iteration": iteration,
             "frames": frames,
@@ -317,7 +285,7 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
         if done:
             break
     bar.close()
-    collector.shutdown()
+    learner.collector.shutdown()
     total_seconds = time.perf_counter() - start
     trained = [point for point in record["curve"] if point["train_return"] is not None]
     record.update(

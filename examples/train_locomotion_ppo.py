@@ -299,6 +299,62 @@ class ReturnScaler:
         self.count = total
 
 
+class PPOLearner:
+    """The PPO of the MuJoCo examples on one env: a Collector of ``actor``, GAE on rewards scaled by a
+    :class:`ReturnScaler`, ``ClipPPOLoss`` (no entropy bonus, normalised advantages, L2 critic loss) and Adam (eps
+    1e-5) whose learning rate is annealed linearly to 0 over the run's ``iterations`` batches (``anneal_lr``).
+
+    ``config`` gives ``num_envs``, ``rollout_steps`` (``frames_per_batch``), ``total_frames``, ``gamma``, ``lmbda``,
+    ``clip_epsilon``, ``critic_coeff``, ``learning_rate``, ``epochs``, ``minibatch_size`` and ``max_grad_norm``. The
+    parts are built in the order of a run's random draws: GAE, the loss, Adam, the Collector (which resets the env).
+    """
+
+    def __init__(
+        self, env: TransformedEnv, actor: ProbabilisticActor, critic: ValueOperator, config: Any, anneal_lr: bool = True
+    ) -> None:
+        self.config, self.anneal_lr = config, anneal_lr
+        self.advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
+        self.loss_module = ClipPPOLoss(
+            actor,
+            critic,
+            clip_epsilon=config.clip_epsilon,
+            entropy_bonus=False,
+            critic_coeff=config.critic_coeff,
+            loss_critic_type="l2",
+            normalize_advantage=True,
+        )
+        self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
+        self.collector = Collector(
+            env, actor, frames_per_batch=config.frames_per_batch, total_frames=-1, auto_register_policy_transforms=False
+        )
+        self.scaler = ReturnScaler(config.num_envs, config.gamma)
+        self.iterations = math.ceil(config.total_frames / config.frames_per_batch)
+
+    def update(self, batch: TensorDictBase, iteration: int) -> TensorDictBase:
+        """The PPO update on the ``iteration``-th collected ``batch`` (``[envs, time]``), then the collector's policy
+        weights; returns the last minibatch's losses (:func:`~_ppo_common.ppo_update`)."""
+        config = self.config
+        if self.anneal_lr:
+            for group in self.optimizer.param_groups:
+                group["lr"] = config.learning_rate * (1.0 - (iteration - 1) / self.iterations)
+        # only what GAE and the loss read: indexing minibatches out of the full batch costs more
+        data = batch.select("observation", "action", "action_log_prob", *GAE_NEXT_KEYS)
+        reward = self.scaler(batch["next", "reward"].squeeze(-1), batch["next", "done"].squeeze(-1))
+        data["next", "reward"] = reward.unsqueeze(-1)
+        with torch.no_grad():
+            self.advantage(data)
+        losses = ppo_update(
+            self.loss_module,
+            self.optimizer,
+            data.exclude("next").reshape(-1),
+            epochs=config.epochs,
+            minibatch_size=config.minibatch_size,
+            max_grad_norm=config.max_grad_norm,
+        )
+        self.collector.update_policy_weights_()
+        return losses
+
+
 def training_returns(batch: TensorDictBase, terms: Sequence[str] = TERMS) -> dict[str, float | None]:
     """Mean return (and per-term returns) of the training episodes that ended in ``batch``, from RewardSum's sums.
 
@@ -375,26 +431,8 @@ def train_policy(
     terms = reward_terms(env)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
-    advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
-    loss_module = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=config.clip_epsilon,
-        entropy_bonus=False,
-        critic_coeff=config.critic_coeff,
-        loss_critic_type="l2",
-        normalize_advantage=True,
-    )
-    optimizer = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
-    collector = Collector(
-        env,
-        actor,
-        frames_per_batch=config.frames_per_batch,
-        total_frames=-1,
-        auto_register_policy_transforms=False,
-    )
-    scaler = ReturnScaler(config.num_envs, config.gamma)
-    iterations = math.ceil(config.total_frames / config.frames_per_batch)
+    learner = PPOLearner(env, actor, critic, config, anneal_lr=config.anneal_lr)
+    iterations = learner.iterations
     record: dict[str, Any] = {
         "env_id": config.env_id,
         "method": "PPO",
@@ -410,29 +448,12 @@ def train_policy(
     collect_seconds, collect_start = 0.0, time.perf_counter()
     last_train, last_eval = None, None
     bar = frame_bar(f"PPO {config.env_id} seed {seed}", iterations * config.frames_per_batch)  # whole batches
-    for iteration, batch in enumerate(collector, start=1):
+    for iteration, batch in enumerate(learner.collector, start=1):
         collect_seconds += time.perf_counter() - collect_start
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
         returns = training_returns(batch, terms)
-        if config.anneal_lr:
-            for group in optimizer.param_groups:
-                group["lr"] = config.learning_rate * (1.0 - (iteration - 1) / iterations)
-        # only what GAE and the loss read: indexing minibatches out of the full batch costs more
-        data = batch.select("observation", "action", "action_log_prob", *GAE_NEXT_KEYS)
-        reward = scaler(batch["next", "reward"].squeeze(-1), batch["next", "done"].squeeze(-1))
-        data["next", "reward"] = reward.unsqueeze(-1)
-        with torch.no_grad():
-            advantage(data)
-        losses = ppo_update(
-            loss_module,
-            optimizer,
-            data.exclude("next").reshape(-1),
-            epochs=config.epochs,
-            minibatch_size=config.minibatch_size,
-            max_grad_norm=config.max_grad_norm,
-        )
-        collector.update_policy_weights_()
+        losses = learner.update(batch, iteration)
         seconds = time.perf_counter() - start
         point = {
             "iteration": iteration,
@@ -472,7 +493,7 @@ def train_policy(
             break
         collect_start = time.perf_counter()
     bar.close()
-    collector.shutdown()
+    learner.collector.shutdown()
     total_seconds = time.perf_counter() - start
     record.update(
         total_frames=frames,

@@ -56,16 +56,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar, time_unit
-from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
-from torchrl.collectors import Collector
 from torchrl.envs import ExplorationType, Transform, TransformedEnv, VecNormV2, set_exploration_type
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
-from torchrl.objectives import ClipPPOLoss
-from torchrl.objectives.value import GAE
-from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, mlp, normalised, training_returns
+from train_locomotion_ppo import PPOLearner, mlp, normalised, training_returns
 
 from torchtasks._plotting import mark_short_series
 from torchtasks.domain import UniformDomainParam
@@ -293,45 +290,16 @@ def train(
     vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
     env = normalised(env, vecnorm)
     actor, critic = make_policy(env, config.hidden, config.initial_action_std)
-    advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
-    loss_module = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=config.clip_epsilon,
-        entropy_bonus=False,
-        critic_coeff=config.critic_coeff,
-        loss_critic_type="l2",
-        normalize_advantage=True,
-    )
-    optimizer = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
-    collector = Collector(
-        env, actor, frames_per_batch=config.frames_per_batch, total_frames=-1, auto_register_policy_transforms=False
-    )
-    scaler = ReturnScaler(config.num_envs, config.gamma)
-    iterations = math.ceil(config.total_frames / config.frames_per_batch)
+    learner = PPOLearner(env, actor, critic, config)
+    iterations = learner.iterations
     record: dict[str, Any] = {"variant": label, "curve": [], "eval_curve": []}
     deadline = start + 60.0 * config.max_minutes
     frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
     bar = frame_bar(f"PPO velocity tracking ({label}) seed {seed}", iterations * config.frames_per_batch)
-    for iteration, batch in enumerate(collector, start=1):
+    for iteration, batch in enumerate(learner.collector, start=1):
         frames += batch.numel()
         returns = training_returns(batch, TERMS)
-        for group in optimizer.param_groups:
-            group["lr"] = config.learning_rate * (1.0 - (iteration - 1) / iterations)
-        data = batch.select("observation", "action", "action_log_prob", *GAE_NEXT_KEYS)
-        reward = scaler(batch["next", "reward"].squeeze(-1), batch["next", "done"].squeeze(-1))
-        data["next", "reward"] = reward.unsqueeze(-1)
-        with torch.no_grad():
-            advantage(data)
-        losses = ppo_update(
-            loss_module,
-            optimizer,
-            data.exclude("next").reshape(-1),
-            epochs=config.epochs,
-            minibatch_size=config.minibatch_size,
-            max_grad_norm=config.max_grad_norm,
-        )
-        collector.update_policy_weights_()
+        losses = learner.update(batch, iteration)
         ended = batch["next", "done"].squeeze(-1)
         falls = sum(batch["next", "ended_by", name].squeeze(-1).sum() for name in FALLS)
         point = {
@@ -367,7 +335,7 @@ def train(
         if done:
             break
     bar.close()
-    collector.shutdown()
+    learner.collector.shutdown()
     total_seconds = time.perf_counter() - start
     record.update(
         total_frames=frames,
