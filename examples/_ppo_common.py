@@ -14,6 +14,7 @@ for the measured results.
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 import math
@@ -142,6 +143,28 @@ def config_problem(config: Any) -> str | None:
         if isinstance(value, float) and not (math.isfinite(value) and value > 0):
             return f"{flag} must be a positive number, got {value}"
     return None
+
+
+def config_from_args(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, defaults: Any, quick: Any, **fixed: Any
+) -> Any:
+    """The config a run uses: ``quick`` with ``--quick``, else ``defaults``, with every config flag given (not None)
+    and the ``fixed`` fields; a config that :func:`config_problem` refuses is ``parser.error`` (exit status 2).
+
+    Example:
+        >>> import argparse
+        >>> parser = argparse.ArgumentParser()
+        >>> args = argparse.Namespace(quick=True, num_envs=8, seed=0)
+        >>> config_from_args(parser, args, PPOConfig(), QUICK).num_envs, QUICK.num_envs
+        (8, 32)
+    """
+    config = quick if args.quick else defaults
+    overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
+    config = dataclasses.replace(config, **fixed, **overrides)
+    problem = config_problem(config)
+    if problem is not None:
+        parser.error(problem)
+    return config
 
 
 def mlp(out_features: int, hidden: int) -> nn.Sequential:

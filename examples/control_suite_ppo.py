@@ -43,7 +43,7 @@ import functools
 import json
 import sys
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -51,7 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration
-from _ppo_common import PPO_CONFIG_HELP, config_problem
+from _ppo_common import PPO_CONFIG_HELP, config_from_args
 from train_locomotion_ppo import FLAGS, LocomotionPPOConfig, train
 
 from torchtasks._plotting import mark_short_series
@@ -195,12 +195,7 @@ def main() -> None:
         task = control_suite_record(args.task).name
     except ValueError as error:
         parser.error(f"--task: {error}")
-    config = QUICK if args.quick else defaults
-    overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
-    config = replace(config, env_id=task, **overrides)
-    problem = config_problem(config)
-    if problem is not None:
-        parser.error(problem)
+    config = config_from_args(parser, args, defaults, QUICK, env_id=task)
     args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     for seed in args.seeds:

@@ -49,7 +49,7 @@ import json
 import math
 import sys
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +57,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar
-from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info
+from _ppo_common import PPO_CONFIG_HELP, config_from_args, machine_info
 from tensordict.nn import AddStateIndependentNormalScale
 from torchrl.envs import (
     Compose,
@@ -312,12 +312,7 @@ def main() -> None:
     defaults = OwnRobotPPOConfig()
     config_arguments(parser, defaults, PPO_CONFIG_HELP, FLAGS)
     args = parser.parse_args()
-    config = QUICK if args.quick else defaults
-    overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
-    config = replace(config, **overrides)
-    problem = config_problem(config)
-    if problem is not None:
-        parser.error(problem)
+    config = config_from_args(parser, args, defaults, QUICK)
     args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     record = train(config, args.seed)

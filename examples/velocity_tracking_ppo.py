@@ -48,7 +48,7 @@ import math
 import sys
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar, time_unit
-from _ppo_common import PPO_CONFIG_HELP, config_problem, machine_info
+from _ppo_common import PPO_CONFIG_HELP, config_from_args, machine_info
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -471,12 +471,7 @@ def main() -> None:
     defaults = VelocityPPOConfig()
     config_arguments(parser, defaults, HELP, FLAGS)
     args = parser.parse_args()
-    config = QUICK if args.quick else defaults
-    overrides = {name: value for name, value in vars(args).items() if name in asdict(config) and value is not None}
-    config = replace(config, **overrides)
-    problem = config_problem(config)
-    if problem is not None:
-        parser.error(problem)
+    config = config_from_args(parser, args, defaults, QUICK)
     args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
     record = run(config, args.seed)
