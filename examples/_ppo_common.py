@@ -6,7 +6,9 @@ pendulum env with a torchtasks task (:func:`make_pendulum_env`), the networks (:
 the hyper-parameters (:class:`PPOConfig`), the deterministic evaluation from fixed initial states
 (:func:`evaluate`), the TorchRL PPO loop (:func:`train`, its gradient steps in :func:`ppo_update`)
 and the JSON/PNG output (:func:`save`). ``train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheetah)
-reuses :func:`ppo_update` and :func:`machine_info`. Which task the pendulums are trained and
+reuses :func:`ppo_update` and :func:`machine_info`; the MuJoCo PPO examples also take their flags' help
+(:data:`PPO_CONFIG_HELP`), their config from the flags (:func:`config_from_args`) and the first and last steps of
+their plots (:func:`pyplot`, :func:`save_figure`) from here. Which task the pendulums are trained and
 evaluated on is the caller's choice: :func:`train` and :func:`evaluate` take env factories
 ``(num_envs, seed) -> env``. See ``train_swingup_ppo.py`` for the set-up and ``docs/training.md``
 for the measured results.
@@ -391,6 +393,35 @@ def episode_stats(batch: TensorDictBase) -> dict[str, float | None]:
     }
 
 
+def pyplot() -> Any:
+    """``matplotlib.pyplot`` with the file-only ``Agg`` backend, or None after a message when matplotlib is not
+    installed (the ``plot`` extra): a plot is skipped, the run's results are written all the same."""
+    try:
+        import matplotlib
+    except ImportError:
+        from torchtasks._optional import install_hint
+
+        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+        return None
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def save_figure(figure: Any, path: Path) -> Path:
+    """Lay ``figure`` out, give its short series markers, write it to ``path`` (100 dpi; the folder is created) and
+    close it; return ``path``."""
+    import matplotlib.pyplot as plt
+
+    figure.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mark_short_series(figure)  # a --quick run's few points stay visible
+    figure.savefig(path, dpi=100)
+    plt.close(figure)
+    return path
+
+
 def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     """Plot the evaluation success rate and mean episode reward of each run against env frames and wall time."""
     import matplotlib
@@ -422,12 +453,7 @@ def plot(runs: dict[str, dict[str, Any]], path: Path, title: str) -> Path:
     axes[0, 0].set_ylabel(f"success rate ({EVAL_ENVS} evaluation episodes)")
     axes[1, 0].set_ylabel("mean evaluation episode reward")
     figure.suptitle(title)
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def save(

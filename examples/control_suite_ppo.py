@@ -51,10 +51,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration
-from _ppo_common import PPO_CONFIG_HELP, config_from_args
+from _ppo_common import PPO_CONFIG_HELP, config_from_args, pyplot, save_figure
 from train_locomotion_ppo import FLAGS, LocomotionPPOConfig, train
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.envs.control_suite import CONTROL_SUITE_TASKS, control_suite_env, control_suite_record
 
 TASK = "cheetah-run"  # the default task
@@ -127,15 +126,9 @@ def table(records: Sequence[dict[str, Any]]) -> str:
 
 def plot(records: Sequence[dict[str, Any]], path: Path) -> Path | None:
     """Plot every run's training and evaluation returns against frames, a panel per task; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import EngFormatter
 
     tasks = {record["task"] for record in records}
@@ -174,12 +167,7 @@ def plot(records: Sequence[dict[str, Any]], path: Path) -> Path | None:
     config = records[0]["config"]
     layout = f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch"
     figure.suptitle(f"PPO on the DeepMind Control Suite (BatchedMujocoEnv, {layout})")
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def main() -> None:

@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also
 
 import torch
 from _cli import frame_bar
-from _ppo_common import machine_info, ppo_update
+from _ppo_common import machine_info, ppo_update, pyplot, save_figure
 from tensordict import TensorDictBase
 from tensordict.nn import NormalParamExtractor, TensorDictModule
 from torch import nn
@@ -41,7 +41,6 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.envs import PointMassEnv
 from torchtasks.rewards import ControlCostReward
 from torchtasks.spaces import Box, EnvSpec
@@ -311,15 +310,9 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
     style, the curriculum thinner and drawn last (on top). Training success rates are left out before every env
     could have ended a full-length episode (the episodes that end first are the quick successes).
     """
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import EngFormatter
 
     variants = experiment["variants"]
@@ -398,11 +391,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path | None:
         f"{thin}dotted: training success on its own goals ({SMOOTHING}-batch mean); dashed grey: the target",
         fontsize=11,
     )
-    figure.tight_layout()
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def main() -> None:

@@ -62,11 +62,11 @@ from _ppo_common import (
     PPOConfig,
     machine_info,
     make_pendulum_env,
+    save_figure,
     train,
 )
 from torchrl.envs import TransformedEnv
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.rewards import ConstantReward
 from torchtasks.spaces import Box, EnvSpec
 from torchtasks.tasks import (
@@ -260,12 +260,7 @@ def plot(experiment: dict[str, Any], path: Path) -> Path:
         f"PPO on the sparse pendulum swing-up (+{SUCCESS_REWARD:g} on ‖[θ, θ̇]‖ < {experiment['success_threshold']:g}), "
         f"with and without Φ = −θ² − 0.1·θ̇² shaping; thin: single seeds"
     )
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def main() -> None:

@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration
-from _ppo_common import PPO_CONFIG_HELP
+from _ppo_common import PPO_CONFIG_HELP, pyplot
 from torch import nn
 from torchrl.envs import ExplorationType, VecNormV2, set_exploration_type
 from train_locomotion_ppo import QUICK, LocomotionPPOConfig, make_eval_env, train_policy
@@ -269,15 +269,9 @@ def table(records: Sequence[dict[str, Any]]) -> str:
 
 def plot(records: Sequence[dict[str, Any]], path: Path) -> Path | None:
     """One heatmap per variant of the mean return over the grid, one colour scale; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     variants = by_variant(records)
     means = {variant: pooled(runs)[0] for variant, runs in variants.items()}

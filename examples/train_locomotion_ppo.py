@@ -71,7 +71,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # _ppo_common.py, also
 
 import torch
 from _cli import duration, frame_bar, time_unit
-from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update, pyplot, save_figure
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -89,7 +89,6 @@ from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.envs.gymnasium_v5 import locomotion_record
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, gymnasium_env
 from torchtasks.stats import episode_statistics
@@ -517,15 +516,9 @@ def _frames_of_last_train_return(curve: list[dict[str, Any]]) -> int:
 
 def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     """Plot every run's training and evaluation returns against frames and wall time; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import EngFormatter
 
     figure, axes = plt.subplots(1, 2, figsize=(11, 4.5), sharey=True)
@@ -560,12 +553,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     config = records[0]["config"]
     layout = f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch"
     figure.suptitle(f"PPO on {records[0]['env_id']} (BatchedMujocoEnv, {layout})")
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def main() -> None:

@@ -62,7 +62,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import default_text, duration, frame_bar
-from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update, pyplot
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
@@ -474,15 +474,9 @@ def table(front_data: dict[str, Any]) -> str:
 
 def plot(front_data: dict[str, Any], path: Path) -> Path | None:
     """Objective 0 against objective 1 of every run, one labelled marker per weight vector; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
 
     x_group, y_group = front_data["groups"][:2]
     markers = "osD^vP*X"

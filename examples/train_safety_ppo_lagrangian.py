@@ -57,7 +57,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar
-from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update
+from _ppo_common import PPO_CONFIG_HELP, machine_info, ppo_update, pyplot, save_figure
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale
 from torch import nn
@@ -68,7 +68,6 @@ from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
 from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, mlp, normalised, training_returns
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
 from torchtasks.stats import episode_statistics
 
@@ -350,15 +349,9 @@ def train(config: SafetyPPOConfig, variant: str, seed: int) -> dict[str, Any]:
 
 def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
     """Training return, episode cost (limit drawn) and λ of every run against frames; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import EngFormatter
 
     figure, axes = plt.subplots(1, 3, figsize=(15, 4.5))
@@ -394,12 +387,7 @@ def plot(records: list[dict[str, Any]], path: Path) -> Path | None:
         f"Safety {ENV_ID} velocity preset (cost 1 when x_velocity > 3.2096, limit {limit:g} per 1000-step episode); "
         f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch"
     )
-    figure.tight_layout()
-    path.parent.mkdir(parents=True, exist_ok=True)
-    mark_short_series(figure)  # a --quick run's few points stay visible
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def file_name(variant: str, seed: int | str) -> str:

@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))  # the other examples' 
 
 import torch
 from _cli import duration, frame_bar, time_unit
-from _ppo_common import PPO_CONFIG_HELP, config_from_args, machine_info
+from _ppo_common import PPO_CONFIG_HELP, config_from_args, machine_info, pyplot, save_figure
 from tensordict import TensorDictBase
 from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
@@ -64,7 +64,6 @@ from torchrl.envs import ExplorationType, Transform, TransformedEnv, VecNormV2, 
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
 from train_locomotion_ppo import PPOLearner, mlp, normalised, training_returns
 
-from torchtasks._plotting import mark_short_series
 from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 from torchtasks.stats import episode_statistics
@@ -419,15 +418,9 @@ def table(record: dict[str, Any]) -> str:
 
 def plot(record: dict[str, Any], path: Path) -> Path | None:
     """Tracking errors, falls and returns of each variant's evaluations against frames; None without matplotlib."""
-    try:
-        import matplotlib
-    except ImportError:
-        from torchtasks._optional import install_hint
-
-        print(f"matplotlib is not installed ({install_hint('plot')}): the plot is skipped")
+    plt = pyplot()
+    if plt is None:
         return None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
     from matplotlib.ticker import EngFormatter
 
     keys = (
@@ -456,11 +449,7 @@ def plot(record: dict[str, Any], path: Path) -> Path | None:
         f"PPO velocity tracking, shipped quadruped, seed {record['seed']} ({config['num_envs']} envs, "
         f"{record['total_seconds'] / scale:.1f} {unit} in all)"
     )
-    figure.tight_layout()
-    mark_short_series(figure)
-    figure.savefig(path, dpi=100)
-    plt.close(figure)
-    return path
+    return save_figure(figure, path)
 
 
 def main() -> None:
