@@ -298,9 +298,25 @@ class ReturnScaler:
         self.count = total
 
 
+def clip_ppo_loss(
+    actor: ProbabilisticActor, critic: ValueOperator, config: Any, normalize_advantage: bool = True
+) -> ClipPPOLoss:
+    """``ClipPPOLoss`` as the MuJoCo PPO examples use it: clipping at ``config.clip_epsilon``, no entropy bonus, an L2
+    critic loss weighted ``config.critic_coeff``, the advantages normalised per minibatch (``normalize_advantage``)."""
+    return ClipPPOLoss(
+        actor,
+        critic,
+        clip_epsilon=config.clip_epsilon,
+        entropy_bonus=False,
+        critic_coeff=config.critic_coeff,
+        loss_critic_type="l2",
+        normalize_advantage=normalize_advantage,
+    )
+
+
 class PPOLearner:
     """The PPO of the MuJoCo examples on one env: a Collector of ``actor``, GAE on rewards scaled by a
-    :class:`ReturnScaler`, ``ClipPPOLoss`` (no entropy bonus, normalised advantages, L2 critic loss) and Adam (eps
+    :class:`ReturnScaler`, :func:`clip_ppo_loss` (no entropy bonus, normalised advantages, L2 critic loss) and Adam (eps
     1e-5) whose learning rate is annealed linearly to 0 over the run's ``iterations`` batches (``anneal_lr``).
 
     ``config`` gives ``num_envs``, ``rollout_steps`` (``frames_per_batch``), ``total_frames``, ``gamma``, ``lmbda``,
@@ -313,15 +329,7 @@ class PPOLearner:
     ) -> None:
         self.config, self.anneal_lr = config, anneal_lr
         self.advantage = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
-        self.loss_module = ClipPPOLoss(
-            actor,
-            critic,
-            clip_epsilon=config.clip_epsilon,
-            entropy_bonus=False,
-            critic_coeff=config.critic_coeff,
-            loss_critic_type="l2",
-            normalize_advantage=True,
-        )
+        self.loss_module = clip_ppo_loss(actor, critic, config)
         self.optimizer = torch.optim.Adam(self.loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
         self.collector = Collector(
             env, actor, frames_per_batch=config.frames_per_batch, total_frames=-1, auto_register_policy_transforms=False

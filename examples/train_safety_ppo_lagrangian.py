@@ -66,7 +66,15 @@ from torchrl.envs import ExplorationType, TransformedEnv, VecNormV2, set_explora
 from torchrl.modules import ValueOperator
 from torchrl.objectives import ClipPPOLoss
 from torchrl.objectives.value import GAE
-from train_locomotion_ppo import GAE_NEXT_KEYS, ReturnScaler, make_policy, mlp, normalised, training_returns
+from train_locomotion_ppo import (
+    GAE_NEXT_KEYS,
+    ReturnScaler,
+    clip_ppo_loss,
+    make_policy,
+    mlp,
+    normalised,
+    training_returns,
+)
 
 from torchtasks.envs.locomotion import MAX_EPISODE_STEPS, safety_velocity_env
 from torchtasks.stats import episode_statistics
@@ -235,15 +243,8 @@ def train(config: SafetyPPOConfig, variant: str, seed: int) -> dict[str, Any]:
     reward_gae = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=critic, average_gae=False)
     cost_gae = GAE(gamma=config.gamma, lmbda=config.lmbda, value_network=cost_critic, average_gae=False)
     cost_gae.set_keys(reward="cost", advantage="cost_advantage", value_target="cost_value_target", value="cost_value")
-    ppo_loss = ClipPPOLoss(
-        actor,
-        critic,
-        clip_epsilon=config.clip_epsilon,
-        entropy_bonus=False,
-        critic_coeff=config.critic_coeff,
-        loss_critic_type="l2",
-        normalize_advantage=False,  # the combined advantage is already normalised
-    )
+    # the combined advantage is already normalised
+    ppo_loss = clip_ppo_loss(actor, critic, config, normalize_advantage=False)
     loss_module = LagrangianPPOLoss(ppo_loss, cost_critic, config.critic_coeff)
     optimizer = torch.optim.Adam(loss_module.parameters(), lr=config.learning_rate, eps=1e-5)
     lagrangian = variant == "lagrangian"
