@@ -48,7 +48,6 @@ from __future__ import annotations
 import json
 import math
 import sys
-import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -68,7 +67,7 @@ from torchrl.envs import (
     VecNormV2,
     set_exploration_type,
 )
-from train_locomotion_ppo import PPOLearner, make_policy, normalised, plot, training_returns
+from train_locomotion_ppo import PPOLearner, RunClock, make_policy, normalised, plot, training_returns
 
 from torchtasks.envs import BatchedMujocoEnv, ZeroBrokenStepReward, readings
 from torchtasks.envs.models import model_path
@@ -224,14 +223,13 @@ def evaluate(actor: torch.nn.Module, config: OwnRobotPPOConfig, vecnorm: VecNorm
 def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
     """Train one seed for ``config.total_frames`` frames (or ``config.max_minutes``); return the run record."""
     torch.manual_seed(seed)
-    start = time.perf_counter()
+    clock = RunClock(config)
     env = make_env(config.num_envs, seed, config.mujoco_threads)
     vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
     env = normalised(env, vecnorm)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
     learner = PPOLearner(env, actor, critic, config)
-    iterations = learner.iterations
     record: dict[str, Any] = {
         "model": MODEL,
         "env_id": f"the shipped {MODEL}",  # the plot's subject
@@ -243,10 +241,9 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
         "curve": [],
         "eval_curve": [],
     }
-    deadline = start + 60.0 * config.max_minutes
-    frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
+    frames = 0
     last_train, last_eval = None, None
-    bar = frame_bar(f"PPO {MODEL} seed {seed}", iterations * config.frames_per_batch)
+    bar = frame_bar(f"PPO {MODEL} seed {seed}", clock.batches * config.frames_per_batch)
     for iteration, batch in enumerate(learner.collector, start=1):
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
@@ -255,7 +252,7 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
         point = {
             "iteration": iteration,
             "frames": frames,
-            "seconds": time.perf_counter() - start,
+            "seconds": clock.seconds(),
             **returns,
             "episodes": batch_stats["episodes"],
             "episode_length_mean": batch_stats.get("episode_length_mean"),
@@ -267,14 +264,11 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
         record["curve"].append(point)
         if returns["train_return"] is not None:
             last_train = point
-        done = iteration >= iterations or time.perf_counter() > deadline
-        if frames >= next_eval or done:
-            eval_start = time.perf_counter()
-            stats = evaluate(actor, config, vecnorm)
-            eval_seconds += time.perf_counter() - eval_start
-            last_eval = {"iteration": iteration, "frames": frames, "seconds": time.perf_counter() - start, **stats}
+        done = clock.is_last(iteration)
+        stats = clock.evaluation(frames, done, lambda: evaluate(actor, config, vecnorm))
+        if stats is not None:
+            last_eval = {"iteration": iteration, "frames": frames, "seconds": clock.seconds(), **stats}
             record["eval_curve"].append(last_eval)
-            next_eval += config.eval_every
         postfix = {"ended": int(batch_stats["episodes"])}
         if last_train is not None:
             postfix["train_return"] = f"{last_train['train_return']:.0f}"
@@ -286,14 +280,9 @@ def train(config: OwnRobotPPOConfig, seed: int) -> dict[str, Any]:
             break
     bar.close()
     learner.collector.shutdown()
-    total_seconds = time.perf_counter() - start
     trained = [point for point in record["curve"] if point["train_return"] is not None]
     record.update(
-        total_frames=frames,
-        total_seconds=total_seconds,
-        eval_seconds=eval_seconds,
-        frames_per_second=frames / total_seconds,
-        stopped_by_time_limit=frames < iterations * config.frames_per_batch,
+        **clock.totals(frames),
         first_train_return=trained[0]["train_return"] if trained else None,
         final_train_return=trained[-1]["train_return"] if trained else None,
         first_eval_return=record["eval_curve"][0]["return_mean"],

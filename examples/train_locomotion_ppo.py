@@ -362,6 +362,48 @@ class PPOLearner:
         return losses
 
 
+class RunClock:
+    """The wall clock of a training run of ``config``, started when built: its last batch (all
+    ``ceil(total_frames / frames_per_batch)`` batches, or the first past ``max_minutes``), its evaluations (every
+    ``eval_every`` frames and after the last batch), the time they took, and the run's totals."""
+
+    def __init__(self, config: Any) -> None:
+        self.start = time.perf_counter()
+        self.deadline = self.start + 60.0 * config.max_minutes
+        self.batches = math.ceil(config.total_frames / config.frames_per_batch)
+        self.frames_per_batch, self.eval_every = config.frames_per_batch, config.eval_every
+        self.next_eval, self.eval_seconds = config.eval_every, 0.0
+
+    def seconds(self) -> float:
+        """The seconds since the run started."""
+        return time.perf_counter() - self.start
+
+    def is_last(self, iteration: int) -> bool:
+        """Whether the ``iteration``-th batch ends the run."""
+        return iteration >= self.batches or time.perf_counter() > self.deadline
+
+    def evaluation(self, frames: int, last: bool, evaluate: Callable[[], dict[str, Any]]) -> dict[str, Any] | None:
+        """``evaluate()`` if one is due after ``frames`` frames (or after the ``last`` batch), timed; else None."""
+        if frames < self.next_eval and not last:
+            return None
+        eval_start = time.perf_counter()
+        stats = evaluate()
+        self.eval_seconds += time.perf_counter() - eval_start
+        self.next_eval += self.eval_every
+        return stats
+
+    def totals(self, frames: int) -> dict[str, Any]:
+        """The run's frames, seconds (in all and evaluating), frames per second and whether the deadline stopped it."""
+        total_seconds = self.seconds()
+        return {
+            "total_frames": frames,
+            "total_seconds": total_seconds,
+            "eval_seconds": self.eval_seconds,
+            "frames_per_second": frames / total_seconds,
+            "stopped_by_time_limit": frames < self.batches * self.frames_per_batch,
+        }
+
+
 def training_returns(batch: TensorDictBase, terms: Sequence[str] = TERMS) -> dict[str, float | None]:
     """Mean return (and per-term returns) of the training episodes that ended in ``batch``, from RewardSum's sums.
 
@@ -433,13 +475,12 @@ def train_policy(
 ) -> tuple[dict[str, Any], ProbabilisticActor, VecNormV2]:
     """:func:`train`, also returning the trained actor and the training env's VecNormV2 (for further evaluations)."""
     torch.manual_seed(seed)
-    start = time.perf_counter()
+    clock = RunClock(config)
     env, vecnorm = make_env(config, seed, extra_transforms, preset)
     terms = reward_terms(env)
     actor, critic = make_policy(env, config.hidden)
     log_std = next(module for module in actor.modules() if isinstance(module, AddStateIndependentNormalScale))
     learner = PPOLearner(env, actor, critic, config, anneal_lr=config.anneal_lr)
-    iterations = learner.iterations
     record: dict[str, Any] = {
         "env_id": config.env_id,
         "method": "PPO",
@@ -449,23 +490,21 @@ def train_policy(
         "curve": [],
         "eval_curve": [],
     }
-    deadline = start + 60.0 * config.max_minutes
-    frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
+    frames = 0
     # collection: from the end of one batch's update (or the start) until the collector hands over the next batch
     collect_seconds, collect_start = 0.0, time.perf_counter()
     last_train, last_eval = None, None
-    bar = frame_bar(f"PPO {config.env_id} seed {seed}", iterations * config.frames_per_batch)  # whole batches
+    bar = frame_bar(f"PPO {config.env_id} seed {seed}", clock.batches * config.frames_per_batch)  # whole batches
     for iteration, batch in enumerate(learner.collector, start=1):
         collect_seconds += time.perf_counter() - collect_start
         frames += batch.numel()
         batch_stats = episode_statistics(batch)
         returns = training_returns(batch, terms)
         losses = learner.update(batch, iteration)
-        seconds = time.perf_counter() - start
         point = {
             "iteration": iteration,
             "frames": frames,
-            "seconds": seconds,
+            "seconds": clock.seconds(),
             **returns,
             "episodes": batch_stats["episodes"],
             "episode_length_mean": batch_stats.get("episode_length_mean"),
@@ -480,14 +519,11 @@ def train_policy(
         record["curve"].append(point)
         if returns["train_return"] is not None:
             last_train = returns
-        done = iteration >= iterations or time.perf_counter() > deadline
-        if frames >= next_eval or done:
-            eval_start = time.perf_counter()
-            stats = evaluate(actor, config, vecnorm, preset)
-            eval_seconds += time.perf_counter() - eval_start
-            last_eval = {"iteration": iteration, "frames": frames, "seconds": time.perf_counter() - start, **stats}
+        done = clock.is_last(iteration)
+        stats = clock.evaluation(frames, done, lambda: evaluate(actor, config, vecnorm, preset))
+        if stats is not None:
+            last_eval = {"iteration": iteration, "frames": frames, "seconds": clock.seconds(), **stats}
             record["eval_curve"].append(last_eval)
-            next_eval += config.eval_every
         postfix = {"ended": int(batch_stats["episodes"])}
         if last_train is not None:
             postfix["train_return"] = f"{last_train['train_return']:.0f}"
@@ -501,15 +537,10 @@ def train_policy(
         collect_start = time.perf_counter()
     bar.close()
     learner.collector.shutdown()
-    total_seconds = time.perf_counter() - start
     record.update(
-        total_frames=frames,
-        total_seconds=total_seconds,
-        eval_seconds=eval_seconds,
+        **clock.totals(frames),
         collect_seconds=collect_seconds,
         collect_frames_per_second=frames / collect_seconds,
-        frames_per_second=frames / total_seconds,
-        stopped_by_time_limit=frames < iterations * config.frames_per_batch,
         final_train_return=None if last_train is None else last_train["train_return"],
         final_train_frames=None if last_train is None else _frames_of_last_train_return(record["curve"]),
         final_eval_return=last_eval["return_mean"],

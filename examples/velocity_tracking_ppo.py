@@ -62,7 +62,7 @@ from tensordict.nn import AddStateIndependentNormalScale, TensorDictModule
 from torch import nn
 from torchrl.envs import ExplorationType, Transform, TransformedEnv, VecNormV2, set_exploration_type
 from torchrl.modules import ProbabilisticActor, TanhNormal, ValueOperator
-from train_locomotion_ppo import PPOLearner, mlp, normalised, training_returns
+from train_locomotion_ppo import PPOLearner, RunClock, mlp, normalised, training_returns
 
 from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
@@ -284,17 +284,15 @@ def train(
     """Train one policy for ``config.total_frames`` frames (or ``config.max_minutes``) on the env with
     ``perturbations``; return the run record, the actor and its observation normalisation."""
     torch.manual_seed(seed)
-    start = time.perf_counter()
+    clock = RunClock(config)
     env = make_env(config, config.num_envs, seed, perturbations, True)
     vecnorm = VecNormV2(in_keys=["observation"], decay=1.0, eps=1e-2, reduce_batch_dims=True)
     env = normalised(env, vecnorm)
     actor, critic = make_policy(env, config.hidden, config.initial_action_std)
     learner = PPOLearner(env, actor, critic, config)
-    iterations = learner.iterations
     record: dict[str, Any] = {"variant": label, "curve": [], "eval_curve": []}
-    deadline = start + 60.0 * config.max_minutes
-    frames, eval_seconds, next_eval = 0, 0.0, config.eval_every
-    bar = frame_bar(f"PPO velocity tracking ({label}) seed {seed}", iterations * config.frames_per_batch)
+    frames = 0
+    bar = frame_bar(f"PPO velocity tracking ({label}) seed {seed}", clock.batches * config.frames_per_batch)
     for iteration, batch in enumerate(learner.collector, start=1):
         frames += batch.numel()
         returns = training_returns(batch, TERMS)
@@ -304,7 +302,7 @@ def train(
         point = {
             "iteration": iteration,
             "frames": frames,
-            "seconds": time.perf_counter() - start,
+            "seconds": clock.seconds(),
             **returns,
             **{f"train_{key}": value for key, value in tracking_errors(batch).items()},
             "episodes": int(ended.sum()),
@@ -316,15 +314,10 @@ def train(
             "load_1min": machine_info()["load_1min"],
         }
         record["curve"].append(point)
-        done = iteration >= iterations or time.perf_counter() > deadline
-        if frames >= next_eval or done:
-            eval_start = time.perf_counter()
-            stats = evaluate(actor, vecnorm, config)
-            eval_seconds += time.perf_counter() - eval_start
-            record["eval_curve"].append(
-                {"iteration": iteration, "frames": frames, "seconds": time.perf_counter() - start, **stats}
-            )
-            next_eval += config.eval_every
+        done = clock.is_last(iteration)
+        stats = clock.evaluation(frames, done, lambda: evaluate(actor, vecnorm, config))
+        if stats is not None:
+            record["eval_curve"].append({"iteration": iteration, "frames": frames, "seconds": clock.seconds(), **stats})
             bar.set_postfix(
                 lin_err=f"{stats['lin_vel_error']:.2f}",
                 yaw_err=f"{stats['yaw_rate_error']:.2f}",
@@ -335,14 +328,7 @@ def train(
             break
     bar.close()
     learner.collector.shutdown()
-    total_seconds = time.perf_counter() - start
-    record.update(
-        total_frames=frames,
-        total_seconds=total_seconds,
-        eval_seconds=eval_seconds,
-        frames_per_second=frames / total_seconds,
-        stopped_by_time_limit=frames < iterations * config.frames_per_batch,
-    )
+    record.update(clock.totals(frames))
     return record, actor, vecnorm
 
 
