@@ -211,6 +211,28 @@ def check_batch_size(value: object, name: str) -> torch.Size:
     return torch.Size([check_non_negative_int(n, f"{name}[{i}]") for i, n in enumerate(value)])
 
 
+def check_tensor(
+    value: object, dtype: torch.dtype, shape: Sequence[int], subject: str, expected: str, shape_note: str = ""
+) -> torch.Tensor:
+    """Return ``value`` if it is a tensor of ``dtype`` and ``shape``; else a ``TypeError`` (not a tensor of ``dtype``)
+    or a ``ValueError`` (another shape) saying ``"{subject} must be {expected}[{shape_note}], got ..."``.
+
+    Example:
+        >>> check_tensor(torch.zeros(2, 6, dtype=torch.float64), torch.float64, [2, 6], "delta", "float64 [2, 6]").shape
+        torch.Size([2, 6])
+        >>> check_tensor(torch.zeros(2, 6), torch.float64, [2, 6], "delta", "float64 [2, 6]")
+        Traceback (most recent call last):
+        ...
+        TypeError: delta must be float64 [2, 6], got dtype torch.float32
+    """
+    if not isinstance(value, torch.Tensor) or value.dtype != dtype:
+        got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
+        raise TypeError(f"{subject} must be {expected}, got {got}")
+    if list(value.shape) != list(shape):
+        raise ValueError(f"{subject} must be {expected}{shape_note}, got shape {list(value.shape)}")
+    return value
+
+
 def cast_like(constant: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """Return ``constant`` in the dtype and on the device of ``x`` (a no-op when they already agree)."""
     if constant.dtype == x.dtype and constant.device == x.device:

@@ -20,7 +20,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 import torch
 
-from torchtasks._checks import did_you_mean
+from torchtasks._checks import check_tensor, did_you_mean
 
 __all__ = ["DomainEnv", "DomainField", "check_domain_values", "check_field_name", "check_in_field", "select_fields"]
 
@@ -230,13 +230,8 @@ def check_domain_values(
     expected_mask = f"a bool tensor of shape {list(batch)} or None"
     if mask is None:
         mask = torch.ones(batch, dtype=torch.bool)
-    elif not isinstance(mask, torch.Tensor) or mask.dtype != torch.bool:
-        got = f"dtype {mask.dtype}" if isinstance(mask, torch.Tensor) else f"a {type(mask).__name__}"
-        raise TypeError(f"{owner}.set_domain: mask must be {expected_mask}, got {got}")
-    elif mask.shape != batch:
-        raise ValueError(
-            f"{owner}.set_domain: mask must be {expected_mask} (the env's batch), got shape {list(mask.shape)}"
-        )
+    else:
+        check_tensor(mask, torch.bool, batch, f"{owner}.set_domain: mask", expected_mask, " (the env's batch)")
     select_fields(table, list(values), owner, writes=writes, kinds=kinds, what=what)
     # numpy on the host: a few microseconds per field, where torch's small-tensor ops cost tens (this runs at resets)
     rows = mask.detach().cpu().numpy().reshape(-1)
@@ -244,11 +239,7 @@ def check_domain_values(
         field = table[name]
         shape = [*batch, *field.value_shape]
         expected = f"a float64 tensor of shape {shape} ([*batch, *value_shape])"
-        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64:
-            got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
-            raise TypeError(f"{owner}: {what}[{name!r}] must be {expected}, got {got}")
-        if list(value.shape) != shape:
-            raise ValueError(f"{owner}: {what}[{name!r}] must be {expected}, got shape {list(value.shape)}")
+        check_tensor(value, torch.float64, shape, f"{owner}: {what}[{name!r}]", expected)
         flat = value.detach().cpu().numpy().reshape(rows.size, -1)
         above = flat > field.low if field.low_open else flat >= field.low
         allowed = np.isfinite(flat) & above & (flat <= field.high)

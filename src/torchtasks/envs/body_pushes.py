@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from torchtasks._checks import check_tensor
 from torchtasks._did_you_mean import did_you_mean
 from torchtasks._optional import missing_extra
 
@@ -106,11 +107,7 @@ class PushableBodies:
         """``value`` as float64 ``[num_envs, 6]`` numpy, its rows in ``mask`` finite (else Type/ValueError)."""
         shape = [mask.shape[0], PUSH_SIZE]
         expected = f"a float64 tensor of shape {shape} ([num_envs, 6]: 3 linear, 3 angular components)"
-        if not isinstance(value, torch.Tensor) or value.dtype != torch.float64:
-            got = f"dtype {value.dtype}" if isinstance(value, torch.Tensor) else f"a {type(value).__name__}"
-            raise TypeError(f"{self.owner}: {name} must be {expected}, got {got}")
-        if list(value.shape) != shape:
-            raise ValueError(f"{self.owner}: {name} must be {expected}, got shape {list(value.shape)}")
+        check_tensor(value, torch.float64, shape, f"{self.owner}: {name}", expected)
         rows = value.detach().cpu().numpy()
         if not np.isfinite(rows).all() and not np.isfinite(rows[mask]).all():  # the whole array first: cheaper
             raise ValueError(f"{self.owner}: {name} must be finite in the rows of the envs in mask")
