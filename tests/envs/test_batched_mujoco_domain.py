@@ -380,14 +380,15 @@ def test_out_of_range_and_non_finite_values_of_the_written_envs_are_refused(
             lambda env: env.domain_fields(["body_mass:torsoo"]),
             ValueError,
             r"unknown domain field 'body_mass:torsoo' in names; did you mean 'body_mass:torso'.*"
-            # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity; poses of 4 + 4 bodies and 5 geoms
-            r"env\.domain_fields\(\) lists all 43 fields",
+            # 4 + 5 + 6 + 6 + 3 objects, 5 scales, gravity; poses of 4 + 4 bodies and 5 geoms; the 3 motors' gains
+            # and their scale (no servo: no kp, no kv)
+            r"env\.domain_fields\(\) lists all 47 fields",
         ),
         (
             lambda env: env.set_domain({"mass:torso": torch.ones(NUM_ENVS, dtype=torch.float64)}),
             ValueError,
             r"'mass:torso' in values; did you mean 'body_mass:torso'\? "
-            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 43",
+            r"\(kinds: body_mass:<body>, body_mass_scale, .*gravity; env\.domain_fields\(\) lists all 47",
         ),
         (lambda env: env.domain_fields("gravity"), TypeError, r"names must be a sequence"),
         (

@@ -54,20 +54,34 @@ class DomainField(NamedTuple):
     set_const: bool
     #: one line for listings and messages
     description: str
+    #: whether only whole numbers are allowed (a delay in steps); the values stay float64, a draw needs ``roundint``
+    integer: bool = False
 
     @property
     def rule(self) -> str:
-        """The allowed range as text: ``"in (0.0, inf)"``, ``"in [0.0, inf)"``, ``"finite"``."""
+        """The allowed values as text: ``"in (0.0, inf)"``, ``"in [0.0, inf)"``, ``"finite"``, ``"integer in [0, 3]"``.
+
+        Example:
+            >>> import torch
+            >>> zero = torch.tensor(0.0, dtype=torch.float64)
+            >>> DomainField("delay", torch.Size([]), zero, 0.0, 3.0, False, (), False, "delay (steps)", True).rule
+            'integer in [0, 3]'
+        """
+        prefix = "integer " if self.integer else ""
         if self.low == -math.inf and self.high == math.inf:
-            return "finite"
+            return "integer" if self.integer else "finite"
+        # an integer field's finite bounds are whole numbers: shown as such
+        low, high = (int(b) if self.integer and math.isfinite(b) else b for b in (self.low, self.high))
         right = "]" if math.isfinite(self.high) else ")"
-        return f"in {'(' if self.low_open else '['}{self.low}, {self.high}{right}"
+        return f"{prefix}in {'(' if self.low_open else '['}{low}, {high}{right}"
 
     def allows(self, values: torch.Tensor) -> torch.Tensor:
-        """Elementwise: whether each value is finite and in the field's range (a bool tensor of ``values``' shape)."""
+        """Elementwise: whether each value is finite, in the field's range and, for an integer field, a whole number
+        (a bool tensor of ``values``' shape)."""
         values = values.to(torch.float64)
         above = values > self.low if self.low_open else values >= self.low
-        return torch.isfinite(values) & above & (values <= self.high)
+        allowed = torch.isfinite(values) & above & (values <= self.high)
+        return allowed & (values == torch.round(values)) if self.integer else allowed
 
 
 def check_field_name(name: str) -> str:
@@ -193,9 +207,10 @@ def check_domain_values(
     """Check what ``set_domain`` received (or a checkpoint holds); return the mask (bool ``batch``, all True for None).
 
     ``values`` must map names of ``table`` (checked by :func:`select_fields` with ``writes`` and ``kinds``) to float64
-    tensors ``[*batch, *value_shape]``, finite and in the field's range in the envs of ``mask`` (the other rows are
-    ignored). A wrong type or dtype is a ``TypeError``; a wrong shape or value a ``ValueError`` naming the field, the
-    env and the value. A host check: ``set_domain`` runs at resets and draws, not in every step's tensor code.
+    tensors ``[*batch, *value_shape]``, finite, in the field's range and whole numbers for an integer field in the
+    envs of ``mask`` (the other rows are ignored). A wrong type or dtype is a ``TypeError``; a wrong shape or value a
+    ``ValueError`` naming the field, the env and the value. A host check: ``set_domain`` runs at resets and draws,
+    not in every step's tensor code.
 
     Example:
         >>> import math, torch
@@ -236,7 +251,10 @@ def check_domain_values(
             raise ValueError(f"{owner}: {what}[{name!r}] must be {expected}, got shape {list(value.shape)}")
         flat = value.detach().cpu().numpy().reshape(rows.size, -1)
         above = flat > field.low if field.low_open else flat >= field.low
-        allowed = (np.isfinite(flat) & above & (flat <= field.high)).all(axis=1)
+        allowed = np.isfinite(flat) & above & (flat <= field.high)
+        if field.integer:
+            allowed &= flat == np.round(flat)
+        allowed = allowed.all(axis=1)
         bad = rows & ~allowed
         if bad.any():
             env = int(np.flatnonzero(bad)[0])

@@ -285,7 +285,8 @@ class DomainParam(CheckedLoad, nn.Module):
     def bind_field(self, field: DomainField) -> None:
         """Check the parameter against the env's ``field`` it draws for and remember it for later checks.
 
-        Raises ``ValueError`` if the value shapes differ or a draw can leave the field's allowed range
+        Raises ``ValueError`` if the value shapes differ, the field is an integer one and the parameter does not round
+        (``roundint=False``), or a draw can leave the field's allowed range
         (:func:`~torchtasks.domain.fields.check_in_field`).
 
         Example:
@@ -306,6 +307,11 @@ class DomainParam(CheckedLoad, nn.Module):
             raise ValueError(
                 f"{self!r} draws values of shape {list(self._value_shape)}, but the field {field.name!r} "
                 f"({field.description}) has values of shape {list(field.value_shape)}"
+            )
+        if field.integer and not self.roundint:
+            raise ValueError(
+                f"{self!r} draws for the integer field {field.name!r} ({field.description}, {field.rule}) without "
+                "rounding; pass roundint=True"
             )
         check_in_field(field, *self.support(), repr(self))
         self._field = field

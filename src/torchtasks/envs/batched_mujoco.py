@@ -35,7 +35,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, Transform
 
-from torchtasks._checks import check_positive_int
+from torchtasks._checks import check_non_negative_int, check_positive_int
 from torchtasks._did_you_mean import did_you_mean
 from torchtasks._optional import missing_extra
 from torchtasks._torchrl import container_env
@@ -47,6 +47,7 @@ except ImportError as _error:
     raise missing_extra("mujoco", "torchtasks.envs.batched_mujoco (BatchedMujocoEnv)", _error) from _error
 
 from torchtasks.domain.fields import DomainField
+from torchtasks.envs.action_delay import ACTION_DELAY, APPLIED_ACTION_KEY, SAVED_KEYS, ActionQueue, action_delay_field
 from torchtasks.envs.gymnasium_v5 import (
     LOCOMOTION_ENVS,
     LocomotionEnvRecord,
@@ -117,6 +118,7 @@ _REBUILT = (
     "_time",
     "_half_timestep",
     "_stage",
+    "_delay",
 )
 
 
@@ -225,9 +227,8 @@ class BatchedMujocoEnv(EnvBase):
     tensordict start the masked envs from those states instead (:meth:`set_reset_states` queues them for the next
     reset wherever TorchRL resets). ``state_dict()`` holds the generators and the running episodes (a load
     continues them bit for bit; :class:`~torchtasks.transforms.BaseEnvState` saves them in a ``TransformedEnv``);
-    copies and pickles are independent envs in the same state. As a
-    :class:`~torchtasks.domain.DomainEnv` it gives each env its own physics (:meth:`set_domain`). Details: the docs
-    pages "Your own robot" and "The batched MuJoCo env".
+    copies and pickles are independent envs in the same state. As a :class:`~torchtasks.domain.DomainEnv` it gives
+    each env its own physics (:meth:`set_domain`). Docs: "Your own robot", "The batched MuJoCo env".
 
     Args:
         model: the model, or a Gymnasium id (then ``observation`` ... ``stage`` are the preset's).
@@ -242,6 +243,7 @@ class BatchedMujocoEnv(EnvBase):
         seed: seed of the per-env generators (``set_seed`` reseeds them); ``None``: fresh entropy.
         device: device of the output tensors (the simulation runs on the CPU).
         num_threads: threads that step the envs; default: the CPUs this process may use, at most ``num_envs``.
+        max_action_delay: the largest per-env action delay, in steps (:mod:`~torchtasks.envs.action_delay`); 0: none.
         task_state_keys: a Gymnasium id's task-state entries.
         **gym_kwargs: a Gymnasium id's keyword arguments.
 
@@ -280,6 +282,7 @@ class BatchedMujocoEnv(EnvBase):
         seed: int | None = None,
         device: torch.device | str | None = None,
         num_threads: int | None = None,
+        max_action_delay: int = 0,
         task_state_keys: Sequence[str] | None = None,
         _checked: tuple[dict[str, Any], ModelFacts] | None = None,
         **gym_kwargs: Any,
@@ -292,6 +295,7 @@ class BatchedMujocoEnv(EnvBase):
         )
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))):
             raise TypeError(f"seed must be an int or None, got {seed!r}")
+        max_action_delay = check_non_negative_int(max_action_delay, "max_action_delay")
         env_id = model if isinstance(model, str) and model in LOCOMOTION_ENVS else None
         if env_id is not None:
             if frame_skip is not None:  # Gymnasium's keyword of the same name
@@ -355,6 +359,8 @@ class BatchedMujocoEnv(EnvBase):
         self.init_qpos = np.array(self.model.qpos0 if keyframe < 0 else self.model.key_qpos[keyframe])
         self.init_qvel = np.zeros(self.model.nv) if keyframe < 0 else np.array(self.model.key_qvel[keyframe])
         self._closed = False
+        #: the largest action delay (steps) the ``"action_delay"`` domain field may take; 0: no delay, no field
+        self.max_action_delay = max_action_delay
         self._setup_batch()
         #: ``{key: size}`` of the task-state entries, in order
         self.state_layout = {key: self._sizes[key] for key in declaration.state}
@@ -409,7 +415,12 @@ class BatchedMujocoEnv(EnvBase):
         self._half_timestep = 0.5 * float(model.opt.timestep)
         self._stage = int(mujoco.mjtStage.mjSTAGE_VEL) if declaration.stage == "velocity" else 0
         #: the domain fields and the per-env values set so far (model fields expanded only once written)
-        self._domain = BatchDomain(model, batch, f"BatchedMujocoEnv({declaration.name})")
+        delay = self.max_action_delay
+        self._domain = BatchDomain(
+            model, batch, f"BatchedMujocoEnv({declaration.name})", (action_delay_field(delay),) if delay else ()
+        )
+        #: the delayed actions (max_action_delay > 0), else None: the step applies the policy's action
+        self._delay = ActionQueue(n, model.nu, delay) if delay else None
         #: each env's model for mj_rnePostConstraint (the shared one until its per-env fields are written); None: all
         #: envs have the shared model
         self._env_models: list[mujoco.MjModel] | None = None
@@ -464,6 +475,8 @@ class BatchedMujocoEnv(EnvBase):
             key: Unbounded(shape=(n, size), dtype=torch.float64, device=device) for key, size in self._sizes.items()
         }
         entries[BROKEN_KEY] = Categorical(2, shape=(n, 1), dtype=torch.bool, device=device)
+        if self._delay is not None:
+            entries[APPLIED_ACTION_KEY] = Unbounded(shape=(n, self.model.nu), dtype=torch.float64, device=device)
         self.observation_spec = Composite(entries, shape=batch, device=device)
         nu = self.model.nu
         if declaration.action_low is None:
@@ -574,6 +587,8 @@ class BatchedMujocoEnv(EnvBase):
         out["terminated"] = to_torch(flags.copy())
         out["done"] = to_torch(flags.copy())
         out["truncated"] = to_torch(np.zeros((n, 1), dtype=bool))
+        if self._delay is not None:
+            out[APPLIED_ACTION_KEY] = to_torch(self._delay.applied.copy())
         if reward:
             out["reward"] = to_torch(np.zeros((n, 1)))
         return TensorDict._new_unsafe(out, batch_size=self.batch_size, device=device)
@@ -611,11 +626,13 @@ class BatchedMujocoEnv(EnvBase):
             np.copyto(self._last_action, action)
         else:  # a skipped env keeps its controls, as it keeps its state
             self._last_action[stepped] = action[stepped]
+        # with a delay, the physics run the policy's action of delay[i] steps earlier (only finite ones are queued)
+        applied = self._last_action if self._delay is None else self._delay.push(self._last_action, stepped)
         if self._affine:
             declaration = self.declaration
-            ctrl = declaration.action_offset + declaration.action_scale * self._last_action
+            ctrl = declaration.action_offset + declaration.action_scale * applied
         else:
-            ctrl = self._last_action
+            ctrl = applied
         if stepped is None:
             np.copyto(self._ctrl, ctrl)
         else:
@@ -759,6 +776,9 @@ class BatchedMujocoEnv(EnvBase):
             self._read_outputs(ids, post_constraint=False)
             self._time[rows] = self._clock[rows]
             self._last_action[rows] = 0.0
+            if self._delay is not None:  # the delay set since the last reset starts with this episode
+                pending = self._domain.values.get(ACTION_DELAY)
+                self._delay.reset(rows, 0 if pending is None else pending[rows])
             for previous, now in zip(self._previous, self._differenced(), strict=True):
                 previous[rows] = now[rows]
         return self._outputs(None, None, reward=False)
@@ -855,9 +875,11 @@ class BatchedMujocoEnv(EnvBase):
     def set_domain(self, values: Mapping[str, torch.Tensor], mask: torch.Tensor | None = None) -> None:
         """Give the envs of ``mask`` the physics ``values[name][i]``, from their next step or reset on.
 
-        The values persist until set again (resets keep them) and checkpoints keep them. Only the model fields of
-        the kinds written become per-env (``Batch.expand``), and ``Batch.set_const`` runs once over the envs written
-        if some field written needs it (masses, armatures, gears). A running episode continues from its state.
+        ``"action_delay"`` (``max_action_delay > 0``) takes effect at each env's next reset only: a running episode
+        keeps its delay. The values persist until set again (resets keep them) and checkpoints keep them. Only the
+        model fields of the kinds written become per-env (``Batch.expand``), and ``Batch.set_const`` runs once over
+        the envs written if some field written needs it (masses, armatures, gears). A running episode continues from
+        its state.
 
         Args:
             values: by field name (:meth:`domain_fields`), a float64 tensor ``[num_envs, *value_shape]`` on any
@@ -884,6 +906,8 @@ class BatchedMujocoEnv(EnvBase):
         """Every env's current value of each field named (``None``: all), as float64 ``[num_envs, *value_shape]``.
 
         A field never set holds its nominal value. An object's model value is its value times its kind's scale.
+        ``"action_delay"`` is the value set last: the delay of each env's next episode (and of its running one, unless
+        it was set during that episode).
 
         Example:
             >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=2)
@@ -913,7 +937,7 @@ class BatchedMujocoEnv(EnvBase):
                 models = self._env_models = [self.model] * self.num_envs
             for i in range(self.num_envs) if ids is None else ids.tolist():
                 models[i] = self.batch.get_model(i, None if models[i] is self.model else models[i])
-        written = {name for kind in kinds for name in (kind.model_field, *kind.scaled_with)}
+        written = {name for kind in kinds for name in kind.model_fields}
         followed = [k for k, part in enumerate(self._differences) if written & set(_model_fields(part))]
         if followed:
             rows = slice(None) if ids is None else ids
@@ -971,6 +995,8 @@ class BatchedMujocoEnv(EnvBase):
             "num_envs": self.num_envs,
             "frame_skip": self.frame_skip,
             "model_sha256": hashlib.sha256(binary.tobytes()).hexdigest(),
+            # absent without a delay: as checkpoints written before the env had one
+            **({"max_action_delay": self.max_action_delay} if self.max_action_delay else {}),
             # a model of the user's: what the env reads, how it acts and resets (a preset's id and keywords say it)
             **({} if self.env_id is not None else {"declaration": self._declaration_facts()}),
         }
@@ -1015,18 +1041,18 @@ class BatchedMujocoEnv(EnvBase):
             "queued_qvel": torch.from_numpy(self._queued_qvel.copy()),
             "gathered": [torch.from_numpy(array.copy()) for array in gathered],
             _DOMAIN_KEY: self._domain.saved(),
+            **({} if self._delay is None else self._delay.saved()),
         }
 
     def _checked_running_episodes(self, running: Any, owner: str) -> dict[str, Any]:
         """``running`` as :meth:`_running_episodes` wrote it for this env; else a ``ValueError`` naming both sides."""
-        if not isinstance(running, Mapping) or set(running) - {_DOMAIN_KEY, *_OPTIONAL_RUNNING_KEYS} != set(
-            _RUNNING_KEYS
-        ):
+        delayed = SAVED_KEYS if self._delay is not None else ()
+        expected = f"a dict of {list(_RUNNING_KEYS + delayed)} (and {_DOMAIN_KEY!r})"
+        if not isinstance(running, Mapping) or not isinstance(running.get("model"), Mapping):
             got = sorted(running) if isinstance(running, Mapping) else type(running).__name__
-            raise ValueError(
-                f"{owner}: 'running_episodes' must be a dict of {list(_RUNNING_KEYS)} (and {_DOMAIN_KEY!r}), got {got}"
-            )
+            raise ValueError(f"{owner}: 'running_episodes' must be {expected}, got {got}")
         mine = self._running_episodes()
+        # the simulation first (its facts say why the other entries may differ: another model, max_action_delay, ...)
         saved_model, own_model = dict(running["model"]), mine["model"]
         if saved_model != own_model:
             differ = sorted(
@@ -1036,12 +1062,14 @@ class BatchedMujocoEnv(EnvBase):
                 f"{owner}: the saved running episodes are of another simulation ({', '.join(differ)} differ): "
                 f"saved {saved_model}, this env {own_model}"
             )
+        if set(running) - {_DOMAIN_KEY, *_OPTIONAL_RUNNING_KEYS} != set(_RUNNING_KEYS + delayed):
+            raise ValueError(f"{owner}: 'running_episodes' must be {expected}, got {sorted(running)}")
         if not isinstance(running["gathered"], Sequence) or len(running["gathered"]) != len(mine["gathered"]):
             raise ValueError(
                 f"{owner}: 'gathered' must be a list of {len(mine['gathered'])} tensors for this env, "
                 f"got {running['gathered']!r}"
             )
-        names = ["integration_state", "warnings", "time", "previous_position"]
+        names = ["integration_state", "warnings", "time", "previous_position", *delayed]
         names += [name for name in _OPTIONAL_RUNNING_KEYS if name in running]
         pairs = [(name, running[name], mine[name]) for name in names]
         pairs += [
@@ -1057,6 +1085,8 @@ class BatchedMujocoEnv(EnvBase):
         # the per-env physics: known fields of this env's shapes and ranges (a scale and one object's value may both
         # have been set, by two set_domain calls)
         self._domain.checked(running.get(_DOMAIN_KEY, {}), None, f"the saved {_DOMAIN_KEY!r} ({owner})", overlap=True)
+        if self._delay is not None:
+            self._delay.check_saved(running, owner)
         return dict(running)
 
     def _load_running_episodes(self, running: Mapping[str, Any]) -> None:
@@ -1079,6 +1109,8 @@ class BatchedMujocoEnv(EnvBase):
             array[:] = running[name].cpu().numpy() if name in running else np.nan
         for (array, _), values in zip(self._readers, running["gathered"][1:], strict=True):
             array[:] = values.cpu().numpy()
+        if self._delay is not None:
+            self._delay.load(running)
 
     # ------------------------------------------------------------------ copies and pickles
     def __getstate__(self) -> dict[str, Any]:
@@ -1112,7 +1144,8 @@ class BatchedMujocoEnv(EnvBase):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}({self.declaration.name}, num_envs={self.num_envs}, "
-            f"num_threads={self.num_threads}, frame_skip={self.frame_skip}, device={self.device})"
+            f"num_threads={self.num_threads}, frame_skip={self.frame_skip}, device={self.device}"
+            + (f", max_action_delay={self.max_action_delay})" if self.max_action_delay else ")")
         )
 
 

@@ -24,6 +24,7 @@ from torchtasks._checks import check_int, check_positive_int
 from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainEnv, DomainField, DomainParam
 from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.domain_owners import domain_owners
 from torchtasks.transforms.names import DOMAIN_KEY
 from torchtasks.transforms.seeding import SeededTransform
 
@@ -48,8 +49,11 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
     """Draw per-env physics from domain distributions and give them to the base env, at startup, resets or intervals.
 
     Each :class:`~torchtasks.domain.DomainParam` names a domain field of the base env
-    (``env.base_env.domain_fields()`` lists them: ``"body_mass:torso"``, ``"gravity"``, ...). The transform
-    draws one value per env and param and gives it to the env (:meth:`~torchtasks.domain.DomainEnv.set_domain`):
+    (``env.base_env.domain_fields()`` lists them: ``"body_mass:torso"``, ``"gravity"``, ...) or of a transform
+    before it in the env that owns fields (an :class:`~torchtasks.transforms.ObservationNoise`'s
+    ``"observation_noise:<entry>"``; :mod:`~torchtasks.transforms.domain_owners` routes each name to its owner). The
+    transform draws one value per env and param and gives it to the owner
+    (:meth:`~torchtasks.domain.DomainEnv.set_domain`):
     ``when="reset"`` at every reset of an env, before the base env resets; ``"startup"`` once per env, at its
     first reset; ``"interval"`` at its first reset and then before the step after every ``every`` steps of that
     env (across episodes). ``cycle=K`` draws ``K`` domains at the first draw and gives each env that needs values
@@ -238,19 +242,44 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
         self.__dict__.pop("_fields", None)
         self.__dict__.pop("_base", None)
 
-    def _base_env(self) -> DomainEnv:
+    def _find_domain_env(self) -> DomainEnv | None:
+        """The owners of the env's domain fields as one DomainEnv (:func:`~.domain_owners.domain_owners`): the base env
+        itself when no transform owns fields (today's path, unchanged), a routing view over the base env and the owning
+        transforms otherwise, ``None`` when nothing owns fields. Cached until the env changes."""
         known = self.__dict__.get("_base")
         if known is not None:
             return known
         env = container_env(self)
-        base = getattr(env, "base_env", None)
-        if not isinstance(base, DomainEnv):
+        home = self.home_transforms()
+        before: list = []
+        if home is not None:
+            flat, position = home
+            after = [type(t).__name__ for t in flat[position + 1 :] if isinstance(t, DomainEnv)]
+            if after:
+                raise ValueError(
+                    f"DomainRandomization: {', '.join(after)}, which owns domain fields, comes after it in the env's "
+                    "transforms: put it before the DomainRandomization. TorchRL runs the pre-reset hooks and inverse "
+                    "calls last to first: an owner before the randomization applies the values drawn for a reset or a "
+                    "step in that reset or step, and its fields' shapes are known when the randomization builds its "
+                    "specs"
+                )
+            before = flat[:position]
+        domain = domain_owners(getattr(env, "base_env", None), before, getattr(env, "batch_size", torch.Size()))
+        if domain is not None:  # until the env changes (_forget_setup): an isinstance of a Protocol is slow
+            self.__dict__["_base"] = domain
+        return domain
+
+    def _base_env(self) -> DomainEnv:
+        """The DomainEnv the params' fields go to (:meth:`_find_domain_env`); ``TypeError`` when nothing owns fields."""
+        domain = self._find_domain_env()
+        if domain is None:
+            base = getattr(container_env(self), "base_env", None)
             raise TypeError(
                 "DomainRandomization: the base env must offer per-env physics (domain_fields, set_domain, "
-                f"domain_values: a torchtasks BatchedMujocoEnv or PendulumEnv), got {type(base).__name__}"
+                f"domain_values: a torchtasks BatchedMujocoEnv or PendulumEnv), got {type(base).__name__}, and no "
+                "transform before the DomainRandomization owns domain fields (an ObservationNoise)"
             )
-        self.__dict__["_base"] = base  # until the env changes (_forget_setup): an isinstance of a Protocol is slow
-        return base
+        return domain
 
     def __getstate__(self) -> dict[str, Any]:
         state = super().__getstate__()
@@ -561,7 +590,7 @@ class DomainRandomization(CheckedLoad, SeededTransform, EnvDerivedTransform):
             )
         self._forget_setup()
         env = container_env(self)
-        if env is None or not isinstance(getattr(env, "base_env", None), DomainEnv):
+        if env is None or self._find_domain_env() is None:
             return
         if self.started.numel() == 0 and env.batch_size.numel() != 0:
             return  # no env's values held (a non-strict load without them, before the env built its specs)

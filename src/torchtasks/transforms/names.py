@@ -41,6 +41,7 @@ __all__ = [
     "GROUPS_KEY",
     "LEVEL",
     "MEMORY_KEY",
+    "NOISE_KEY",
     "REWARD_KEY",
     "STEP_TERM",
     "SUCCESS_KEY",
@@ -102,6 +103,9 @@ DOMAIN = "domain"
 #: the default key under which a DomainRandomization writes every env's drawn values (``entry_key``), one entry
 #: per domain field (``("domain", "body_mass:torso")``)
 DOMAIN_KEY = "domain"
+#: the default key under which an ObservationNoise writes each episode's bias per entry (``entry_key``):
+#: ``("observation_noise", "bias", <entry>)``
+NOISE_KEY = "observation_noise"
 
 
 def names_task_buffer(target: str) -> bool:

@@ -115,6 +115,7 @@ def control_suite_base_env(
     seed: int | None = None,
     device: torch.device | str | None = None,
     num_threads: int | None = None,
+    max_action_delay: int = 0,
 ) -> BatchedMujocoEnv:
     """The batched env of a Control Suite task without its task: observation and task-state entries, no reward.
 
@@ -145,6 +146,7 @@ def control_suite_base_env(
         seed=seed,
         device=device,
         num_threads=num_threads,
+        max_action_delay=max_action_delay,
     )
 
 
@@ -156,6 +158,7 @@ def control_suite_env(
     seed: int | None = None,
     device: torch.device | str | None = None,
     num_threads: int | None = None,
+    max_action_delay: int = 0,
 ) -> TransformedEnv:
     """A Control Suite task as a TorchRL env of ``num_envs`` simulations stepped in one ``mujoco.batch`` call.
 
@@ -173,6 +176,8 @@ def control_suite_env(
         seed: seed of the per-env reset generators (``None``: fresh entropy).
         device: device of the output tensors (the simulation runs on the CPU).
         num_threads: threads that step the envs (default: the CPUs this process may use).
+        max_action_delay: the largest per-env action delay in steps (the ``"action_delay"`` domain field, drawn by a
+            :class:`~torchtasks.transforms.DomainRandomization`; :class:`~torchtasks.envs.BatchedMujocoEnv`); 0: none.
 
     Example:
         >>> env = control_suite_env("walker-walk", num_envs=4, seed=0)
@@ -185,7 +190,13 @@ def control_suite_env(
     """
     record = control_suite_record(name)
     base = control_suite_base_env(
-        record.name, num_envs, flat_observation=flat_observation, seed=seed, device=device, num_threads=num_threads
+        record.name,
+        num_envs,
+        flat_observation=flat_observation,
+        seed=seed,
+        device=device,
+        num_threads=num_threads,
+        max_action_delay=max_action_delay,
     )
     _, columns = _layout(record, base.model)
     task = _task(record, base.model, columns)
