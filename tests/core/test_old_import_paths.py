@@ -28,5 +28,6 @@ def test_an_old_path_exports_the_package_objects(path: str) -> None:
 
 def test_the_package_exports_every_old_name_the_task_transform_domain_randomization_and_the_listing() -> None:
     names = {name for names in OLD_PATHS.values() for name in names}
-    names |= {"TaskTransform", "DomainRandomization", "TargetTable", "target_names"}
+    names |= {"TaskTransform", "DomainRandomization", "TargetTable", "target_names", "Pushes", "PushableEnv"}
+    names |= {"ObservationNoise", "EntryNoise"}
     assert names == set(transforms.__all__)

@@ -30,16 +30,20 @@ from task_trees import class_cases, full_spec, make_drive_data, memory_leaves, p
 from torchtasks.rewards import (
     AboveThresholdIndicator,
     AbsoluteErrorReward,
+    ActionRateReward,
     AffineReward,
     AntForwardReward,
     CartPoleSwingUpReward,
     CompoundReward,
     ConstantReward,
     ContactCostReward,
+    ContactCountReward,
     ControlCostReward,
     CosineReward,
     DisplacementReward,
     ExpQuadraticErrorReward,
+    ExpTrackingReward,
+    FeetAirTimeReward,
     ForwardVelocityReward,
     HealthyReward,
     HumanoidForwardReward,
@@ -48,6 +52,7 @@ from torchtasks.rewards import (
     RewardFunction,
     ScaledExpQuadraticErrorReward,
     ShiftedCosineReward,
+    SquaredSumReward,
     StateFunctionReward,
     SwingUpReward,
     ToleranceReward,
@@ -352,6 +357,30 @@ def _cart_pole_case():
     return fit, misfit
 
 
+def _selection_case(build: Callable[[list[int]], RewardFunction], name: str):
+    """Fit/misfit builders of the rewards reading a list of state entries (``indices``, ``contact_indices``)."""
+
+    def fit(draw: Draw, n: int, m: int) -> RewardFunction:
+        return build(draw(st.lists(st.integers(0, n - 1), min_size=1, max_size=n, unique=True)))
+
+    def misfit(draw: Draw, n: int, m: int) -> tuple[RewardFunction, str]:
+        index = draw(st.lists(st.integers(0, n + 3), min_size=1, max_size=n + 1, unique=True).filter(max_at_least(n)))
+        return build(index), rf"reads state entries {name}={re.escape(str(index))}, but the task's state has"
+
+    return fit, misfit
+
+
+def _action_rate_case():
+    def fit(draw: Draw, n: int, m: int) -> RewardFunction:
+        return ActionRateReward(m)
+
+    def misfit(draw: Draw, n: int, m: int) -> tuple[RewardFunction, str]:
+        k = _other_size(draw, m)
+        return ActionRateReward(k), rf"expects actions of size {k}, but the task's action has {_entries(m)}"
+
+    return fit, misfit
+
+
 @dataclass(frozen=True)
 class SizedCase:
     """A reward class with size-carrying constants: builders of fitting and misfitting instances."""
@@ -395,6 +424,13 @@ SIZED = {
     "tolerance": SizedCase(
         ToleranceReward, *_index_case(lambda i: ToleranceReward(bounds=(-1.0, 1.0), margin=0.5, indices=[i]), "indices")
     ),
+    "exp_tracking": SizedCase(ExpTrackingReward, *_selection_case(lambda i: ExpTrackingReward(0.5, i), "indices")),
+    "squared_sum": SizedCase(SquaredSumReward, *_selection_case(SquaredSumReward, "indices")),
+    "contact_count": SizedCase(ContactCountReward, *_selection_case(lambda i: ContactCountReward(1.0, i), "indices")),
+    "feet_air_time": SizedCase(
+        FeetAirTimeReward, *_selection_case(lambda i: FeetAirTimeReward(0.02, i), "contact_indices")
+    ),
+    "action_rate": SizedCase(ActionRateReward, *_action_rate_case()),
 }
 
 #: reward classes without size-carrying constants (any state and action size fits)
@@ -569,6 +605,13 @@ CALL_CASES = {
         state_name="state",
     ),
     "tolerance": CallCase(lambda: ToleranceReward(bounds=(0.0, 1.0), margin=0.5, indices=[0, 4]), min_state=5),
+    "exp_tracking": CallCase(lambda: ExpTrackingReward(0.5, [0, 4]), min_state=5),
+    "squared_sum": CallCase(lambda: SquaredSumReward([4, 1]), min_state=5),
+    "contact_count": CallCase(lambda: ContactCountReward(0.1, [0, 4]), min_state=5),
+    "action_rate": CallCase(lambda: ActionRateReward(2), exact_action=True, state_name="state"),
+    "feet_air_time": CallCase(
+        lambda: FeetAirTimeReward(0.02, [0, 4], command_indices=[1, 2]), min_state=5, state_name="state"
+    ),
     "product": CallCase(
         lambda: ProductReward({"track": QuadraticErrorReward(_Q5, _R2), "angle": CosineReward(0)}),
         exact_state=True,
@@ -694,7 +737,10 @@ def test_action_free_rewards_still_accept_any_action_size_and_none():
         if reward.uses_action:
             continue
         for action in (None, torch.zeros(3, 7), torch.zeros(3, 1, dtype=F64)):
-            assert reward(state, action).shape == (3,), name
+            if reward.stateful:  # an action-free stateful reward (feet air time) steps its memory
+                assert reward.step(state, action, reward.reset(state))[0].shape == (3,), name
+            else:
+                assert reward(state, action).shape == (3,), name
 
 
 # ====================================================================================== item 12: meta inputs

@@ -223,6 +223,14 @@ REFUSED_FLAGS = {
             (["--learning-rate", "-1"], "--learning-rate must be a positive number, got -1.0"),
         ),
     ),
+    "velocity_tracking_ppo.py": (
+        "torchtasks.envs",
+        "velocity_tracking_env",
+        (
+            (["--num-envs", "0"], "--num-envs must be at least 1, got 0"),
+            (["--curriculum-frames", "0"], "--curriculum-frames must be at least 1, got 0"),
+        ),
+    ),
     "control_suite_ppo.py": (
         "torchtasks.envs.control_suite",
         "control_suite_env",

@@ -5,7 +5,8 @@ policy gradients), ``examples/train_locomotion_ppo.py`` (PPO on MuJoCo HalfCheet
 ``mujoco`` extra), ``examples/train_safety_ppo_lagrangian.py``,
 ``examples/train_hopper_domain_randomization.py`` (PPO on Hopper, nominal and with randomized masses
 and frictions, evaluated on a grid of models), ``examples/own_robot_ppo.py`` (PPO on the shipped quadruped),
-``examples/control_suite_ppo.py`` (PPO on a DeepMind Control Suite preset)
+``examples/control_suite_ppo.py`` (PPO on a DeepMind Control Suite preset),
+``examples/velocity_tracking_ppo.py`` (PPO on the velocity-tracking quadruped)
 and ``examples/train_multi_objective_ppo.py`` (PPO with
 one critic per reward group on ``mo-halfcheetah-v5``, a front over weight vectors) are run as scripts,
 as a user would, from a fresh empty directory with their default outputs (``runs/<example name>/``;
@@ -27,6 +28,7 @@ from typing import Any
 import pytest
 
 from example_runs import run_quick
+from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS
 
 TIMEOUT_S = 120  # a quick run takes < 60 s on the 2-core CI machine, even when it is busy
 
@@ -167,6 +169,40 @@ def test_own_robot_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "own_robot_ppo_curve.png").stat().st_size > 0
         assert "own_robot_ppo_curve.png (1 seed)" in result.stdout
+
+
+def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -> None:
+    """PPO on the velocity-tracking quadruped: the training curve with every reward term, the evaluation's tracking
+    errors and falls, each variant under each condition, the markdown table and the plot."""
+    pytest.importorskip("mujoco")
+    result = run_example("velocity_tracking_ppo.py", tmp_path, "--seed", "3")
+    output = tmp_path / "runs" / "velocity_tracking_ppo" / "quick"  # the default --output of a --quick run
+    record = json.loads((output / "velocity_tracking_seed3.json").read_text())
+    assert record["seed"] == 3 and record["method"] == "PPO" and record["total_seconds"] > 0
+    trained = record["variants"]["nominal"]
+    assert [point["frames"] for point in trained["curve"]] == [100, 200] == [100, trained["total_frames"]]
+    for point in trained["curve"]:  # 4 envs x 25 steps of 1000-step episodes: only falls end them
+        assert point["falls"] == point["episodes"] and point["train_lin_vel_error"] >= 0
+        assert point["command_high"] is not None and point["command_high"][0] <= 1.0  # the curriculum's range
+        if point["train_return"] is not None:
+            terms = sum(point[f"train_return/{term}"] for term in VELOCITY_TRACKING_WEIGHTS)
+            assert point["train_return"] == pytest.approx(terms)
+    (evaluation,) = trained["eval_curve"]  # 2 envs x 30 steps at the end
+    assert evaluation["frames"] == 200 and evaluation["episodes"] >= 2
+    assert 0 <= evaluation["falls_per_episode"] <= 1 and evaluation["lin_vel_error"] >= 0
+    assert set(record["variants"]) == {"nominal", "robust"}  # trained without and with perturbations
+    assert record["variants"]["robust"]["total_frames"] == 200
+    conditions = {"nominal", "pushes and delay"}
+    assert {variant: set(results) for variant, results in record["results"].items()} == dict.fromkeys(
+        ("standing still", "nominal", "robust"), conditions
+    )
+    standing = record["results"]["standing still"]["nominal"]  # zero actions: it stands, the errors are the commands'
+    assert standing["falls_per_episode"] == 0 and standing["lin_vel_error"] > 0
+    table = (output / "velocity_tracking_seed3.md").read_text()
+    assert "| robust | pushes and delay |" in table and "| standing still | nominal |" in table
+    assert "nominal, seed 3: 200 frames in" in result.stdout
+    if importlib.util.find_spec("matplotlib") is not None:
+        assert (output / "velocity_tracking_seed3.png").stat().st_size > 0
 
 
 def test_control_suite_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:

@@ -33,6 +33,9 @@ _DECLARATION = ("Actions", "FreeJointRanges", "Noise", "Resets")
 #: for the same reason
 _CONTROL_SUITE = ("CONTROL_SUITE_TASKS", "control_suite_env", "control_suite_task")
 
+#: the velocity-tracking quadruped (torchtasks.envs.velocity_tracking), imported on first access for the same reason
+_VELOCITY_TRACKING = ("velocity_tracking_env", "velocity_tracking_perturbations")
+
 #: MO-Gymnasium's MuJoCo v5 envs as presets with a vector reward (torchtasks.envs.multi_objective), imported on
 #: first access for the same reason
 _MULTI_OBJECTIVE = ("MULTI_OBJECTIVE_ENV_IDS", "multi_objective_env", "multi_objective_record", "multi_objective_task")
@@ -47,6 +50,7 @@ __all__ = [
     *_DECLARATION,
     *_MULTI_OBJECTIVE,
     *_CONTROL_SUITE,
+    *_VELOCITY_TRACKING,
 ]
 
 
@@ -71,4 +75,8 @@ def __getattr__(name: str) -> Any:
         from torchtasks.envs import multi_objective
 
         return getattr(multi_objective, name)
+    if name in _VELOCITY_TRACKING:
+        from torchtasks.envs import velocity_tracking
+
+        return getattr(velocity_tracking, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -48,6 +48,7 @@ except ImportError as _error:
 
 from torchtasks.domain.fields import DomainField
 from torchtasks.envs.action_delay import ACTION_DELAY, APPLIED_ACTION_KEY, SAVED_KEYS, ActionQueue, action_delay_field
+from torchtasks.envs.body_pushes import PushableBodies
 from torchtasks.envs.gymnasium_v5 import (
     LOCOMOTION_ENVS,
     LocomotionEnvRecord,
@@ -98,6 +99,7 @@ _REBUILT = (
     "_qvel",
     "_clock",
     "_ctrl",
+    "_xfrc_applied",
     "_physics",
     "_warnings",
     "_readers",
@@ -359,6 +361,8 @@ class BatchedMujocoEnv(EnvBase):
         self.init_qpos = np.array(self.model.qpos0 if keyframe < 0 else self.model.key_qpos[keyframe])
         self.init_qvel = np.zeros(self.model.nv) if keyframe < 0 else np.array(self.model.key_qvel[keyframe])
         self._closed = False
+        #: the bodies pushes reach (add_body_velocity, set_body_wrench)
+        self._pushes = PushableBodies(self.model, f"BatchedMujocoEnv({declaration.name})")
         #: the largest action delay (steps) the ``"action_delay"`` domain field may take; 0: no delay, no field
         self.max_action_delay = max_action_delay
         self._setup_batch()
@@ -402,6 +406,8 @@ class BatchedMujocoEnv(EnvBase):
                 f"mjSTATE_INTEGRATION ({mujoco.mj_stateSize(model, _INTEGRATION_STATE)}); this MuJoCo is not supported"
             )
         self._qpos, self._qvel, self._clock, self._ctrl = (batch.bind(f) for f in ("qpos", "qvel", "time", "ctrl"))
+        #: the external wrenches of every body (set_body_wrench), a view of the state rows
+        self._xfrc_applied = batch.bind("xfrc_applied")
         # [time, qpos, qvel] lead each mjSTATE_INTEGRATION row: one view checks them all for non-finite values
         self._physics = batch.state[:, : 1 + model.nq + model.nv]
         for part in (self._clock, self._qpos, self._qvel):
@@ -918,6 +924,89 @@ class BatchedMujocoEnv(EnvBase):
         """
         device = self.device
         return {name: torch.from_numpy(value).to(device) for name, value in self._domain.read(names).items()}
+
+    # ------------------------------------------------------------------ pushes
+    def pushable_bodies(self) -> tuple[str, ...]:
+        """The bodies whose velocity :meth:`add_body_velocity` can change: the named bodies with a free joint.
+
+        Example:
+            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
+            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
+            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+            >>> from torchtasks.envs import readings
+            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
+            >>> env.pushable_bodies()
+            ('box',)
+            >>> env.close()
+        """
+        return self._pushes.free_bodies
+
+    def add_body_velocity(self, body: str, delta: torch.Tensor, mask: torch.Tensor | None = None) -> None:
+        """Add ``delta[i]`` to the velocity of ``body``'s free joint in each env ``i`` of ``mask``, from its next step.
+
+        MuJoCo's free-joint velocity: ``delta[:, :3]`` changes the linear velocity of the body's origin in the world
+        frame (m/s), ``delta[:, 3:]`` the angular velocity in the body's own frame (rad/s). The change is a write
+        into the envs' state, as a reset's: the next step's physics starts from it (the readings of the env show it
+        after that step), and a checkpoint taken before that step keeps it.
+
+        Args:
+            body: a body of :meth:`pushable_bodies` (``ValueError`` naming the close ones otherwise).
+            delta: float64 ``[num_envs, 6]``; the rows of the envs in ``mask`` must be finite, the others are ignored.
+            mask: bool ``[num_envs]``, the envs to push; ``None``: all.
+
+        Example:
+            >>> import torch
+            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
+            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
+            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+            >>> from torchtasks.envs import readings
+            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
+            >>> _ = env.reset()
+            >>> delta = torch.tensor([[1.0, 0, 0, 0, 0, 0], [0, 2.0, 0, 0, 0, 0]], dtype=torch.float64)
+            >>> env.add_body_velocity("box", delta, mask=torch.tensor([False, True]))
+            >>> env.batch.bind("qvel")[:, :3].tolist()
+            [[0.0, 0.0, 0.0], [0.0, 2.0, 0.0]]
+            >>> env.close()
+        """
+        self._check_open()
+        self._pushes.add_velocity(self._qvel, body, delta, self._push_mask(mask, "add_body_velocity: mask"))
+
+    def set_body_wrench(self, body: str, wrench: torch.Tensor, mask: torch.Tensor | None = None) -> None:
+        """Apply the wrench ``wrench[i]`` to ``body`` in each env ``i`` of ``mask``, from its next step until set again.
+
+        MuJoCo's ``xfrc_applied``: ``wrench[:, :3]`` is a force (N), ``wrench[:, 3:]`` a torque (N m), both in the
+        world frame, applied at the body's centre of mass. The wrench is part of the envs' state: it stays over
+        steps until set again (zeros remove it), a checkpoint keeps it, and an env's reset clears it.
+
+        Args:
+            body: the name of a body other than the world (``ValueError`` naming the close ones otherwise).
+            wrench: float64 ``[num_envs, 6]``; the rows of the envs in ``mask`` must be finite, the others are ignored.
+            mask: bool ``[num_envs]``, the envs to write; ``None``: all.
+
+        Example:
+            >>> import torch
+            >>> xml = '''<mujoco><worldbody><body name="box"><freejoint/><geom size="0.1"/>
+            ...   <body name="arm"><joint name="hinge"/><geom size="0.05" pos="0 0 0.2"/></body></body></worldbody>
+            ...   <actuator><motor joint="hinge"/></actuator></mujoco>'''
+            >>> from torchtasks.envs import readings
+            >>> env = BatchedMujocoEnv(xml, 2, observation=readings.joint_pos("hinge"), seed=0)
+            >>> data = env.reset()
+            >>> push = torch.tensor([[0.0, 0, 5, 0, 0, 0], [0, 0, 9, 0, 0, 1]], dtype=torch.float64)
+            >>> env.set_body_wrench("box", push, mask=torch.tensor([False, True]))
+            >>> env.batch.bind("xfrc_applied")[:, 1].tolist()  # body 1 is "box"
+            [[0.0, 0.0, 0.0, 0.0, 0.0, 0.0], [0.0, 0.0, 9.0, 0.0, 0.0, 1.0]]
+            >>> _ = env.rand_step(data)  # applied in this step, and the next ones
+            >>> _ = env.reset()  # a reset clears it
+            >>> env.batch.bind("xfrc_applied")[1, 1].tolist()
+            [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+            >>> env.close()
+        """
+        self._check_open()
+        mask = self._push_mask(mask, "set_body_wrench: mask")
+        self._pushes.set_wrench(self._xfrc_applied, body, wrench, mask)
+
+    def _push_mask(self, mask: torch.Tensor | None, argument: str) -> np.ndarray:
+        return np.ones(self.num_envs, dtype=bool) if mask is None else self._checked_mask(mask, argument)
 
     def _follow_domain(self, kinds: set[FieldKind], ids: np.ndarray | None) -> None:
         """Update what the env keeps of the model beside the batch, for the envs ``ids`` whose ``kinds`` were written.

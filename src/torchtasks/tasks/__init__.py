@@ -1,5 +1,6 @@
 """Tasks: batched, functional evaluation of transitions with per-environment memory in a TensorDict."""
 
+from torchtasks.tasks.command_tracking import CommandTrackingTask
 from torchtasks.tasks.composite import CompositeTask
 from torchtasks.tasks.constrained import ConstrainedTask, Constraint
 from torchtasks.tasks.desired_state import DesiredStateTask, RadiallySymmetricDesiredStateTask
@@ -15,10 +16,17 @@ from torchtasks.tasks.protocol import Task
 from torchtasks.tasks.sequential import SequentialTasks
 from torchtasks.tasks.shaping import PotentialShapingTask
 from torchtasks.tasks.success import never_succeeded, proximity_succeeded
+from torchtasks.tasks.velocity_tracking import (
+    VELOCITY_TRACKING_WEIGHTS,
+    velocity_tracking_state,
+    velocity_tracking_task,
+)
 from torchtasks.tasks.wrapper import ForwardingTask, TaskWrapper, all_tasks
 
 __all__ = [
+    "VELOCITY_TRACKING_WEIGHTS",
     "BestStateFinalRewardTask",
+    "CommandTrackingTask",
     "CompositeTask",
     "ConditionTask",
     "ConstrainedTask",
@@ -44,4 +52,6 @@ __all__ = [
     "all_tasks",
     "never_succeeded",
     "proximity_succeeded",
+    "velocity_tracking_state",
+    "velocity_tracking_task",
 ]

@@ -9,6 +9,8 @@
   owners of the fields (:mod:`.domain_owners`);
 - :class:`ObservationNoise` and :class:`EntryNoise` (:mod:`.noise`): per-step noise and a per-episode bias per
   observation entry and per env, their stds domain fields;
+- :class:`Pushes` (:mod:`.pushes`): per-env pushes and external forces at random intervals, their ranges domain
+  fields;
 - :class:`SeededTransform` and :func:`seed_transforms` (:mod:`.seeding`): per-worker seeds from ``set_seed``;
 - :class:`BaseEnvState`, :func:`collector_state`, :func:`load_collector_state` (:mod:`.checkpoint`): saving
   and resuming a run, episodes included.
@@ -19,7 +21,7 @@ range, the base env or a domain distribution; the checks; the write) that curric
 
 The modules of the package import only from below it (rewards, tasks, spaces) and from one another in this
 order: ``names``, ``_base``, ``entries``, ``seeding``, ``task``, ``command``, ``domain_owners``, ``domain``, ``noise``,
-``schedules``, ``targets``, ``curriculum``, ``levels``, ``checkpoint``.
+``pushes``, ``schedules``, ``targets``, ``curriculum``, ``levels``, ``checkpoint``.
 The old paths (``torchtasks.commands``, ``torchtasks.curriculum``, ``torchtasks.levels``,
 ``torchtasks.seeding``, ``torchtasks.checkpoint``) re-export the same objects.
 """
@@ -30,6 +32,7 @@ from torchtasks.transforms.curriculum import Curriculum
 from torchtasks.transforms.domain import DomainRandomization
 from torchtasks.transforms.levels import DifficultyLevels, LevelRule
 from torchtasks.transforms.noise import EntryNoise, ObservationNoise
+from torchtasks.transforms.pushes import PushableEnv, Pushes
 from torchtasks.transforms.schedules import GatedSchedule, Schedule, constant, gated, linear, staged
 from torchtasks.transforms.seeding import SeededTransform, SeedHook, derived_seed, seed_transforms
 from torchtasks.transforms.targets import TargetTable, target_names
@@ -45,6 +48,8 @@ __all__ = [
     "GoalCommand",
     "LevelRule",
     "ObservationNoise",
+    "PushableEnv",
+    "Pushes",
     "Schedule",
     "SeedHook",
     "SeededTransform",

@@ -17,7 +17,7 @@ from tensordict.utils import NestedKey
 from torchrl.data import Bounded, Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
-from torchtasks._checks import check_batch_size, check_int, check_positive_int
+from torchtasks._checks import check_batch_size, check_finite_scalar, check_int, check_positive_int
 from torchtasks._torchrl import container_env, flat_transforms, key_parts, nested_key
 from torchtasks.spaces import Box
 from torchtasks.transforms.names import SUCCESS_KEY
@@ -56,6 +56,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
         success_key: the success flag written by the TaskTransform.
         seed: seed of the command's own generator (``None``: torch's global one until ``env.set_seed``).
         goal_size: the number of goal entries when ``space`` is a sampler.
+        zero_goal_probability: the probability that a goal drawn (at reset or at a resampling) is all zeros instead,
+            per env, from the command's generator: the "standing" envs of a velocity command (IsaacLab's
+            ``rel_standing_envs``). 0 (the default) draws exactly as without it; the zero goal must lie in ``space``.
 
     Example:
         >>> import functools, torch
@@ -86,11 +89,20 @@ class GoalCommand(CheckedLoad, SeededTransform):
         success_key: NestedKey = SUCCESS_KEY,
         seed: int | None = None,
         goal_size: int | None = None,
+        zero_goal_probability: float = 0.0,
     ) -> None:
+        zero_goal_probability = check_finite_scalar(zero_goal_probability, "GoalCommand: zero_goal_probability")
+        if not 0.0 <= zero_goal_probability <= 1.0:
+            raise ValueError(f"GoalCommand: zero_goal_probability must lie in [0, 1], got {zero_goal_probability}")
         if isinstance(space, Box):
             if not (torch.isfinite(space.low).all() and torch.isfinite(space.high).all()):
                 raise ValueError("GoalCommand: the goal space must have finite bounds to sample uniformly from it")
             size = space.size
+            if zero_goal_probability > 0 and not bool(((space.low <= 0) & (space.high >= 0)).all()):
+                raise ValueError(
+                    f"GoalCommand: zero_goal_probability={zero_goal_probability} draws all-zero goals, but 0 is "
+                    f"outside the goal space (low={space.low.tolist()}, high={space.high.tolist()})"
+                )
         elif callable(space):
             if goal_size is None:
                 raise ValueError("GoalCommand: a sampler needs goal_size=<number of goal entries>, got None")
@@ -109,6 +121,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
         super().__init__(in_keys=in_keys, out_keys=[self.goal_key, self.timer_key])
         self.space = space
         self.goal_size = size
+        self.zero_goal_probability = zero_goal_probability
         self.resample_on_success = resample_on_success
         self.generator = None if seed is None else torch.Generator().manual_seed(seed)
         if isinstance(space, Box):  # the sampling range: registered, so .to(), state_dict and a Curriculum reach it
@@ -258,6 +271,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
                     f"GoalCommand: the sampler must return floating goals of shape {[*batch, self.goal_size]}, "
                     f"got {goals.dtype} {list(goals.shape)}"
                 )
+        if self.zero_goal_probability > 0:  # a draw per env after the goals: without it, the stream is unchanged
+            zero = torch.rand(batch, generator=self.generator, dtype=torch.float64) < self.zero_goal_probability
+            goals = torch.where(zero.to(goals.device).unsqueeze(-1), torch.zeros_like(goals), goals)
         return goals.to(device=device, dtype=dtype)
 
     def _check_range_batch(self, batch: torch.Size) -> None:
@@ -390,7 +406,9 @@ class GoalCommand(CheckedLoad, SeededTransform):
     def __repr__(self) -> str:
         return (
             f"{type(self).__name__}(goal_key={self.goal_key!r}, resample_steps={self.timer_range}, "
-            f"resample_on_success={self.resample_on_success})"
+            f"resample_on_success={self.resample_on_success}"
+            + (f", zero_goal_probability={self.zero_goal_probability}" if self.zero_goal_probability else "")
+            + ")"
         )
 
 

@@ -1,0 +1,202 @@
+"""What the sim-to-real perturbations cost: the velocity-tracking preset with and without them, interleaved.
+
+``python benchmarks/perturbations.py [--envs 64] [--repeats 7] [--seconds 2.0] [--steps-per-batch 20] [--threads N]
+[--output runs/perturbations_bench] [--quick]``
+
+The preset is ``velocity_tracking_env(N)`` (the shipped quadruped, 4 substeps per step, its task, command and
+``CatTensors``) in a ``torchrl.collectors.Collector`` with uniform random actions (one torch thread,
+``N * --steps-per-batch`` frames per batch). These variants are built once and then measured back to back in every
+repeat (``--seconds`` each, at least one batch), so each ratio compares numbers taken under the same machine load:
+
+- ``floor``: ``mujoco.batch.Batch.step(nstep=4, stage=mjSTAGE_VEL)`` of the preset's own batch after writing random
+  controls into its bound ``ctrl`` rows: the physics alone.
+- ``plain``: the preset, no perturbation (``max_action_delay=0``, no perturbation transform).
+- ``delay``, ``noise``, ``pushes``, ``gains``: the preset with one perturbation each, as
+  :func:`~torchtasks.envs.velocity_tracking_perturbations` builds it (``delay``: ``max_action_delay=1`` and its
+  draw per env at reset; ``noise``: ``ObservationNoise`` on the five sensed policy entries; ``pushes``: ``Pushes`` of
+  the torso, velocity changes of up to 0.5 m/s every 5 to 10 s per env; ``gains``: ``actuator_kp_scale`` drawn per
+  env at reset).
+- ``all four``: the four together; ``all four + physics``: with the randomized masses and frictions of the same
+  function too (the set the example ``examples/velocity_tracking_ppo.py`` trains its robust policy with).
+
+The table reports medians over the repeats of frames/s and of the per-repeat ratio to ``plain`` (the cost of a
+perturbation is ``1 - ratio``) and to ``floor``. Results: ``<output>/results.json`` (every repeat's numbers, the
+load average before and after, the versions) and ``<output>/results.md``. ``--quick`` runs every code path in
+seconds (its timings mean nothing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import mujoco
+import numpy as np
+import torch
+from torchrl.envs import TransformedEnv
+
+from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from control_suite import Collected, measure  # the same Collector loop and timer
+
+#: the variants, measured in this order in every repeat
+VARIANTS = ("floor", "plain", "delay", "noise", "pushes", "gains", "all four", "all four + physics")
+#: the perturbations of each variant (keywords of velocity_tracking_perturbations)
+PARTS = {
+    "plain": {},
+    "delay": {"delay": True},
+    "noise": {"noise": True},
+    "pushes": {"pushes": True},
+    "gains": {"gains": True},
+    "all four": {"delay": True, "noise": True, "pushes": True, "gains": True},
+    "all four + physics": {"delay": True, "noise": True, "pushes": True, "gains": True, "physics": True},
+}
+#: the action delay's maximum where a variant delays
+MAX_DELAY = 1
+
+
+def preset(num_envs: int, num_threads: int, parts: dict[str, bool]) -> TransformedEnv:
+    """``velocity_tracking_env`` with the perturbations ``parts`` switched on (all off: the plain preset)."""
+    keywords = {name: parts.get(name, False) for name in ("delay", "noise", "pushes", "gains", "physics")}
+    perturbations = []
+    if any(keywords.values()):
+        perturbations = velocity_tracking_perturbations(seed=0, max_action_delay=MAX_DELAY, **keywords)
+    return velocity_tracking_env(
+        num_envs,
+        seed=0,
+        num_threads=num_threads,
+        max_action_delay=MAX_DELAY if keywords["delay"] else 0,
+        perturbations=perturbations,
+    )
+
+
+class Floor:
+    """``ctrl = random`` + ``Batch.step(nstep=frame_skip, stage=mjSTAGE_VEL)`` on the plain preset's batch."""
+
+    def __init__(self, num_envs: int, num_threads: int, steps: int) -> None:
+        self.env = preset(num_envs, num_threads, {})
+        self.env.reset()
+        base = self.env.base_env
+        low, high = base.model.actuator_ctrlrange.T
+        self.actions = np.random.default_rng(0).uniform(low, high, size=(steps, num_envs, base.model.nu))
+        self.ctrl = base.batch.bind("ctrl")
+        self.stage = int(mujoco.mjtStage.mjSTAGE_VEL)
+        self.batch()
+
+    def batch(self) -> int:
+        batch, nstep = self.env.base_env.batch, self.env.base_env.frame_skip
+        for action in self.actions:
+            self.ctrl[:] = action
+            batch.step(None, nstep, self.stage)
+        return self.actions.shape[0] * self.actions.shape[1]
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def run(num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int) -> dict[str, Any]:
+    """Every variant built once, then measured back to back in each repeat."""
+    load_before = os.getloadavg()
+    frames_per_batch = num_envs * steps
+    built: dict[str, Floor | Collected] = {"floor": Floor(num_envs, num_threads, steps)}
+    for variant in VARIANTS[1:]:
+        built[variant] = Collected(preset(num_envs, num_threads, PARTS[variant]), frames_per_batch)
+    raw: dict[str, list[float]] = {variant: [] for variant in VARIANTS}
+    try:
+        for _ in range(repeats):
+            for variant in VARIANTS:
+                raw[variant].append(measure(built[variant], seconds)["frames_per_second"])
+    finally:
+        for measured in built.values():
+            measured.close()
+    return {
+        "num_envs": num_envs,
+        "num_threads": num_threads,
+        "repeats": repeats,
+        "seconds": seconds,
+        "load_average_before": load_before,
+        "load_average_after": os.getloadavg(),
+        "raw": raw,
+        "median": {variant: statistics.median(values) for variant, values in raw.items()},
+        "ratio_to_plain": {
+            variant: statistics.median(v / p for v, p in zip(values, raw["plain"], strict=True))
+            for variant, values in raw.items()
+            if variant not in ("floor", "plain")
+        },
+        "ratio_to_floor": {
+            variant: statistics.median(v / f for v, f in zip(values, raw["floor"], strict=True))
+            for variant, values in raw.items()
+            if variant != "floor"
+        },
+    }
+
+
+def table(result: dict[str, Any]) -> str:
+    """The results as a markdown table."""
+    lines = [
+        f"{result['date']}, `{result['command']}`:",
+        f"x{result['num_envs']} envs, {result['num_threads']} MuJoCo threads, medians of {result['repeats']} "
+        f"interleaved repeats of {result['seconds']} s; load average before "
+        f"{result['load_average_before'][0]:.2f}, after {result['load_average_after'][0]:.2f}",
+        "",
+        "| variant | frames/s | vs plain | cost | vs floor |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for variant in VARIANTS:
+        fps = result["median"][variant]
+        if variant == "floor":
+            lines.append(f"| floor (physics alone) | {fps:,.0f} | | | 1.00 |")
+            continue
+        to_plain = result["ratio_to_plain"].get(variant)
+        plain = "1.00" if to_plain is None else f"{to_plain:.3f}"
+        cost = "" if to_plain is None else f"{100 * (1 - to_plain):+.1f}%"
+        lines.append(f"| {variant} | {fps:,.0f} | {plain} | {cost} | {result['ratio_to_floor'][variant]:.2f} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--envs", type=int, default=64, help="envs of the batch (default 64)")
+    parser.add_argument("--repeats", type=int, default=7, help="interleaved repeats (default 7)")
+    parser.add_argument("--seconds", type=float, default=2.0, help="seconds per measurement (default 2.0)")
+    parser.add_argument("--steps-per-batch", type=int, default=20, help="steps per Collector batch (default 20)")
+    parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads (default 2)")
+    parser.add_argument("--output", type=Path, default=Path("runs/perturbations_bench"), help="where results go")
+    parser.add_argument("--quick", action="store_true", help="every code path in seconds (timings mean nothing)")
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.envs, args.repeats, args.seconds, args.steps_per_batch = 4, 1, 0.0, 2
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    try:
+        result = run(args.envs, args.repeats, args.seconds, args.steps_per_batch, args.threads)
+    finally:
+        torch.set_num_threads(threads)
+    result.update(
+        command=" ".join(["python", "benchmarks/perturbations.py", *(sys.argv[1:] if argv is None else argv)]),
+        date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        wall_seconds=time.perf_counter() - started,
+        versions={"python": platform.python_version(), "torch": torch.__version__, "mujoco": mujoco.__version__},
+    )
+    args.output.mkdir(parents=True, exist_ok=True)
+    if not args.quick and result["ratio_to_plain"]["all four"] < 0.9:
+        print("note: the four perturbations cost more than 10% in this run", file=sys.stderr)
+    (args.output / "results.json").write_text(json.dumps(result, indent=2))
+    text = table(result)
+    (args.output / "results.md").write_text(text)
+    print(text, end="")
+    print(f"results: {args.output / 'results.json'}, {args.output / 'results.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

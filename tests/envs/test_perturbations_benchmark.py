@@ -1,0 +1,49 @@
+"""``benchmarks/perturbations.py --quick``: every variant built and measured once (its timings mean nothing)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from repo_paths import ROOT
+
+pytest.importorskip("mujoco")
+pytestmark = pytest.mark.mujoco
+
+
+def _benchmark() -> Any:
+    spec = importlib.util.spec_from_file_location("perturbations_benchmark", ROOT / "benchmarks" / "perturbations.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_quick_run_measures_every_perturbation_against_the_plain_preset(tmp_path: Path) -> None:
+    module = _benchmark()
+    threads = torch.get_num_threads()
+    assert module.main(["--quick", "--output", str(tmp_path)]) == 0
+    assert torch.get_num_threads() == threads
+    result = json.loads((tmp_path / "results.json").read_text())
+    assert list(result["raw"]) == list(module.VARIANTS)
+    assert all(len(values) == 1 and values[0] > 0 for values in result["raw"].values())
+    assert set(result["ratio_to_plain"]) == set(module.VARIANTS) - {"floor", "plain"}
+    table = (tmp_path / "results.md").read_text()
+    assert f"`python benchmarks/perturbations.py --quick --output {tmp_path}`" in table
+    for variant in module.VARIANTS[1:]:
+        assert f"| {variant} |" in table
+    # each variant's env holds exactly the perturbations it names
+    env = module.preset(2, 1, module.PARTS["all four"])
+    names = {type(t).__name__ for t in env.transform}
+    assert {"ObservationNoise", "Pushes", "DomainRandomization"} <= names
+    fields = {name for t in env.transform if type(t).__name__ == "DomainRandomization" for name in t.names}
+    assert fields == {"action_delay", "actuator_kp_scale"}
+    env.close()
+    plain = module.preset(2, 1, module.PARTS["plain"])
+    assert not {"ObservationNoise", "Pushes", "DomainRandomization"} & {type(t).__name__ for t in plain.transform}
+    assert "action_delay" not in {field.name for field in plain.base_env.domain_fields()}
+    plain.close()
