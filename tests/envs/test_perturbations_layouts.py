@@ -1,0 +1,122 @@
+"""Every perturbation at once, in TorchRL's layouts: resumed in a new process, refused across configurations,
+ParallelEnv workers from a lambda, offline recomputation of the collected rewards.
+
+The env (``tests/perturbed_env.py``): the velocity-tracking quadruped with an action queue, observation noise with
+per-episode biases, pushes (velocity changes and held forces every 2-4 steps), a DomainRandomization of the action
+delay, servo gains, masses and frictions at every reset, 12-step episodes and falls (partial resets), and a
+BaseEnvState. Each perturbation's own semantics are checked against references from their definitions in
+test_action_delay.py, test_observation_noise.py, test_pushes.py and test_batched_mujoco_gains.py.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+from torchrl.envs import ParallelEnv
+
+pytest.importorskip("mujoco")
+
+from perturbed_env import make_collector, make_perturbed_env, make_policy
+from repo_paths import TESTS
+from torchtasks.transforms import TaskTransform, collector_state, load_collector_state
+
+pytestmark = pytest.mark.mujoco
+
+
+def _assert_equal_batches(expected, actual) -> None:
+    keys = sorted(expected.keys(True, True), key=str)
+    assert keys == sorted(actual.keys(True, True), key=str)
+    for key in keys:
+        assert torch.equal(expected[key], actual[key]), key
+
+
+def test_resume_in_a_new_process_continues_every_perturbation_bit_for_bit(tmp_path: Path) -> None:
+    running = make_collector()
+    batches = iter(running)
+    next(batches)
+    next(batches)
+    torch.save(collector_state(running), tmp_path / "checkpoint.pt")
+    expected = [next(batches) for _ in range(3)]
+    running.shutdown()
+    # the perturbations acted in the batches compared: pushes, held forces, delays and biases of several episodes
+    pushed = torch.cat([batch["next", "push", "velocity"] for batch in expected])
+    assert (pushed.abs().sum(-1) > 0).sum() >= 3
+    assert torch.cat([batch["next", "done"] for batch in expected]).any()
+    code = textwrap.dedent(
+        f"""
+        import sys, torch
+        sys.path.insert(0, {str(TESTS)!r})
+        from perturbed_env import make_collector
+        from torchtasks.transforms import load_collector_state
+        resumed = make_collector()
+        load_collector_state(resumed, torch.load({str(tmp_path / "checkpoint.pt")!r}))
+        batches = iter(resumed)
+        torch.save([next(batches) for _ in range(3)], {str(tmp_path / "resumed.pt")!r})
+        resumed.shutdown()
+        """
+    )
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-3000:]
+    resumed = torch.load(tmp_path / "resumed.pt", weights_only=False)
+    for want, got in zip(expected, resumed, strict=True):
+        _assert_equal_batches(want, got)
+
+
+def test_a_checkpoint_of_other_perturbations_is_refused_and_changes_nothing() -> None:
+    without_pushes = make_collector(pushes=False)
+    next(iter(without_pushes))
+    checkpoint = collector_state(without_pushes)
+    without_pushes.shutdown()
+    refusing, untouched = make_collector(), make_collector()
+    with pytest.raises(ValueError):
+        load_collector_state(refusing, checkpoint)
+    _assert_equal_batches(next(iter(untouched)), next(iter(refusing)))
+    refusing.shutdown()
+    untouched.shutdown()
+
+
+def test_collected_rewards_recompute_offline_from_the_data() -> None:
+    """The task judged the policy's action and the true states online; the data holds both, so the rewards,
+    flags and terms recompute offline equal, though the physics ran delayed actions and the policy saw noise."""
+    collector = make_collector()
+    batches = iter(collector)
+    batch = torch.cat([next(batches) for _ in range(4)])
+    task = next(t for t in collector.env.transform if isinstance(t, TaskTransform))
+    assert not torch.equal(batch["next", "applied_action"], batch["action"])  # the delay acted
+    online = batch["next"].clone()
+    for key in [task.reward_key, "failure", "terminated", "done", *task.term_keys]:
+        batch["next", key] = torch.zeros_like(online[key])  # what the offline pass must write back
+    task(batch)
+    for key in [task.reward_key, "failure", "terminated", "done", *task.term_keys]:
+        assert torch.equal(batch["next", key], online[key]), key
+    assert online[task.reward_key].abs().sum() > 0 and online["terminated"].any()
+    collector.shutdown()
+
+
+def _worker() -> object:
+    return make_perturbed_env(2)
+
+
+@pytest.mark.multiprocess
+@pytest.mark.xdist_group("multiprocess")
+def test_parallel_env_workers_from_a_lambda_draw_their_own_perturbations_and_repeat_under_a_seed(
+    fork_start_method,
+) -> None:
+    def rollout(seed: int) -> object:
+        env = ParallelEnv(2, lambda: _worker())
+        env.set_seed(seed)
+        policy = make_policy(make_perturbed_env(1))
+        data = env.rollout(8, policy, break_when_any_done=False)
+        env.close()
+        return data
+
+    first, again, other = rollout(5), rollout(5), rollout(6)
+    _assert_equal_batches(first, again)
+    for key in [("next", "observation_noise", "bias", "joint_pos"), ("next", "domain", "actuator_kp_scale")]:
+        assert not torch.equal(first[key][0], first[key][1]), key  # the workers' streams differ
+        assert not torch.equal(first[key], other[key]), key  # another seed, other draws
