@@ -28,7 +28,9 @@ from torchtasks.parity import check_parity, format_parity_table  # noqa: E402
 pytestmark = pytest.mark.mujoco
 
 ENV_IDS = ["HalfCheetah-v5", "Hopper-v5", "Walker2d-v5", "Swimmer-v5", "Ant-v5", "Humanoid-v5"]
-SEEDS = [0, 1, 2]
+#: one seed per env (a seed draws another start and other random actions: the same comparison), seeds 0, 1 and 2
+#: each twice; 1000 steps reach the time limit of the envs that never terminate
+SEEDS = dict(zip(ENV_IDS, [0, 1, 2, 1, 2, 0], strict=True))
 STEPS = 1000
 ATOL = 1e-5
 
@@ -171,8 +173,7 @@ def _compare(env_id: str, seed: int, steps: int, kwargs: dict[str, Any]) -> dict
     return {"expected": expected, "got": got, "actions": actions}
 
 
-@pytest.mark.parametrize("seed", SEEDS)
-@pytest.mark.parametrize("env_id", ENV_IDS)
+@pytest.mark.parametrize(("env_id", "seed"), SEEDS.items(), ids=[f"{env_id}-{seed}" for env_id, seed in SEEDS.items()])
 def test_reward_terms_and_termination_match_gymnasium(env_id: str, seed: int) -> None:
     result = _compare(env_id, seed, STEPS, {})
     if env_id in ("Hopper-v5", "Walker2d-v5", "Ant-v5", "Humanoid-v5"):

@@ -1,8 +1,9 @@
 """BaseEnvState puts the base env's state into the transforms' state (issue 24, item 5), so TorchRL's own resume recipe
 ``collector.state_dict()`` -> ``torch.save`` -> a freshly built collector -> ``load_state_dict`` restores every
 generator torchtasks owns: the base env's reset generator (PendulumEnv, PointMassEnv, BatchedMujocoEnv) and the
-GoalCommand's, in a single-process Collector and in the workers of a ParallelEnv inside a Collector. The resumed run
-equals an uninterrupted one on which ``collector.reset()`` is called at the same frame, bit for bit (deterministic
+GoalCommand's, in a single-process Collector (the workers of a ParallelEnv inside a Collector and of a
+MultiSyncCollector, each restored with its own seed: ``test_resume.py``, whose env ends in a BaseEnvState). The resumed
+run equals an uninterrupted one on which ``collector.reset()`` is called at the same frame, bit for bit (deterministic
 policy). The transform itself changes no data."""
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ import io
 import pytest
 import torch
 from tensordict.nn import TensorDictModule
-from torchrl.collectors import Collector, MultiSyncCollector
-from torchrl.envs import Compose, EnvBase, ParallelEnv, SerialEnv, StepCounter, TransformedEnv
+from torchrl.collectors import Collector
+from torchrl.envs import Compose, EnvBase, SerialEnv, StepCounter, TransformedEnv
 
 from torchtasks.envs import PendulumEnv, PointMassEnv
 from torchtasks.rewards import QuadraticErrorReward
@@ -62,15 +63,9 @@ def make_env(
     return TransformedEnv(env, Compose(*transforms, *([BaseEnvState()] if state else [])))
 
 
-def make_collector(
-    kind: str = "pendulum", *, parallel: bool = False, state: bool = True, nested: bool = False
-) -> Collector:
+def make_collector(kind: str = "pendulum", *, state: bool = True, nested: bool = False) -> Collector:
     """A freshly built collector (other generators each time) with a deterministic policy (saved in its state)."""
-    if parallel:  # use_buffers=False: TorchRL 0.14.1's shared-buffer ParallelEnv reads stale data after loading
-        factory = functools.partial(make_env, kind, state=state)
-        env = ParallelEnv(2, factory, mp_start_method="fork", use_buffers=False)
-    else:
-        env = make_env(kind, state=state, nested=nested)
+    env = make_env(kind, state=state, nested=nested)
     sizes = env.observation_spec["observation"].shape[-1], env.action_spec.shape[-1]
     policy = TensorDictModule(
         torch.nn.Sequential(torch.nn.Linear(*sizes, dtype=torch.float64), torch.nn.Tanh()), ["observation"], ["action"]
@@ -87,9 +82,9 @@ def saved_and_loaded(state: dict) -> dict:
     return torch.load(buffer)
 
 
-def resume_check(kind: str, *, parallel: bool = False, nested: bool = False) -> dict:
+def resume_check(kind: str, *, nested: bool = False) -> dict:
     """Run 3 batches, save, load into a fresh collector, reset both, compare the next 2 batches; the saved state."""
-    running = make_collector(kind, parallel=parallel, nested=nested)
+    running = make_collector(kind, nested=nested)
     try:
         running.set_seed(5)
         running.reset()
@@ -97,7 +92,7 @@ def resume_check(kind: str, *, parallel: bool = False, nested: bool = False) -> 
         for _ in range(3):
             next(batches)
         saved = saved_and_loaded(running.state_dict())
-        fresh = make_collector(kind, parallel=parallel, nested=nested)
+        fresh = make_collector(kind, nested=nested)
         try:
             fresh.load_state_dict(saved)
             for collector in (running, fresh):
@@ -148,15 +143,6 @@ def test_without_it_the_base_env_is_not_restored():
     fresh.shutdown()
 
 
-@pytest.mark.multiprocess
-def test_a_parallel_env_collector_checkpoint_restores_every_worker():
-    saved = resume_check("pendulum", parallel=True)
-    workers = saved["env_state_dict"]
-    assert set(workers) == {"worker0", "worker1"}
-    states = [workers[f"worker{i}"]["transforms.3._extra_state"]["_extra_state"] for i in range(2)]
-    assert states[0]["seed"] != states[1]["seed"]  # each worker's base env, seeded by set_seed with its own seed
-
-
 def test_it_changes_no_data_and_carries_a_batched_base_env():
     a, b = make_env(seed=1), make_env(seed=1, state=False)
     policy = make_collector().policy  # deterministic (env.rollout's default draws random actions)
@@ -190,33 +176,3 @@ def test_outside_an_env_and_wrong_states_are_refused():
         env.transform[-1].load_state_dict({"_extra_state": 3})
     with pytest.raises(ValueError, match="uint8 tensor 'generator_state'"):  # the base env's own check
         env.transform[-1].load_state_dict({"_extra_state": {"_extra_state": {"seed": 0}}})
-
-
-@pytest.mark.multiprocess
-def test_a_multi_sync_collector_checkpoint_restores_every_worker(fork_start_method):
-    def build() -> MultiSyncCollector:
-        policy = make_collector().policy
-        return MultiSyncCollector(
-            [make_env, make_env], policy, frames_per_batch=2 * BATCH * STEPS, total_frames=-1, cat_results="stack"
-        )
-
-    running = build()
-    try:
-        running.set_seed(5)  # resets the workers' envs
-        batches = iter(running)
-        for _ in range(2):
-            next(batches)
-        saved = saved_and_loaded(running.state_dict())
-        assert "transforms.3._extra_state" in saved["worker1"]["env_state_dict"]
-        fresh = build()
-        try:
-            fresh.load_state_dict(saved)
-            for collector in (running, fresh):
-                collector.reset()
-            expected, resumed = next(batches), next(iter(fresh))
-            for key in COMPARED:
-                assert torch.equal(expected[key], resumed[key]), key
-        finally:
-            fresh.shutdown()
-    finally:
-        running.shutdown()

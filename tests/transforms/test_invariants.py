@@ -71,6 +71,11 @@ def _collector(make: Callable, policy, workers: int = 0) -> Collector | MultiSyn
     return Collector(make(), policy, auto_register_policy_transforms=False, **kwargs)
 
 
+def _time_major(batch: TensorDictBase) -> TensorDictBase:
+    """A batch as rows of envs, time last ``[B, T]`` (a ParallelEnv's is ``[workers, b, T]``)."""
+    return batch if batch.batch_dims == 2 else batch.reshape(-1, STEPS)
+
+
 def _second_batch(collector) -> TensorDictBase:
     """The second batch of a run (its rows start inside episodes), time-major ``[B, T]``."""
     try:
@@ -80,9 +85,7 @@ def _second_batch(collector) -> TensorDictBase:
         batch = next(batches).clone()
     finally:
         collector.shutdown()
-    if batch.batch_dims != 2:  # a ParallelEnv's [workers, b, T]; rows of envs, time last
-        batch = batch.reshape(-1, STEPS)
-    return batch
+    return _time_major(batch)
 
 
 # The in-process data of a feature do not depend on the test (seeded envs, commands and draws, deterministic
@@ -109,22 +112,6 @@ def rollout(name: str) -> TensorDictBase:
 def collected(name: str) -> TensorDictBase:
     """The second batch of a Collector over the feature's env, ``[B, T]`` (a copy of this process's one batch)."""
     return _collected(name).clone()
-
-
-def parallel(name: str) -> TensorDictBase:
-    feature = FEATURES[name]
-    make = functools.partial(feature.make_env, BATCH // 2, SEED)
-
-    def parallel_env() -> ParallelEnv:
-        return ParallelEnv(2, make, use_buffers=False)
-
-    return _second_batch(_collector(parallel_env, feature.make_policy()))
-
-
-def multi_sync(name: str) -> TensorDictBase:
-    feature = FEATURES[name]
-    make = functools.partial(feature.make_env, BATCH // 2, SEED)
-    return _second_batch(_collector(make, feature.make_policy(), workers=2))
 
 
 def flat(data: TensorDictBase) -> TensorDictBase:
@@ -319,22 +306,6 @@ def test_a_replay_sample_counts_the_episodes_it_holds_whole():
     assert stats["complete_episodes"] == float(len(whole))
 
 
-# ------------------------------------------------------------------------------------------------ worker processes
-PROCESS_FEATURES = ["curriculum", "levels", "constraints", "domain", "groups_scheduled"]
-
-
-@pytest.mark.multiprocess
-@pytest.mark.xdist_group("multiprocess")
-@pytest.mark.parametrize("collect", [parallel, multi_sync], ids=["parallel_env", "multi_sync"])
-@pytest.mark.parametrize("name", PROCESS_FEATURES)
-def test_worker_processes_keep_the_invariants(name: str, collect, fork_start_method):
-    data = collect(name)
-    _offline_matches_online(name, data)
-    _offline_matches_online(name, flat(data))
-    for layout in STATISTICS_LAYOUTS:
-        _statistics_hold(name, data, layout)
-
-
 # ---------------------------------------------------------------------------------------------- save -> load continues
 def _single_collector(name: str) -> Collector:
     feature = FEATURES[name]
@@ -359,14 +330,19 @@ def _saved(state: dict) -> dict:
     return torch.load(buffer, weights_only=True)
 
 
-def _resume_continues(name: str, make: Callable[[str], Collector | MultiSyncCollector], *, ids: bool = True) -> None:
-    """Two batches, a checkpoint, two more: a fresh collector loading the checkpoint collects those two again."""
+def _resume_continues(
+    name: str, make: Callable[[str], Collector | MultiSyncCollector], *, ids: bool = True
+) -> TensorDictBase:
+    """Two batches, a checkpoint, two more: a fresh collector loading the checkpoint collects those two again.
+
+    Returns the second batch, time-major ``[B, T]`` (what ``_second_batch`` of a fresh collector gives).
+    """
     running = make(name)
     try:
         running.set_seed(SEED)
         batches = iter(running)
-        for _ in range(2):
-            next(batches)
+        next(batches)
+        second_batch = _time_major(next(batches).clone())
         checkpoint = _saved(collector_state(running))
         expected = [next(batches).clone() for _ in range(2)]
     finally:
@@ -382,6 +358,7 @@ def _resume_continues(name: str, make: Callable[[str], Collector | MultiSyncColl
         assert equal_batches(first, second) == [], f"{name}: batch {i} after the resume differs"
         if ids:
             assert torch.equal(first["collector", "traj_ids"], second["collector", "traj_ids"])
+    return second_batch
 
 
 @pytest.mark.parametrize("name", list(FEATURES))
@@ -389,13 +366,25 @@ def test_a_resume_continues_the_saved_run(name: str):
     _resume_continues(name, _single_collector)
 
 
+# ------------------------------------------------------------------------------------------------ worker processes
+PROCESS_FEATURES = ["curriculum", "levels", "constraints", "domain", "groups_scheduled"]
+
+
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
+@pytest.mark.parametrize("layout", ["parallel_env", "multi_sync"])
 @pytest.mark.parametrize("name", PROCESS_FEATURES)
-def test_a_resume_of_worker_processes_continues(name: str, fork_start_method):
-    _resume_continues(name, _parallel_collector)
-    # a MultiSyncCollector's workers draw new trajectory ids from one shared counter in a racy order
-    _resume_continues(name, _multi_sync_collector, ids=False)
+def test_worker_processes_keep_the_invariants_and_resume(name: str, layout: str, fork_start_method):
+    """The data of worker processes: offline == online and statistics == the count, on the second batch of the
+    run that is then saved and resumed (one run of the worker processes for all three invariants)."""
+    if layout == "parallel_env":
+        data = _resume_continues(name, _parallel_collector)
+    else:  # a MultiSyncCollector's workers draw new trajectory ids from one shared counter in a racy order
+        data = _resume_continues(name, _multi_sync_collector, ids=False)
+    _offline_matches_online(name, data)
+    _offline_matches_online(name, flat(data))
+    for statistics_layout in STATISTICS_LAYOUTS:
+        _statistics_hold(name, data, statistics_layout)
 
 
 # ------------------------------------------------------------------------------------------------ other configurations

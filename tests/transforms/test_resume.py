@@ -39,7 +39,8 @@ def _multi_sync() -> MultiSyncCollector:
     return MultiSyncCollector([env, env], reach_policy(), frames_per_batch=4 * 25, total_frames=-1)
 
 
-def _resume_matches_uninterrupted(make: Callable[[], Collector | MultiSyncCollector]) -> None:
+def _resume_matches_uninterrupted(make: Callable[[], Collector | MultiSyncCollector]) -> dict:
+    """The resumed run's batches equal the uninterrupted run's; returns the checkpoint as loaded."""
     reference = make()
     try:
         reference.set_seed(SEED)
@@ -66,7 +67,8 @@ def _resume_matches_uninterrupted(make: Callable[[], Collector | MultiSyncCollec
     resumed = make()  # a fresh collector: its envs reset with fresh generators when it was built
     try:
         buffer.seek(0)
-        resumed.load_state_dict(torch.load(buffer, weights_only=False))
+        checkpoint = torch.load(buffer, weights_only=False)
+        resumed.load_state_dict(checkpoint)
         resumed.reset()
         batches = iter(resumed)
         received = [next(batches).clone() for _ in range(AFTER)]
@@ -81,6 +83,11 @@ def _resume_matches_uninterrupted(make: Callable[[], Collector | MultiSyncCollec
     assert data["next", "done"].any()
     frames = data["next", "curriculum", "frames"]
     assert frames.min() > BEFORE * 100  # the frame count went on from the checkpoint, not from 0
+    return checkpoint
+
+
+#: where make_resume_env's BaseEnvState keeps the base env's state (its reset generator and seed)
+BASE_ENV_STATE = "transforms.6._extra_state"
 
 
 def test_collector_resumes_bit_for_bit():
@@ -90,13 +97,17 @@ def test_collector_resumes_bit_for_bit():
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
 def test_parallel_env_in_a_collector_resumes_bit_for_bit(fork_start_method):
-    _resume_matches_uninterrupted(_parallel)
+    workers = _resume_matches_uninterrupted(_parallel)["env_state_dict"]
+    assert set(workers) == {"worker0", "worker1"}
+    seeds = [workers[f"worker{i}"][BASE_ENV_STATE]["_extra_state"]["seed"] for i in range(2)]
+    assert seeds[0] != seeds[1]  # each worker's base env, seeded by set_seed with its own seed
 
 
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
 def test_multi_sync_collector_resumes_bit_for_bit(fork_start_method):
-    _resume_matches_uninterrupted(_multi_sync)
+    checkpoint = _resume_matches_uninterrupted(_multi_sync)
+    assert all(BASE_ENV_STATE in checkpoint[f"worker{i}"]["env_state_dict"] for i in range(2))
 
 
 def test_a_resume_without_the_checkpoint_differs():

@@ -87,10 +87,13 @@ def test_serial_env_workers_draw_their_own_goals_and_a_seed_repeats_the_run(comm
 
 
 @pytest.mark.multiprocess
-@pytest.mark.slow
-def test_parallel_env_spawned_workers_draw_their_own_goals():
-    """Workers built by the factory in spawned processes are seeded as SerialEnv's (the same goals, bit for bit)."""
-    parallel = ParallelEnv(2, functools.partial(make_env, 0), mp_start_method="spawn")
+def test_parallel_env_workers_draw_their_own_goals():
+    """Workers built by the factory in their own processes are seeded as SerialEnv's (the same goals, bit for bit).
+
+    Forked, as the other worker-process tests: a spawned worker rebuilding env, task and transform from the pickled
+    constructor is ``test_transform_collectors.py::test_parallel_env_spawn`` (spawning two workers cost ~15 s).
+    """
+    parallel = ParallelEnv(2, functools.partial(make_env, 0), mp_start_method="fork")
     try:
         data = goals_of(parallel, 123)
     finally:
