@@ -82,6 +82,7 @@ _LAZY = {
             "torchtasks.envs.mujoco_declaration",
             "torchtasks.envs.multi_objective",
             "torchtasks.envs.control_suite",
+            "torchtasks.envs.velocity_tracking",
         ),
         "mujoco",
     )
