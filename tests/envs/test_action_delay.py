@@ -216,8 +216,14 @@ def test_without_a_delay_there_is_no_field_entry_or_fact() -> None:
     assert "action_delay" not in [field.name for field in base.domain_fields()]
     assert "applied_action" not in base.observation_spec.keys()
     assert "max_action_delay" not in base.state_dict()["_extra_state"]["running_episodes"]["model"]
-    with pytest.raises(ValueError, match="unknown domain field 'action_delay'"):
+    hint = "'action_delay' is a domain field only of an env built with max_action_delay > 0"
+    with pytest.raises(ValueError, match=hint):
         base.set_domain({"action_delay": torch.zeros(NUM_ENVS, dtype=torch.float64)})
+    with pytest.raises(ValueError, match=hint):
+        base.domain_fields(["action_delay"])
+    draw = DomainRandomization([UniformDomainParam("action_delay", mean=1.0, halfspan=1.0, roundint=True)])
+    with pytest.raises(ValueError, match=hint):  # a randomization drawing it says why, too
+        TransformedEnv(base, draw).reset()
     base.close()
 
 

@@ -26,7 +26,7 @@ import hashlib
 import os
 import warnings
 import weakref
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -876,7 +876,33 @@ class BatchedMujocoEnv(EnvBase):
             ('in (0.0, inf)', True, 1.0, 'in [0.0, inf)', False)
             >>> env.close()
         """
+        if names is not None and not isinstance(names, (str, bytes)) and isinstance(names, Sequence):
+            self._refuse_absent(names)
         return self._domain.fields(names)
+
+    def _refuse_absent(self, names: Iterable[object]) -> None:
+        for name in names:
+            reason = self.absent_field_reason(name)
+            if reason is not None:
+                raise ValueError(f"BatchedMujocoEnv: {reason}")
+
+    def absent_field_reason(self, name: object) -> str | None:
+        """Why ``name`` is not a domain field of this env although envs of its kind offer it, or ``None``.
+
+        ``"action_delay"`` is a field only of an env built with ``max_action_delay > 0``.
+
+        Example:
+            >>> env = BatchedMujocoEnv("Hopper-v5", num_envs=1)
+            >>> env.absent_field_reason("action_delay")[:47]
+            "'action_delay' is a domain field only of an env"
+            >>> env.close()
+        """
+        if name == ACTION_DELAY and not self.max_action_delay:
+            return (
+                f"{ACTION_DELAY!r} is a domain field only of an env built with max_action_delay > 0 (the largest "
+                "delay in steps, e.g. BatchedMujocoEnv(..., max_action_delay=2)); this env has max_action_delay=0"
+            )
+        return None
 
     def set_domain(self, values: Mapping[str, torch.Tensor], mask: torch.Tensor | None = None) -> None:
         """Give the envs of ``mask`` the physics ``values[name][i]``, from their next step or reset on.
@@ -904,6 +930,8 @@ class BatchedMujocoEnv(EnvBase):
             (True, [5.0, 6.0])
             >>> env.close()
         """
+        if isinstance(values, Mapping):
+            self._refuse_absent(values)
         rows, ids = self._domain.checked(values, mask, "values")
         if rows and (ids is None or ids.size):
             self._follow_domain(self._domain.write(rows, ids), ids)

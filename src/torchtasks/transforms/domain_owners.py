@@ -81,6 +81,10 @@ class DomainOwners:
         for name in names:
             index = self.owner_of.get(name) if isinstance(name, str) else None
             if index is None:
+                for owner in self.owners:
+                    reason = getattr(owner, "absent_field_reason", lambda _: None)(name)
+                    if reason is not None:
+                        raise ValueError(f"{self.who}: {reason}")
                 listed = ", ".join(
                     f"{label} ({sum(1 for i in self.owner_of.values() if i == k)} fields)"
                     for k, label in enumerate(self.labels)
