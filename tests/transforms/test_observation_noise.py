@@ -320,3 +320,24 @@ def test_bad_entries_are_refused_when_the_env_is_built(noises, transforms, error
     env = _env(*transforms, ObservationNoise(noises))
     with pytest.raises(error, match=match):
         env.reset()
+
+
+def test_the_data_keeps_its_biases_when_the_transform_is_loaded() -> None:
+    """The bias entries handed to the data are never written into: a load into the transform (which copies into its
+    buffers in place) leaves the data collected before it as it was."""
+
+    def make(seed: int) -> TransformedEnv:
+        noise = ObservationNoise({"observation": EntryNoise(std=0.1, bias=0.5, out_key="noisy")}, seed=seed)
+        return TransformedEnv(
+            PendulumEnv(batch_size=[4], seed=seed, dtype=torch.float64),  # float64: the cast is the buffer's dtype
+            Compose(StepCounter(5), TaskTransform(swing_up_task()), noise),
+        )
+
+    env, other = make(0), make(1)
+    data = env.reset()
+    other.reset()
+    bias = data["observation_noise", "bias", "observation"]
+    kept = bias.clone()
+    env.transform[-1].load_state_dict(other.transform[-1].state_dict())
+    assert not torch.equal(env.transform[-1].bias._buffers["observation"].to(kept.dtype), kept)  # the load changed it
+    assert torch.equal(bias, kept)

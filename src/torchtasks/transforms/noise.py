@@ -375,7 +375,9 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if cast is None:
             dtypes = self.__dict__["_dtypes"]
             module = self.noise_std if name == "_cast" else self.bias
-            cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name]) for entry in self.entries}
+            # a copy even in the buffer's dtype: the data's bias entries hold these tensors, and a load writes into the
+            # buffers in place; a cast is replaced, never written into
+            cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name], copy=True) for entry in self.entries}
             self.__dict__[name] = cast
         return cast
 
@@ -392,7 +394,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             bias = biases[entry.name]
             draw = self._standard(entry.distribution, value.shape, value.dtype).to(value.device)
             tensordict.set(entry.out_key, torch.addcmul(value + bias, stds[entry.name], draw))
-            tensordict.set(entry.bias_key, bias.clone())
+            tensordict.set(entry.bias_key, bias)  # the cast of this episode's bias: replaced at a reset, never mutated
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -413,7 +415,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             if reset is not None:
                 new = torch.where(reset.reshape(batch + (1,) * (held.dim() - len(batch))).to(held.device), new, held)
             self.bias._buffers[entry.name] = new
-            biases[entry.name] = new.to(dtypes[entry.name])
+            biases[entry.name] = new.to(dtypes[entry.name], copy=True)
         self.__dict__["_bias_cast"] = biases
         return self._write(tensordict_reset)
 
