@@ -18,6 +18,9 @@ repeat (``--seconds`` each, at least one batch), so each ratio compares numbers 
   env at reset).
 - ``all four``: the four together; ``all four + physics``: with the randomized masses and frictions of the same
   function too (the set the example ``examples/velocity_tracking_ppo.py`` trains its robust policy with).
+- ``10 empty entries``: the plain preset with a transform that adds as many entries to the data as the four
+  perturbations do (``EmptyEntries``: zeros, no computation): what carrying entries costs in TorchRL's step, reset
+  and collector.
 
 The table reports medians over the repeats of frames/s and of the per-repeat ratio to ``plain`` (the cost of a
 perturbation is ``1 - ratio``) and to ``floor``. Results: ``<output>/results.json`` (every repeat's numbers, the
@@ -39,7 +42,9 @@ from typing import Any
 
 import mujoco
 import torch
-from torchrl.envs import TransformedEnv
+from tensordict import TensorDictBase
+from torchrl.data import Composite, Unbounded
+from torchrl.envs import Transform, TransformedEnv
 
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 
@@ -47,7 +52,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from control_suite import Collected, Floor, measure  # the same floor, Collector loop and timer
 
 #: the variants, measured in this order in every repeat
-VARIANTS = ("floor", "plain", "delay", "noise", "pushes", "gains", "all four", "all four + physics")
+VARIANTS = ("floor", "plain", "delay", "noise", "pushes", "gains", "all four", "all four + physics", "10 empty entries")
 #: the perturbations of each variant (keywords of velocity_tracking_perturbations)
 PARTS = {
     "plain": {},
@@ -57,17 +62,48 @@ PARTS = {
     "gains": {"gains": True},
     "all four": {"delay": True, "noise": True, "pushes": True, "gains": True},
     "all four + physics": {"delay": True, "noise": True, "pushes": True, "gains": True, "physics": True},
+    "10 empty entries": {"empty_entries": True},
 }
 #: the action delay's maximum where a variant delays
 MAX_DELAY = 1
+#: the data entries the four perturbations add (applied_action, two domain entries, five noise biases, two push
+#: entries): ``"10 empty entries"`` adds as many entries that hold zeros, TorchRL's cost of carrying them
+ADDED_ENTRIES = 10
+
+
+class EmptyEntries(Transform):
+    """Adds ``count`` float64 ``[*B, 12]`` observation entries of zeros at every reset and step: no computation, only
+    the cost of entries in TorchRL's step, reset and collector."""
+
+    def __init__(self, count: int) -> None:
+        super().__init__()
+        self.count = count
+
+    def transform_observation_spec(self, observation_spec: Composite) -> Composite:
+        for i in range(self.count):
+            observation_spec[("empty", str(i))] = Unbounded(shape=(*observation_spec.shape, 12), dtype=torch.float64)
+        return observation_spec
+
+    def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
+        for i in range(self.count):
+            tensordict.set(("empty", str(i)), torch.zeros(*tensordict.batch_size, 12, dtype=torch.float64))
+        return tensordict
+
+    def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return self._write(next_tensordict)
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
+        return self._write(tensordict_reset)
 
 
 def preset(num_envs: int, num_threads: int, parts: dict[str, bool]) -> TransformedEnv:
     """``velocity_tracking_env`` with the perturbations ``parts`` switched on (all off: the plain preset)."""
     keywords = {name: parts.get(name, False) for name in ("delay", "noise", "pushes", "gains", "physics")}
-    perturbations = []
+    perturbations: list[Transform] = []
     if any(keywords.values()):
         perturbations = velocity_tracking_perturbations(seed=0, max_action_delay=MAX_DELAY, **keywords)
+    if parts.get("empty_entries"):
+        perturbations = [EmptyEntries(ADDED_ENTRIES)]
     return velocity_tracking_env(
         num_envs,
         seed=0,
