@@ -294,12 +294,18 @@ class GoalCommand(CheckedLoad, SeededTransform):
 
     # ------------------------------------------------------------------------------ specs
     def _goal_dtype(self) -> torch.dtype:
+        """The goal's dtype: the parent's ``"observation"``'s if floating, else its first floating entry's, else the
+        default; found once with the specs (a walk of every spec entry), then kept."""
+        dtype = self.__dict__.get("_dtype")
+        if dtype is not None:
+            return dtype
         parent = self.parent
         if parent is None:
             return torch.get_default_dtype()
         spec = parent.full_observation_spec
-        for key in ("observation", *spec.keys(True, True)):
-            if key in spec.keys(True, True) and spec[key].dtype.is_floating_point:
+        keys = list(spec.keys(True, True))
+        for key in ("observation", *keys):
+            if key in keys and spec[key].dtype.is_floating_point:
                 return spec[key].dtype
         return torch.get_default_dtype()
 
@@ -319,6 +325,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         self._check_placement()
+        self.__dict__.pop("_dtype", None)  # the specs are built anew: find the dtype again
         dtype = self._goal_dtype()
         self.__dict__["_dtype"] = dtype
         for key, spec in self._specs(observation_spec.shape, observation_spec.device, dtype).items():
@@ -331,7 +338,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
         device = None if parent is None else parent.device
         if state_spec is None:
             state_spec = Composite(shape=batch, device=device)
-        for key, spec in self._specs(batch, device, self.__dict__.get("_dtype", self._goal_dtype())).items():
+        for key, spec in self._specs(batch, device, self._goal_dtype()).items():
             state_spec[key] = spec
         return state_spec
 
@@ -367,7 +374,7 @@ class GoalCommand(CheckedLoad, SeededTransform):
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
         batch = tensordict_reset.batch_size
         device = tensordict_reset.device or torch.device("cpu")
-        dtype = self.__dict__.get("_dtype", self._goal_dtype())
+        dtype = self._goal_dtype()
         goals = self._sample_goals(batch, dtype, device)
         timers = self._sample_timers(batch, device)
         reset = None if tensordict is None else tensordict.get("_reset", None)
