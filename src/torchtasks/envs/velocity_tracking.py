@@ -50,13 +50,13 @@ CONTROL_STEP = 0.02  # s: 4 substeps of 5 ms
 _SQRT3 = math.sqrt(3.0)
 #: the sensed policy entries' noise: IsaacLab's uniform noise of the velocity task (half-widths 0.1 m/s, 0.2 rad/s,
 #: 0.05, 0.01 rad, 1.5 rad/s; as stds: half-width / √3) and per-episode biases of our own (an IMU mounted slightly
-#: tilted, encoder offsets), as ``(std, bias std)``
+#: tilted, encoder offsets), as ``(std, bias std)`` (``None``: no bias)
 SENSOR_NOISE = {
-    "lin_vel": (0.1 / _SQRT3, 0.0),
-    "ang_vel": (0.2 / _SQRT3, 0.0),
+    "lin_vel": (0.1 / _SQRT3, None),
+    "ang_vel": (0.2 / _SQRT3, None),
     "gravity": (0.05 / _SQRT3, 0.02),
     "joint_pos": (0.01 / _SQRT3, 0.02),
-    "joint_vel": (1.5 / _SQRT3, 0.0),
+    "joint_vel": (1.5 / _SQRT3, None),
 }
 
 
@@ -224,7 +224,7 @@ def velocity_tracking_perturbations(
     """The sim-to-real perturbations of the velocity task as transforms for ``velocity_tracking_env(perturbations=)``.
 
     The peers' set (IsaacLab's velocity task, mjlab): ``noise``: :class:`~torchtasks.transforms.ObservationNoise` on
-    the sensed policy entries (:data:`SENSOR_NOISE`: uniform per-step noise and a normal per-episode bias);
+    the sensed policy entries (:data:`SENSOR_NOISE`: uniform per-step noise; a normal per-episode bias on two);
     ``pushes``: :class:`~torchtasks.transforms.Pushes` of the torso, a planar velocity change of up to
     ``push_velocity`` m/s every ``push_interval`` seconds per env; then one
     :class:`~torchtasks.transforms.DomainRandomization` drawing per env at each reset: ``delay``: the action delay
@@ -254,7 +254,9 @@ def velocity_tracking_perturbations(
     transforms: list[Transform] = []
     if noise:
         entries = {
-            key: EntryNoise(std=std, bias=bias, distribution="uniform", bias_distribution="normal")
+            key: EntryNoise(
+                std=std, bias=bias, distribution="uniform", bias_distribution=None if bias is None else "normal"
+            )
             for key, (std, bias) in SENSOR_NOISE.items()
         }
         transforms.append(ObservationNoise(entries, seed=seed))

@@ -85,9 +85,10 @@ class DomainOwners:
                     reason = getattr(owner, "absent_field_reason", lambda _: None)(name)
                     if reason is not None:
                         raise ValueError(f"{self.who}: {reason}")
+                counts = [sum(1 for i in self.owner_of.values() if i == k) for k in range(len(self.labels))]
                 listed = ", ".join(
-                    f"{label} ({sum(1 for i in self.owner_of.values() if i == k)} fields)"
-                    for k, label in enumerate(self.labels)
+                    f"{label} ({count} field{'' if count == 1 else 's'})"
+                    for label, count in zip(self.labels, counts, strict=True)
                 )
                 raise ValueError(
                     f"{self.who}: unknown domain field {name!r} in {what}"

@@ -23,6 +23,7 @@ from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, did_you_mean
+from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
 from torchtasks.domain import DomainField, check_domain_values, check_field_name, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
@@ -47,6 +48,8 @@ class EntryNoise(NamedTuple):
     ``std`` and ``bias`` are standard deviations in both distributions: ``"normal"`` draws ``N(0, std²)``,
     ``"uniform"`` draws from ``[-√3·std, √3·std)`` (a half-width of ``√3·std``, whose std is ``std``). A number means
     every element of the entry; a tensor gives one value per element and must have the entry's per-env shape exactly.
+    ``bias=None`` (the default) means no per-episode bias: no ``observation_bias`` field, no bias entry in the data,
+    no draw; give ``bias=0.0`` for a bias that starts at zero and is scheduled or randomized later.
 
     Example:
         >>> EntryNoise(std=0.01, bias=0.05)
@@ -55,8 +58,9 @@ class EntryNoise(NamedTuple):
 
     #: the per-element std of the noise drawn at every step (a number: every element; ``>= 0``)
     std: float | torch.Tensor = 0.0
-    #: the per-element std of the bias drawn at each reset of an env and held for its episode (``>= 0``)
-    bias: float | torch.Tensor = 0.0
+    #: the per-element std of the bias drawn at each reset of an env and held for its episode (``>= 0``; ``None``: no
+    #: bias)
+    bias: float | torch.Tensor | None = None
     #: the per-step noise's distribution: ``"normal"`` or ``"uniform"``
     distribution: str = "normal"
     #: the bias's distribution (``None``: ``distribution``)
@@ -74,13 +78,25 @@ class _Entry(NamedTuple):
     out_key: NestedKey
     #: the entry's part of its field names: its key's parts joined by ``":"``
     name: str
-    #: the constructor's stds (float64, 0-d for every element, or the entry's per-env shape)
+    #: the constructor's stds (float64, 0-d for every element, or the entry's per-env shape; ``bias`` ``None``: none)
     std: torch.Tensor
-    bias: torch.Tensor
+    bias: torch.Tensor | None
     distribution: str
-    bias_distribution: str
-    #: where the episode's bias is written
-    bias_key: NestedKey
+    bias_distribution: str | None
+    #: where the episode's bias is written (``None``: no bias)
+    bias_key: NestedKey | None
+
+
+class _Group(NamedTuple):
+    """Entries drawn together: one draw ``[*B, width]`` of one distribution and dtype, entry ``k`` reading the next
+    ``sizes[k]`` columns (its elements, flattened; viewed as ``shapes[k]``, ``None`` for an entry of one dimension)."""
+
+    distribution: str
+    dtype: torch.dtype
+    entries: tuple[_Entry, ...]
+    sizes: tuple[int, ...]
+    shapes: tuple[torch.Size | None, ...]
+    width: int
 
 
 class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
@@ -90,30 +106,34 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     a reset and under ``"next"`` at every step is ``x + b_i + σ_i ⊙ ε`` where ``ε`` is drawn anew at that reset or step
     (standard normal, or uniform on ``[-√3, √3)``: std 1) and ``b_i = β_i ⊙ η`` is drawn at env ``i``'s reset (``η``
     likewise, with the bias's distribution) and held for its episode; ``σ_i`` and ``β_i`` are env ``i``'s per-element
-    stds. Every element draws its own ``ε`` and ``η``. With ``EntryNoise(..., out_key=k)`` the noisy value goes to
+    stds. Every element draws its own ``ε`` and ``η``; an entry without a bias (``EntryNoise(bias=None)``, the
+    default) has ``b_i = 0`` and no bias field or entry. With ``EntryNoise(..., out_key=k)`` the noisy value goes to
     ``k`` and the clean entry stays (an asymmetric actor-critic: the actor reads ``k``, the critic the clean one); else
     the entry is replaced. The noisy entries' specs are unbounded (noise can leave an entry's bounds).
 
     Domain fields (the :class:`~torchtasks.domain.DomainEnv` methods): per entry ``"observation_noise:<entry>"`` (the
-    per-element ``σ``) and ``"observation_bias:<entry>"`` (``β``), of the entry's per-env shape, ``>= 0``, nominal the
-    constructor's values (a nested key's parts are joined by ``":"``: ``("agent", "joint_pos")`` gives
-    ``"observation_noise:agent:joint_pos"``). A :class:`~torchtasks.transforms.DomainRandomization` after this
-    transform draws them per env (``when="startup"``, ``"reset"``, ``"interval"``); a new ``σ`` applies from the next
-    reset or step, a new ``β`` from the next bias drawn (the env's next reset). They are then entries
-    ``("domain", <field>)`` and ``episode_statistics``' ``domain/<field>``, and a
-    :class:`~torchtasks.transforms.Curriculum` or :class:`~torchtasks.transforms.DifficultyLevels` sets their
-    distributions (``"domain.observation_noise:joint_pos.mean"``).
+    per-element ``σ``) and, for an entry with a bias, ``"observation_bias:<entry>"`` (``β``), of the entry's per-env
+    shape, ``>= 0``, nominal the constructor's values (a nested key's parts are joined by ``":"``:
+    ``("agent", "joint_pos")`` gives ``"observation_noise:agent:joint_pos"``). A
+    :class:`~torchtasks.transforms.DomainRandomization` after this transform draws them per env (``when="startup"``,
+    ``"reset"``, ``"interval"``); a new ``σ`` applies from the next reset or step, a new ``β`` from the next bias drawn
+    (the env's next reset). They are then entries ``("domain", <field>)`` and ``episode_statistics``'
+    ``domain/<field>``, and a :class:`~torchtasks.transforms.Curriculum` or
+    :class:`~torchtasks.transforms.DifficultyLevels` sets their distributions
+    (``"domain.observation_noise:joint_pos.mean"``).
 
-    The episode's bias is written under ``(entry_key, "bias", *entry)`` at reset and every step, so offline users see
-    what each episode had. An entry a :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state (or
-    goal) is refused in place: the task keeps judging the true state. On an env whose observation is its state in the
-    data (:class:`~torchtasks.envs.PendulumEnv`, :class:`~torchtasks.envs.PointMassEnv` step from the data's
+    An entry's episode bias is written under ``(entry_key, "bias", *entry)`` at reset and every step, so offline users
+    see what each episode had. An entry a :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state
+    (or goal) is refused in place: the task keeps judging the true state. On an env whose observation is its state in
+    the data (:class:`~torchtasks.envs.PendulumEnv`, :class:`~torchtasks.envs.PointMassEnv` step from the data's
     ``"observation"``) noise in place would change the simulation: write a copy (``out_key``).
 
     Randomness: one generator draws every entry's noise for all envs (``seed=k``: its own; ``None``: torch's global
-    one until ``env.set_seed(s)`` gives it one seeded from ``s`` and its place in the env). Run state
-    (``state_dict``): the generator, every env's ``σ``, ``β`` and bias; a checkpoint of other entries, distributions or
-    shapes is refused and changes nothing.
+    one until ``env.set_seed(s)`` gives it one seeded from ``s`` and its place in the env): at each step and reset one
+    draw ``[*B, n]`` per distribution and dtype for the ``ε`` of its entries (``n`` their elements, in the order given),
+    and at each reset, before it, one float64 draw per bias distribution for the ``η`` (every env draws: the
+    generator's use does not depend on which envs reset). Run state (``state_dict``): the generator, every env's
+    ``σ``, ``β`` and bias; a checkpoint of other entries, distributions or shapes is refused and changes nothing.
 
     Args:
         noises: the noise of each observation entry, by key (a string or a tuple of strings).
@@ -153,16 +173,20 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         _check_distinct(entries)
         super().__init__(
             in_keys=[entry.key for entry in entries],
-            out_keys=[entry.out_key for entry in entries] + [entry.bias_key for entry in entries],
+            out_keys=[entry.out_key for entry in entries] + [e.bias_key for e in entries if e.bias_key is not None],
         )
         self.entries = tuple(entries)
-        #: every env's per-element std of the per-step noise, of the per-episode bias, and the episode's bias, by
-        #: entry name (float64 ``[*B, *entry shape]``, made with the specs)
+        #: the entries with a per-episode bias
+        self.biased = tuple(entry for entry in entries if entry.bias is not None)
+        #: every env's per-element std of the per-step noise (every entry), of the per-episode bias and the episode's
+        #: bias (the entries with a bias), by entry name (float64 ``[*B, *entry shape]``, made with the specs)
         self.noise_std = nn.Module()
         self.bias_std = nn.Module()
         self.bias = nn.Module()
         for entry in entries:
-            for module in (self.noise_std, self.bias_std, self.bias):
+            self.noise_std.register_buffer(entry.name, torch.empty(0, dtype=torch.float64))
+        for entry in self.biased:
+            for module in (self.bias_std, self.bias):
                 module.register_buffer(entry.name, torch.empty(0, dtype=torch.float64))
         self.generator = None if seed is None else torch.Generator().manual_seed(check_int(seed, "seed"))
 
@@ -180,20 +204,25 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                 f"ObservationNoise: the entry {key!r} names domain fields '{NOISE_FIELD}:{name}', which must hold "
                 "neither '.' nor '/'; rename the entry (e.g. with torchrl's RenameTransform)"
             ) from None
-        stds = {
-            what: _std(getattr(noise, what), f"ObservationNoise: the {what} of {key!r}") for what in ("std", "bias")
-        }
+        std = _std(noise.std, f"ObservationNoise: the std of {key!r}")
         distribution = _distribution(noise.distribution, f"ObservationNoise: the distribution of {key!r}")
-        bias_distribution = distribution
+        bias = bias_distribution = bias_key = None
+        if noise.bias is not None:
+            bias = _std(noise.bias, f"ObservationNoise: the bias of {key!r}")
+            bias_distribution = distribution
+            bias_key = (*key_parts(self.entry_key), "bias", *key_parts(key))
         if noise.bias_distribution is not None:
-            bias_distribution = _distribution(
-                noise.bias_distribution, f"ObservationNoise: the bias_distribution of {key!r}"
-            )
+            checked = _distribution(noise.bias_distribution, f"ObservationNoise: the bias_distribution of {key!r}")
+            if bias is None:
+                raise ValueError(
+                    f"ObservationNoise: the bias_distribution of {key!r} is {checked!r} but it has no bias "
+                    "(bias=None); give EntryNoise(bias=...) a std, or leave bias_distribution out"
+                )
+            bias_distribution = checked
         out_key = (
             key if noise.out_key is None else nested_key(noise.out_key, f"ObservationNoise: the out_key of {key!r}")
         )
-        bias_key = (*key_parts(self.entry_key), "bias", *key_parts(key))
-        return _Entry(key, out_key, name, stds["std"], stds["bias"], distribution, bias_distribution, bias_key)
+        return _Entry(key, out_key, name, std, bias, distribution, bias_distribution, bias_key)
 
     # ------------------------------------------------------------------ seeding
     def set_seed(self, seed: int) -> None:
@@ -252,7 +281,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                 )
             shape = spec.shape[len(batch) :]
             for what, value in (("std", entry.std), ("bias", entry.bias)):
-                if value.dim() and value.shape != shape:
+                if value is not None and value.dim() and value.shape != shape:
                     raise ValueError(
                         f"ObservationNoise: the {what} of {entry.key!r} must be a number (every element) or a tensor "
                         f"of the entry's per-env shape {list(shape)}, got shape {list(value.shape)}"
@@ -265,8 +294,11 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             shapes[entry.name], dtypes[entry.name] = shape, spec.dtype
             noisy = Unbounded(shape=spec.shape, dtype=spec.dtype, device=spec.device)
             observation_spec[entry.out_key] = noisy
-            observation_spec[entry.bias_key] = noisy.clone()
+            if entry.bias_key is not None:
+                observation_spec[entry.bias_key] = noisy.clone()
         self.__dict__["_shapes"], self.__dict__["_dtypes"] = shapes, dtypes
+        self.__dict__["_noise_groups"] = _groups(self.entries, shapes, lambda e: (e.distribution, dtypes[e.name]))
+        self.__dict__["_bias_groups"] = _groups(self.biased, shapes, lambda e: (e.bias_distribution, torch.float64))
         self.__dict__.pop("_fields", None)
         self._make_state(batch, device)
         return observation_spec
@@ -277,7 +309,9 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         shapes = self.__dict__["_shapes"]
         for entry in self.entries:
             shape = batch + shapes[entry.name]
-            initial = ((self.noise_std, entry.std), (self.bias_std, entry.bias), (self.bias, torch.zeros(())))
+            initial = [(self.noise_std, entry.std)]
+            if entry.bias is not None:
+                initial += [(self.bias_std, entry.bias), (self.bias, torch.zeros(()))]
             for module, value in initial:
                 held = module._buffers[entry.name]
                 if held.shape == shape:
@@ -318,6 +352,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         for entry in self.entries:
             shape = shapes[entry.name]
             for kind, what, nominal in ((NOISE_FIELD, "per-step noise", entry.std), (BIAS_FIELD, "bias", entry.bias)):
+                if nominal is None:  # no bias
+                    continue
                 name = f"{kind}:{entry.name}"
                 description = f"the per-element std of the {what} of {entry.key!r}"
                 field = DomainField(
@@ -328,9 +364,26 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         return table
 
     def domain_fields(self, names: Sequence[str] | None = None) -> list[DomainField]:
-        """The domain fields ``names`` names (``None``: all: per entry ``"observation_noise:<entry>"`` then
-        ``"observation_bias:<entry>"``), see :class:`~torchtasks.domain.DomainEnv`."""
+        """The domain fields ``names`` names (``None``: all: per entry ``"observation_noise:<entry>"`` then, with a
+        bias, ``"observation_bias:<entry>"``), see :class:`~torchtasks.domain.DomainEnv`."""
         return select_fields(self._table(), names, type(self).__name__)
+
+    def absent_field_reason(self, name: object) -> str | None:
+        """Why ``name`` is not a domain field although it names one of the entries, or ``None``: an entry without a
+        bias has no ``"observation_bias:<entry>"``.
+
+        Example:
+            >>> noise = ObservationNoise({"observation": EntryNoise(std=0.1)})
+            >>> noise.absent_field_reason("observation_bias:observation")[:57]
+            "'observation_bias:observation' is not a field: the entry"
+        """
+        for entry in self.entries:
+            if entry.bias is None and name == f"{BIAS_FIELD}:{entry.name}":
+                return (
+                    f"{name!r} is not a field: the entry {entry.key!r} has no per-episode bias (EntryNoise(bias=None), "
+                    "the default); give it EntryNoise(bias=0.0) to draw or schedule its bias std"
+                )
+        return None
 
     def _field_buffer(self, name: str) -> tuple[nn.Module, str]:
         kind, entry = name.split(":", 1)
@@ -362,11 +415,13 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         return values
 
     # ------------------------------------------------------------------ drawing
-    def _standard(self, distribution: str, shape: torch.Size, dtype: torch.dtype) -> torch.Tensor:
-        """Draws of mean 0 and std 1 (normal, or uniform on ``[-√3, √3)``) on the CPU, by the own generator."""
-        if distribution == "normal":
-            return torch.randn(shape, generator=self.generator, dtype=dtype)
-        return torch.rand(shape, generator=self.generator, dtype=dtype).mul_(2.0 * _SQRT3).sub_(_SQRT3)
+    def _standard(self, group: _Group, batch: torch.Size) -> torch.Tensor:
+        """The group's draws ``[*B, width]`` of mean 0 and std 1 (normal, or uniform on ``[-√3, √3)``) on the CPU, by
+        the own generator."""
+        shape = (*batch, group.width)
+        if group.distribution == "normal":
+            return torch.randn(shape, generator=self.generator, dtype=group.dtype)
+        return torch.rand(shape, generator=self.generator, dtype=group.dtype).mul_(2.0 * _SQRT3).sub_(_SQRT3)
 
     def _casts(self, name: str) -> dict[str, torch.Tensor]:
         """Each entry's noise std (``"_cast"``) or bias (``"_bias_cast"``) in the entry's dtype and device, cached until
@@ -374,27 +429,35 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         cast = self.__dict__.get(name)
         if cast is None:
             dtypes = self.__dict__["_dtypes"]
-            module = self.noise_std if name == "_cast" else self.bias
+            module, entries = (self.noise_std, self.entries) if name == "_cast" else (self.bias, self.biased)
             # a copy even in the buffer's dtype: the data's bias entries hold these tensors, and a load writes into the
             # buffers in place; a cast is replaced, never written into
-            cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name], copy=True) for entry in self.entries}
+            cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name], copy=True) for entry in entries}
             self.__dict__[name] = cast
         return cast
 
     def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write each entry's noisy value (the bias plus a fresh draw times the std) and the episode's bias."""
+        """Write each entry's noisy value (the bias plus a fresh draw times the std) and the episode's bias: one draw
+        per group of entries (a distribution and dtype), each entry reading its columns."""
         stds, biases = self._casts("_cast"), self._casts("_bias_cast")
-        for entry in self.entries:
-            value = tensordict.get(entry.key, None)
-            if value is None:
-                raise KeyError(
-                    f"ObservationNoise: the entry {entry.key!r} is missing from the data; the entries are "
-                    f"{keys_text(tensordict.keys(True, True))}"
-                )
-            bias = biases[entry.name]
-            draw = self._standard(entry.distribution, value.shape, value.dtype).to(value.device)
-            tensordict.set(entry.out_key, torch.addcmul(value + bias, stds[entry.name], draw))
-            tensordict.set(entry.bias_key, bias)  # the cast of this episode's bias: replaced at a reset, never mutated
+        batch = tensordict.batch_size
+        for group in self.__dict__["_noise_groups"]:
+            units = torch.split_with_sizes(self._standard(group, batch), group.sizes, -1)
+            for entry, unit, shape in zip(group.entries, units, group.shapes, strict=True):
+                value = td_get(tensordict, entry.key)
+                if value is None:
+                    raise KeyError(
+                        f"ObservationNoise: the entry {entry.key!r} is missing from the data; the entries are "
+                        f"{keys_text(tensordict.keys(True, True))}"
+                    )
+                unit = (unit if shape is None else unit.unflatten(-1, shape)).to(value.device)
+                bias = biases.get(entry.name)
+                if bias is None:
+                    td_set(tensordict, entry.out_key, torch.addcmul(value, stds[entry.name], unit))
+                else:
+                    td_set(tensordict, entry.out_key, torch.addcmul(value + bias, stds[entry.name], unit))
+                    # the cast of this episode's bias: replaced at a reset, never mutated
+                    td_set(tensordict, entry.bias_key, bias)
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -407,15 +470,17 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                 self._make_state(batch, tensordict_reset.device)
         reset = None if tensordict is None else tensordict.get("_reset", None)
         dtypes, biases = self.__dict__["_dtypes"], {}
-        for entry in self.entries:
-            held = self.bias._buffers[entry.name]
-            new = self.bias_std._buffers[entry.name] * self._standard(
-                entry.bias_distribution, held.shape, torch.float64
-            ).to(held.device)
-            if reset is not None:
-                new = torch.where(reset.reshape(batch + (1,) * (held.dim() - len(batch))).to(held.device), new, held)
-            self.bias._buffers[entry.name] = new
-            biases[entry.name] = new.to(dtypes[entry.name], copy=True)
+        for group in self.__dict__["_bias_groups"]:
+            units = torch.split_with_sizes(self._standard(group, batch), group.sizes, -1)
+            for entry, unit, shape in zip(group.entries, units, group.shapes, strict=True):
+                held = self.bias._buffers[entry.name]
+                unit = unit if shape is None else unit.unflatten(-1, shape)
+                new = self.bias_std._buffers[entry.name] * unit.to(held.device)
+                if reset is not None:
+                    rows = reset.reshape(batch + (1,) * (held.dim() - len(batch))).to(held.device)
+                    new = torch.where(rows, new, held)
+                self.bias._buffers[entry.name] = new
+                biases[entry.name] = new.to(dtypes[entry.name], copy=True)
         self.__dict__["_bias_cast"] = biases
         return self._write(tensordict_reset)
 
@@ -445,8 +510,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                 f"ObservationNoise.load_state_dict: the checkpoint is of another noise (entries and distributions: "
                 f"saved {saved['entries']!r}, here {own['entries']!r}); build the ObservationNoise as saved"
             )
-        for head in ("noise_std.", "bias_std.", "bias."):
-            for entry in self.entries:
+        for head, entries in (("noise_std.", self.entries), ("bias_std.", self.biased), ("bias.", self.biased)):
+            for entry in entries:
                 value = state_dict.get(prefix + head + entry.name)
                 if isinstance(value, torch.Tensor) and value.dtype != torch.float64:
                     raise ValueError(
@@ -473,37 +538,56 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             held = {
                 what: module._buffers[entry.name]
                 for what, module in (("noise_std", self.noise_std), ("bias_std", self.bias_std), ("bias", self.bias))
+                if entry.name in module._buffers
             }
             if len({tuple(value.shape) for value in held.values()}) > 1:
                 raise ValueError(
                     f"ObservationNoise.load_state_dict: the saved values of {entry.key!r} must share one shape, got "
                     + ", ".join(f"{what} {list(value.shape)}" for what, value in held.items())
                 )
-            shape = held["bias"].shape
+            shape = held["noise_std"].shape
             if shapes is not None and batch is not None and shape != batch + shapes[entry.name]:
                 raise ValueError(
                     f"ObservationNoise.load_state_dict: the checkpoint holds values of {entry.key!r} of shape "
                     f"{list(shape)} ([*batch, *entry shape]), but this env gives {list(batch + shapes[entry.name])}: "
                     "load a checkpoint of this env"
                 )
-            for what in ("noise_std", "bias_std"):
+            for what in [what for what in ("noise_std", "bias_std") if what in held]:
                 value = held[what]
                 if not bool((torch.isfinite(value) & (value >= 0)).all()):
                     raise ValueError(
                         f"ObservationNoise.load_state_dict: the saved {what} of {entry.key!r} must be finite and >= 0, "
                         f"got {value.tolist()}"
                     )
-            if not bool(torch.isfinite(held["bias"]).all()):
+            if "bias" in held and not bool(torch.isfinite(held["bias"]).all()):
                 raise ValueError(f"ObservationNoise.load_state_dict: the saved bias of {entry.key!r} must be finite")
 
     def __repr__(self) -> str:
-        parts = ", ".join(
-            f"{entry.key!r}: std={_shown(entry.std)}, bias={_shown(entry.bias)}, {entry.distribution}"
-            + (f"/{entry.bias_distribution}" if entry.bias_distribution != entry.distribution else "")
-            + (f" -> {entry.out_key!r}" if entry.out_key != entry.key else "")
-            for entry in self.entries
-        )
-        return f"{type(self).__name__}({{{parts}}})"
+        return f"{type(self).__name__}({{{', '.join(_entry_text(entry) for entry in self.entries)}}})"
+
+
+def _groups(entries: Sequence[_Entry], shapes: Mapping[str, torch.Size], group_of: Any) -> tuple[_Group, ...]:
+    """The entries drawn together: by ``group_of(entry)`` (a distribution and dtype) in the order of first appearance,
+    each group's columns the entries' flattened elements in the order given."""
+    members: dict[tuple[str, torch.dtype], list[_Entry]] = {}
+    for entry in entries:
+        members.setdefault(group_of(entry), []).append(entry)
+    groups = []
+    for (distribution, dtype), group in members.items():
+        sizes = tuple(math.prod(shapes[entry.name]) for entry in group)
+        viewed = tuple(None if len(shapes[entry.name]) == 1 else shapes[entry.name] for entry in group)
+        groups.append(_Group(distribution, dtype, tuple(group), sizes, viewed, sum(sizes)))
+    return tuple(groups)
+
+
+def _entry_text(entry: _Entry) -> str:
+    text = f"{entry.key!r}: std={_shown(entry.std)}"
+    if entry.bias is not None:
+        text += f", bias={_shown(entry.bias)}"
+    text += f", {entry.distribution}"
+    if entry.bias is not None and entry.bias_distribution != entry.distribution:
+        text += f"/{entry.bias_distribution}"
+    return text + (f" -> {entry.out_key!r}" if entry.out_key != entry.key else "")
 
 
 def _shown(value: torch.Tensor) -> object:
