@@ -38,7 +38,9 @@ from torchtasks.transforms import (
     Curriculum,
     DifficultyLevels,
     DomainRandomization,
+    EntryNoise,
     GoalCommand,
+    ObservationNoise,
     TaskTransform,
     linear,
 )
@@ -134,6 +136,17 @@ def domain(batch: int, seed: int) -> TransformedEnv:
     curriculum = Curriculum({"domain.mass.halfspan": linear(0.0, 0.5, 0, 200)})
     randomization = DomainRandomization(_pendulum_params(), seed=seed)
     return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, randomization, curriculum)
+
+
+def observation_noise(batch: int, seed: int) -> TransformedEnv:
+    """Noise and a per-episode bias on a copy of the pendulum's observation (the policy's), each env's noise std drawn
+    at every reset and its range widened by a Curriculum."""
+    task = TaskTransform(swing_up_task(success_threshold=0.6))
+    noise = ObservationNoise({"observation": EntryNoise(std=0.05, bias=0.1, out_key="noisy_observation")}, seed=seed)
+    stds = UniformDomainParam("observation_noise:observation", mean=[0.05, 0.05], halfspan=[0.0, 0.0])
+    randomization = DomainRandomization([stds], seed=seed + 1)
+    curriculum = Curriculum({"domain.observation_noise:observation.halfspan": linear(0.0, 0.05, 0, 200)})
+    return _finish(PendulumEnv(batch_size=[batch], seed=seed), task, noise, randomization, curriculum)
 
 
 def domain_levels(batch: int, seed: int) -> TransformedEnv:
@@ -292,6 +305,7 @@ FEATURES: dict[str, Feature] = {
     "end_conditions": Feature(end_conditions, functools.partial(point_policy, False)),
     "domain": Feature(domain, pendulum_policy),
     "domain_levels": Feature(domain_levels, pendulum_policy),
+    "observation_noise": Feature(observation_noise, pendulum_policy),
     "groups": Feature(groups, pendulum_policy),
     "groups_scheduled": Feature(groups_scheduled, pendulum_policy),
 }

@@ -17,12 +17,14 @@ from pathlib import Path
 
 import pytest
 import torch
+from torchrl.collectors import Collector
 from torchrl.envs import ParallelEnv
 
 pytest.importorskip("mujoco")
 
 from perturbed_env import make_collector, make_perturbed_env, make_policy
 from repo_paths import TESTS
+from storage_probe import StorageProbe
 from torchtasks.transforms import TaskTransform, collector_state, load_collector_state
 
 pytestmark = pytest.mark.mujoco
@@ -96,6 +98,21 @@ def test_collected_rewards_recompute_offline_from_the_data() -> None:
         assert torch.equal(batch["next", key], online[key]), key
     assert online[task.reward_key].abs().sum() > 0 and online["terminated"].any()
     collector.shutdown()
+
+
+def test_no_entry_of_a_step_shares_storage_with_another_frames() -> None:
+    """Every perturbation's entries (the applied action, the noise biases, the pushes, the drawn values) are new
+    tensors at every step, in a rollout and in a Collector: a write into one frame's data changes no other frame."""
+    env = make_perturbed_env()
+    probe = StorageProbe()
+    env.append_transform(probe)
+    env.rollout(8, make_policy(env), break_when_any_done=False)
+    assert not probe.found, probe.found[:4]
+    collector = Collector(env, make_policy(env), frames_per_batch=24, total_frames=48)
+    for _ in collector:
+        pass
+    collector.shutdown()
+    assert probe._steps == 8 + 16 and not probe.found, probe.found[:4]
 
 
 def _worker() -> object:

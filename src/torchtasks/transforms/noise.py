@@ -430,8 +430,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if cast is None:
             dtypes = self.__dict__["_dtypes"]
             module, entries = (self.noise_std, self.entries) if name == "_cast" else (self.bias, self.biased)
-            # a copy even in the buffer's dtype: the data's bias entries hold these tensors, and a load writes into the
-            # buffers in place; a cast is replaced, never written into
+            # a copy even in the buffer's dtype: a load writes into the buffers in place; a cast is replaced, never
+            # written into
             cast = {entry.name: module._buffers[entry.name].to(dtypes[entry.name], copy=True) for entry in entries}
             self.__dict__[name] = cast
         return cast
@@ -456,8 +456,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                     td_set(tensordict, entry.out_key, torch.addcmul(value, stds[entry.name], unit))
                 else:
                     td_set(tensordict, entry.out_key, torch.addcmul(value + bias, stds[entry.name], unit))
-                    # the cast of this episode's bias: replaced at a reset, never mutated
-                    td_set(tensordict, entry.bias_key, bias)
+                    # a copy of this episode's bias: no entry of a step shares storage with another's
+                    td_set(tensordict, entry.bias_key, bias.clone())
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
