@@ -227,26 +227,34 @@ def check_domain_values(
     """
     if not isinstance(values, Mapping):
         raise TypeError(f"{owner}: {what} must be a mapping of field names to tensors, got {values!r}")
-    expected_mask = f"a bool tensor of shape {list(batch)} or None"
     if mask is None:
         mask = torch.ones(batch, dtype=torch.bool)
-    else:
+    elif not (isinstance(mask, torch.Tensor) and mask.dtype == torch.bool and mask.shape == batch):
+        expected_mask = f"a bool tensor of shape {list(batch)} or None"
         check_tensor(mask, torch.bool, batch, f"{owner}.set_domain: mask", expected_mask, " (the env's batch)")
     select_fields(table, list(values), owner, writes=writes, kinds=kinds, what=what)
-    # numpy on the host: a few microseconds per field, where torch's small-tensor ops cost tens (this runs at resets)
-    rows = mask.detach().cpu().numpy().reshape(-1)
+    # numpy on the host: a few microseconds per field, where torch's small-tensor ops cost tens (this runs at resets);
+    # every row in range is the common case, checked in a few operations; the rows of the mask only on a failure
+    rows = None
     for name, value in values.items():
         field = table[name]
-        shape = [*batch, *field.value_shape]
-        expected = f"a float64 tensor of shape {shape} ([*batch, *value_shape])"
-        check_tensor(value, torch.float64, shape, f"{owner}: {what}[{name!r}]", expected)
-        flat = value.detach().cpu().numpy().reshape(rows.size, -1)
+        if not (isinstance(value, torch.Tensor) and value.dtype == torch.float64 and value.shape[: len(batch)] == batch
+                and value.shape[len(batch) :] == field.value_shape):  # fmt: skip
+            shape = [*batch, *field.value_shape]
+            expected = f"a float64 tensor of shape {shape} ([*batch, *value_shape])"
+            check_tensor(value, torch.float64, shape, f"{owner}: {what}[{name!r}]", expected)
+        flat = value.detach().cpu().numpy().reshape(batch.numel(), -1)
+        # NaN fails both comparisons; an infinite value fails the finite bound or isfinite
         above = flat > field.low if field.low_open else flat >= field.low
-        allowed = np.isfinite(flat) & above & (flat <= field.high)
+        allowed = above & (flat <= field.high)
         if field.integer:
             allowed &= flat == np.round(flat)
-        allowed = allowed.all(axis=1)
-        bad = rows & ~allowed
+        if not (math.isfinite(field.low) and math.isfinite(field.high)):
+            allowed &= np.isfinite(flat)
+        if allowed.all():
+            continue
+        rows = mask.detach().cpu().numpy().reshape(-1) if rows is None else rows
+        bad = rows & ~allowed.all(axis=1)
         if bad.any():
             env = int(np.flatnonzero(bad)[0])
             shown = flat[env].tolist() if field.value_shape.numel() > 1 else float(flat[env, 0])

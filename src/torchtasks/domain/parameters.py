@@ -199,7 +199,8 @@ class DomainParam(CheckedLoad, nn.Module):
             >>> values.shape, values[:, :2].abs().max().item()
             (torch.Size([4, 3]), 0.0)
         """
-        num = check_non_negative_int(num, f"{type(self).__name__}.sample: num")
+        if type(num) is not int or num < 0:  # the message is built only for a bad num (this runs at resets)
+            num = check_non_negative_int(num, f"{type(self).__name__}.sample: num")
         lead = self._lead_shape()
         if lead and num != lead.numel():
             raise ValueError(

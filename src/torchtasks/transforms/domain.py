@@ -474,7 +474,8 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         return tensordict
 
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
-        """Write every env's current values under ``entry_key`` (a scalar field's ``[*B, 1]``, as TorchRL's reward)."""
+        """Write every env's current values under ``entry_key`` (a scalar field's ``[*B, 1]``, as TorchRL's reward):
+        copies, so that no entry of a step shares storage with another's or with the run state."""
         scalars = self.__dict__.get("_scalars")
         if scalars is None:
             scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
