@@ -34,11 +34,13 @@ machine load, wall time, frames, the per-batch ``curve`` with the training retur
 ``eval_curve``, and ``results``: each variant, and the baseline ``"standing still"`` (zero actions: its errors are
 those of the commands), evaluated under each condition), ``velocity_tracking_seed<N>.md`` (the
 tables) and ``velocity_tracking_seed<N>.png`` (tracking errors and returns against frames; needs matplotlib, the
-``plot`` extra, else skipped with a message).
+``plot`` extra, else skipped with a message); with several seeds also ``velocity_tracking_seeds<A>-<B>.md`` (every
+variant under every condition, the mean over the seeds and each seed's value, the frames and the wall times; printed
+too) and ``.png`` (every seed's curves).
 
-Run: ``python examples/velocity_tracking_ppo.py [--seed 0] [--output DIR] [--quick]`` (``--quick``: a tiny run of
-a few seconds that runs every code path, for the tests; ``--help`` lists the flags). Measured results: the docs
-section "The velocity-tracking task".
+Run: ``python examples/velocity_tracking_ppo.py [--seeds 0 1] [--output DIR] [--quick]`` (seeds one after the other;
+``--quick``: a tiny run of a few seconds that runs every code path, for the tests; ``--help`` lists the flags).
+Measured results: the docs section "The velocity-tracking task".
 """
 
 from __future__ import annotations
@@ -402,8 +404,9 @@ def table(record: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def plot(record: dict[str, Any], path: Path) -> Path | None:
-    """Tracking errors, falls and returns of each variant's evaluations against frames; None without matplotlib."""
+def plot(records: Sequence[dict[str, Any]], path: Path) -> Path | None:
+    """Tracking errors, falls and returns of each variant's evaluations against frames, one line per variant and
+    seed (a colour per variant, a line style per seed); None without matplotlib."""
     plt = pyplot()
     if plt is None:
         return None
@@ -415,13 +418,23 @@ def plot(record: dict[str, Any], path: Path) -> Path | None:
         ("falls_per_episode", "falls per episode"),
         ("return_mean", "return"),
     )
+    styles = ("-", "--", ":", "-.")
+    colours = {variant: f"C{k}" for k, variant in enumerate(VARIANTS)}
     figure, axes = plt.subplots(1, len(keys), figsize=(16, 4))
-    for variant, trained in record["variants"].items():
-        frames = [point["frames"] for point in trained["eval_curve"]]
-        for axis, (key, label) in zip(axes, keys, strict=True):
-            axis.plot(frames, [point[key] for point in trained["eval_curve"]], marker="o", label=variant)
-            axis.set_ylabel(label)
-    baseline = record["results"]["standing still"]["nominal"]
+    for k, record in enumerate(records):
+        for variant, trained in record["variants"].items():
+            frames = [point["frames"] for point in trained["eval_curve"]]
+            for axis, (key, label) in zip(axes, keys, strict=True):
+                axis.plot(
+                    frames,
+                    [point[key] for point in trained["eval_curve"]],
+                    marker="o",
+                    color=colours.get(variant),
+                    linestyle=styles[k % len(styles)],
+                    label=f"{variant}, seed {record['seed']}",
+                )
+                axis.set_ylabel(label)
+    baseline = records[0]["results"]["standing still"]["nominal"]  # the same for every seed: fixed commands
     for axis, (key, _) in zip(axes, keys, strict=True):
         axis.axhline(baseline[key], color="grey", linestyle="--", linewidth=1, label="standing still (zero actions)")
     for axis in axes:
@@ -429,44 +442,98 @@ def plot(record: dict[str, Any], path: Path) -> Path | None:
         axis.xaxis.set_major_formatter(EngFormatter())
         axis.grid(alpha=0.3)
         axis.legend(fontsize="small")
-    scale, unit = time_unit(record["total_seconds"])
-    config = record["config"]
+    seconds = sum(record["total_seconds"] for record in records)
+    scale, unit = time_unit(seconds)
+    config = records[0]["config"]
+    seeds = ", ".join(str(record["seed"]) for record in records)
     figure.suptitle(
-        f"PPO velocity tracking, shipped quadruped, seed {record['seed']} ({config['num_envs']} envs, "
-        f"{record['total_seconds'] / scale:.1f} {unit} in all)"
+        f"PPO velocity tracking, shipped quadruped, seed{'s' if len(records) > 1 else ''} {seeds} "
+        f"({config['num_envs']} envs, {seconds / scale:.1f} {unit} in all)"
     )
     return save_figure(figure, path)
+
+
+def summary(records: Sequence[dict[str, Any]]) -> str:
+    """The runs of several seeds as markdown: the frames and wall times, then every variant under every condition
+    with the mean over the seeds and each seed's value."""
+    seeds = [record["seed"] for record in records]
+    config = records[0]["config"]
+    frames = {
+        variant: sorted({record["variants"][variant]["total_frames"] for record in records}) for variant in VARIANTS
+    }
+    walls = ", ".join(f"seed {record['seed']} {duration(record['total_seconds'])}" for record in records)
+    lines = [
+        f"# PPO velocity tracking, seeds {', '.join(map(str, seeds))}",
+        "",
+        f"{config['num_envs']} envs x {config['rollout_steps']} steps per batch; frames per variant: "
+        + "; ".join(f"{variant} {', '.join(f'{n:,}' for n in counts)}" for variant, counts in frames.items())
+        + f". Wall time (both variants and every evaluation): {walls}. Evaluation: {config['eval_envs']} envs x "
+        f"{config['eval_steps']} steps from seed {records[0]['eval_seed']}, full command range; each cell the mean "
+        "over the seeds, then each seed's value.",
+        "",
+        "| trained | evaluated | planar velocity error [m/s] | yaw-rate error [rad/s] | falls per episode | return |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    metrics = (("lin_vel_error", 3), ("yaw_rate_error", 3), ("falls_per_episode", 2), ("return_mean", 2))
+    for variant, conditions in records[0]["results"].items():
+        for condition in conditions:
+            cells = []
+            for key, digits in metrics:
+                values = [record["results"][variant][condition][key] for record in records]
+                each = " / ".join(f"{value:.{digits}f}" for value in values)
+                mean = sum(values) / len(values)
+                cells.append(f"**{mean:.{digits}f}** ({each})" if len(values) > 1 else f"{mean:.{digits}f}")
+            lines.append(f"| {variant} | {condition} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
 
 
 def main() -> None:
     parser = make_parser(__doc__)
     parser.add_argument("--quick", action="store_true", help="a tiny run (seconds) that runs every code path")
     add_output_argument(parser, DEFAULT_OUTPUT, "directory for the JSON, the tables and the PNG")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the envs, the networks and the sampling")
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        nargs="+",
+        default=[0],
+        help="seeds of the envs, networks and sampling, one after the other",
+    )
     defaults = VelocityPPOConfig()
     config_arguments(parser, defaults, HELP, FLAGS)
     args = parser.parse_args()
     config = config_from_args(parser, args, defaults, QUICK)
     args.output = output_folder(parser, args, DEFAULT_OUTPUT)
     torch.set_num_threads(1)  # small networks: a second intra-op thread costs more than it gives on 2 cores
-    record = run(config, args.seed)
-    stem = args.output / file_stem(args.seed)
-    json_path = stem.with_suffix(".json")
-    json_path.write_text(json.dumps(record, indent=2))
-    stem.with_suffix(".md").write_text(table(record))
-    for variant, trained in record["variants"].items():
-        first, last = trained["eval_curve"][0], trained["eval_curve"][-1]
-        print(
-            f"{variant}, seed {args.seed}: {trained['total_frames']} frames in {duration(trained['total_seconds'])} "
-            f"({trained['frames_per_second']:.0f} frames/s); planar velocity error {first['lin_vel_error']:.3f} -> "
-            f"{last['lin_vel_error']:.3f} m/s, yaw-rate error {first['yaw_rate_error']:.3f} -> "
-            f"{last['yaw_rate_error']:.3f} rad/s, falls per episode {first['falls_per_episode']:.2f} -> "
-            f"{last['falls_per_episode']:.2f}"
-        )
-    print(f"wrote {json_path} and {stem.with_suffix('.md')}")
-    png = plot(record, stem.with_suffix(".png"))
-    if png is not None:
-        print(f"wrote {png}")
+    records = []
+    for seed in args.seeds:
+        record = run(config, seed)
+        records.append(record)
+        stem = args.output / file_stem(seed)
+        json_path = stem.with_suffix(".json")
+        json_path.write_text(json.dumps(record, indent=2))
+        stem.with_suffix(".md").write_text(table(record))
+        for variant, trained in record["variants"].items():
+            first, last = trained["eval_curve"][0], trained["eval_curve"][-1]
+            print(
+                f"{variant}, seed {seed}: {trained['total_frames']} frames in {duration(trained['total_seconds'])} "
+                f"({trained['frames_per_second']:.0f} frames/s); planar velocity error {first['lin_vel_error']:.3f} "
+                f"-> {last['lin_vel_error']:.3f} m/s, yaw-rate error {first['yaw_rate_error']:.3f} -> "
+                f"{last['yaw_rate_error']:.3f} rad/s, falls per episode {first['falls_per_episode']:.2f} -> "
+                f"{last['falls_per_episode']:.2f}"
+            )
+        print(f"wrote {json_path} and {stem.with_suffix('.md')}")
+        png = plot([record], stem.with_suffix(".png"))
+        if png is not None:
+            print(f"wrote {png}")
+    if len(records) > 1:
+        stem = args.output / file_stem("s" + "-".join(map(str, args.seeds)))
+        text = summary(records)
+        stem.with_suffix(".md").write_text(text)
+        print(text)
+        print(f"wrote {stem.with_suffix('.md')}")
+        png = plot(records, stem.with_suffix(".png"))
+        if png is not None:
+            print(f"wrote {png}")
 
 
 if __name__ == "__main__":

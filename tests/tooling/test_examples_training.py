@@ -175,9 +175,15 @@ def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -
     """PPO on the velocity-tracking quadruped: the training curve with every reward term, the evaluation's tracking
     errors and falls, each variant under each condition, the markdown table and the plot."""
     pytest.importorskip("mujoco")
-    result = run_example("velocity_tracking_ppo.py", tmp_path, "--seed", "3")
+    result = run_example("velocity_tracking_ppo.py", tmp_path, "--seeds", "3", "4")
     output = tmp_path / "runs" / "velocity_tracking_ppo" / "quick"  # the default --output of a --quick run
     record = json.loads((output / "velocity_tracking_seed3.json").read_text())
+    other = json.loads((output / "velocity_tracking_seed4.json").read_text())
+    summary = (output / "velocity_tracking_seeds3-4.md").read_text()  # both seeds: the mean, then each seed's
+    falls = [run["results"]["robust"]["nominal"]["falls_per_episode"] for run in (record, other)]
+    assert "| robust | nominal | " in summary and f"({falls[0]:.2f} / {falls[1]:.2f})" in summary
+    assert f"**{sum(falls) / 2:.2f}**" in summary and "seeds 3, 4" in summary
+    assert "velocity_tracking_seeds3-4.md" in result.stdout
     assert record["seed"] == 3 and record["method"] == "PPO" and record["total_seconds"] > 0
     trained = record["variants"]["nominal"]
     assert [point["frames"] for point in trained["curve"]] == [100, 200] == [100, trained["total_frames"]]
@@ -203,6 +209,7 @@ def test_velocity_tracking_ppo_quick_writes_json_table_and_png(tmp_path: Path) -
     assert "nominal, seed 3: 200 frames in" in result.stdout
     if importlib.util.find_spec("matplotlib") is not None:
         assert (output / "velocity_tracking_seed3.png").stat().st_size > 0
+        assert (output / "velocity_tracking_seeds3-4.png").stat().st_size > 0
 
 
 def test_control_suite_ppo_quick_writes_curve_json_and_png(tmp_path: Path) -> None:
