@@ -1,7 +1,8 @@
 """The velocity-tracking quadruped with every perturbation active, for the layout and resume tests.
 
 :func:`make_perturbed_env`: ``velocity_tracking_env`` with an action queue, observation noise with biases, pushes
-(velocity changes and held forces, frequent enough to happen within a few steps), a DomainRandomization of the
+(velocity changes that tip the robot over at times, and held forces, frequent enough to happen within a few steps:
+falls end some episodes before the 12-step limit, so resets are partial), a DomainRandomization of the
 action delay, the servo gains, the masses and frictions at every reset, short episodes (partial resets) and a
 :class:`BaseEnvState` (the physics and the delay queue join the transforms' checkpoint). :func:`make_collector`: a
 Collector over it with a deterministic policy. Module-level functions: spawn-safe constructors for ``ParallelEnv``.
@@ -24,9 +25,10 @@ MAX_DELAY = 2
 def make_perturbed_env(num_envs: int = 3, *, pushes: bool = True, seed: int = 0) -> TransformedEnv:
     """``num_envs`` quadrupeds with all four perturbations and randomized physics; episodes of 12 steps."""
     perturbations = velocity_tracking_perturbations(seed=seed, max_action_delay=MAX_DELAY, pushes=False)
-    if pushes:  # pushes every 2-4 steps, velocity changes and forces held for 2 steps
+    if pushes:  # pushes every 2-4 steps: velocity changes (roll and pitch rates that tip it over at times) and forces
         force = [20.0] * 3 + [1.0] * 3
-        push = Pushes("torso", velocity=[0.3] * 6, force=force, duration=2, interval_steps=(2, 4), seed=seed + 7)
+        velocity = [0.3, 0.3, 0.3, 25.0, 25.0, 1.0]
+        push = Pushes("torso", velocity=velocity, force=force, duration=2, interval_steps=(2, 4), seed=seed + 7)
         perturbations.insert(1, push)  # after the noise, before the randomization (an owner of fields)
     env = velocity_tracking_env(
         num_envs, seed=seed, max_steps=12, max_action_delay=MAX_DELAY, perturbations=perturbations, num_threads=1

@@ -10,6 +10,7 @@ test_action_delay.py, test_observation_noise.py, test_pushes.py and test_batched
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 import textwrap
@@ -18,6 +19,7 @@ from pathlib import Path
 import pytest
 import torch
 from torchrl.collectors import Collector
+from torchrl.collectors.utils import split_trajectories
 from torchrl.envs import ParallelEnv
 
 pytest.importorskip("mujoco")
@@ -25,6 +27,7 @@ pytest.importorskip("mujoco")
 from perturbed_env import make_collector, make_perturbed_env, make_policy
 from repo_paths import TESTS
 from storage_probe import StorageProbe
+from torchtasks.stats import episode_statistics
 from torchtasks.transforms import TaskTransform, collector_state, load_collector_state
 
 pytestmark = pytest.mark.mujoco
@@ -113,6 +116,45 @@ def test_no_entry_of_a_step_shares_storage_with_another_frames() -> None:
         pass
     collector.shutdown()
     assert probe._steps == 8 + 16 and not probe.found, probe.found[:4]
+
+
+def test_statistics_count_the_pushes_and_the_biases_in_every_layout() -> None:
+    """``push_steps_mean/<kind>`` and ``observation_bias_rms/<entry>`` equal a count frame by frame of a Collector's
+    batches, time-major, flat (a replay buffer's view) and split into trajectories alike."""
+    collector = make_collector(4)
+    batches = iter(collector)
+    data = torch.cat([next(batches) for _ in range(8)], -1)  # [4 envs, 96 steps] of 12-step episodes
+    collector.shutdown()
+    nxt = data["next"]
+    rows, steps = data.batch_size
+    sums = {"velocity": [], "wrench": []}
+    squares = {"gravity": [], "joint_pos": []}
+    lengths = []
+    for row in range(rows):
+        for t in range(steps):
+            if not bool(nxt["done"][row, t]):
+                continue
+            for name in squares:
+                squares[name] += [float(v) ** 2 for v in nxt["observation_noise", "bias", name][row, t]]
+            length = int(nxt["step_count"][row, t])
+            lengths.append(length)
+            if t - length + 1 >= 0:  # a complete episode
+                for kind in sums:
+                    pushed = nxt["push", kind][row, t - length + 1 : t + 1]
+                    sums[kind].append(sum(bool(frame.any()) for frame in pushed))
+    expected = {f"push_steps_mean/{kind}": sum(counts) / len(counts) for kind, counts in sums.items()}
+    expected.update({f"observation_bias_rms/{n}": math.sqrt(sum(v) / len(v)) for n, v in squares.items()})
+    assert len(sums["velocity"]) >= 6 and expected["push_steps_mean/velocity"] > 1
+    assert min(lengths) < 12 <= max(lengths)  # falls and time limits: partial resets
+    layouts = {
+        "time-major": data,
+        "flat": data.reshape(-1),
+        "split_trajs": split_trajectories(data.clone()),
+    }
+    for layout, arranged in layouts.items():
+        stats = episode_statistics(arranged)
+        for key, value in expected.items():
+            assert math.isclose(stats[key], value, rel_tol=1e-9), (layout, key, stats[key], value)
 
 
 def _worker() -> object:

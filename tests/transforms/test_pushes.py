@@ -362,3 +362,49 @@ def test_domain_randomization_draws_the_push_ranges_per_env_and_episode() -> Non
     assert not torch.equal(half_widths[:, 0], half_widths[:, 4])  # a new range per episode (reset every 4 steps)
     assert torch.equal(pushes.domain_values()["push_velocity:torso"], half_widths[:, -1])
     env.close()
+
+
+# ------------------------------------------------------------------------------------------------ contact readings
+_RESTING = """<mujoco><option timestep="0.005"/><worldbody><geom type="plane" size="5 5 .1"/>
+  <body name="box" pos="0 0 .1"><freejoint/><geom type="box" size=".1 .1 .1" mass="2"/>
+    <body name="arm" pos=".2 0 0"><joint name="hinge" axis="0 1 0"/><geom size=".05" mass=".5"/></body></body>
+  </worldbody><actuator><motor joint="hinge"/></actuator></mujoco>"""
+
+
+def test_a_contact_reading_without_applied_forces_is_mujocos_contacts_alone() -> None:
+    """MuJoCo's cfrc_ext holds the contacts plus xfrc_applied moved to the com-based frame; contact_force(...,
+    applied=False) equals cfrc_ext recomputed by MuJoCo from the same contacts with nothing applied, and the default
+    reading equals cfrc_ext as is (references: MjData, mj_rnePostConstraint)."""
+    model = mujoco.MjModel.from_xml_string(_RESTING)
+    data = mujoco.MjData(model)
+    for _ in range(40):  # let the box settle on the plane
+        mujoco.mj_step(model, data)
+    data.xfrc_applied[1] = [5.0, -3.0, -20.0, 0.4, -0.2, 0.3]  # pushed into the floor: the contacts change too
+    data.xfrc_applied[2] = [0.0, 2.0, 1.0, 0.1, 0.0, 0.0]
+    mujoco.mj_step(model, data)
+    mujoco.mj_rnePostConstraint(model, data)
+    assert data.ncon > 0
+    arrays = {name: getattr(data, name)[None].copy() for name in ("cfrc_ext", "xfrc_applied", "xipos", "subtree_com")}
+    reference = copy.copy(data)
+    reference.xfrc_applied[:] = 0.0
+    mujoco.mj_rnePostConstraint(model, reference)  # the same contact forces (efc_force), nothing applied
+    without = readings.contact_force("box", "arm", applied=False).resolve(model)
+    with_applied = readings.contact_force("box", "arm").resolve(model)
+    np.testing.assert_allclose(without.compute(arrays)[0], reference.cfrc_ext[1:3].ravel(), atol=1e-9)
+    np.testing.assert_allclose(with_applied.compute(arrays)[0], data.cfrc_ext[1:3].ravel(), atol=0)
+    assert np.abs(data.cfrc_ext[1:3] - reference.cfrc_ext[1:3]).max() > 1.0  # the push shows in cfrc_ext
+
+
+def test_a_force_push_of_the_torso_is_no_base_contact() -> None:
+    """The velocity-tracking task ends an episode on a torso contact: a force on the standing robot's torso (held
+    for 3 steps, every 5 steps) pushes it but ends no episode; without the correction every push would."""
+    from torchtasks.envs import velocity_tracking_env
+
+    pushes = Pushes("torso", force=[30.0, 30.0, 30.0, 1.0, 1.0, 1.0], duration=3, interval_steps=5, seed=0)
+    env = velocity_tracking_env(4, seed=0, perturbations=[pushes])
+    data = env.rollout(20, lambda td: td.set("action", torch.zeros(4, 12)), break_when_any_done=False)
+    pushed = (data["next", "push", "wrench"] != 0).any(-1)
+    assert pushed.sum() >= 4 * 9
+    assert not data["next", "ended_by", "base_contact"].any()
+    assert (data["next", "base_contact"][pushed] == 0).all()
+    env.close()

@@ -184,6 +184,20 @@ def _gather_rows(arrays: Mapping[str, Array], *, name: str, rows: np.ndarray) ->
     return values.reshape(values.shape[0], -1)
 
 
+def _contact_rows(arrays: Mapping[str, Array], *, rows: np.ndarray, roots: np.ndarray) -> Array:
+    """``cfrc_ext`` of ``rows`` without what ``xfrc_applied`` put there: MuJoCo adds each body's applied
+    ``(force, torque)`` at its centre of mass ``xipos`` as ``(torque + (xipos - c) x force, force)`` about the
+    centre of mass ``c`` of the body's tree (``subtree_com`` of its root, ``roots``)."""
+    external = arrays["cfrc_ext"][:, rows]
+    applied = arrays["xfrc_applied"][:, rows]
+    if not applied.any():  # nothing applied (the common step): cfrc_ext is the contacts
+        return external.reshape(external.shape[0], -1)
+    force, torque = applied[..., :3], applied[..., 3:]
+    arm = arrays["xipos"][:, rows] - arrays["subtree_com"][:, roots]
+    contacts = np.concatenate([external[..., :3] - torque - np.cross(arm, force), external[..., 3:] - force], -1)
+    return contacts.reshape(contacts.shape[0], -1)
+
+
 def _relative(arrays: Mapping[str, Array], *, index: np.ndarray, reference: str, key: int | None) -> Array:
     default = arrays[reference][:, index] if key is None else arrays[reference][:, key, index]
     return arrays["qpos"][:, index] - default
@@ -972,6 +986,12 @@ class ContactForce(Reading):
     each body the torque then the force, in world axes about the centre of mass of the body's tree (MuJoCo's
     com-based frame); every body but the world when none named. The env makes MuJoCo fill ``cfrc_ext``.
 
+    MuJoCo's ``cfrc_ext`` holds the contact forces plus the forces applied through ``xfrc_applied`` (a
+    :class:`~torchtasks.transforms.Pushes` force, a user's perturbation), moved to the com-based frame. With
+    ``applied=False`` the reading subtracts the latter: the contact forces alone, what a contact termination or a
+    contact penalty means (a push then reads as no contact). The default, ``applied=True``, is ``cfrc_ext`` as is
+    (Gymnasium's Ant and Humanoid observe it).
+
     Example:
         >>> from torchtasks.envs.mujoco_model import load_model
         >>> from torchtasks.envs.readings import contact_force
@@ -984,13 +1004,17 @@ class ContactForce(Reading):
 
     kind: ClassVar[str] = "contact_force"
     bodies: tuple[str, ...] = ()
+    #: whether the forces applied through ``xfrc_applied`` count (``cfrc_ext`` as is) or not (contacts alone)
+    applied: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
         object.__setattr__(self, "bodies", _check_names(self.bodies, "contact_force bodies", "body"))
+        if not isinstance(self.applied, bool):
+            raise TypeError(f"contact_force: applied must be a bool, got {self.applied!r}")
 
     def _arguments(self) -> list[str]:
-        return list(self.bodies)
+        return [*self.bodies, *([] if self.applied else ["applied=False"])]
 
     def _resolve(self, model: mujoco.MjModel) -> Resolved:
         if self.bodies:
@@ -1001,8 +1025,13 @@ class ContactForce(Reading):
             raise ValueError("contact_force: the model has no body but the world, so no contact force to read")
         names = object_names(model, "body")
         labels = sum((_axes(names[each] or f"body{each}", ("tx", "ty", "tz", "fx", "fy", "fz")) for each in ids), ())
-        compute = functools.partial(_gather_rows, name="cfrc_ext", rows=np.array(ids, dtype=np.int64))
-        return self._resolved((6 * len(ids),), ("cfrc_ext",), compute, labels, contact_forces=True)
+        rows = np.array(ids, dtype=np.int64)
+        if self.applied:
+            compute = functools.partial(_gather_rows, name="cfrc_ext", rows=rows)
+            return self._resolved((6 * len(ids),), ("cfrc_ext",), compute, labels, contact_forces=True)
+        compute = functools.partial(_contact_rows, rows=rows, roots=model.body_rootid[rows].astype(np.int64))
+        fields = ("cfrc_ext", "xfrc_applied", "xipos", "subtree_com")
+        return self._resolved((6 * len(ids),), fields, compute, labels, contact_forces=True)
 
 
 @dataclass(frozen=True)
@@ -1636,14 +1665,17 @@ def subtree_lin_vel(body: str, *, index: Index = None, clip: Clip = None) -> Sub
     return SubtreeLinVel(body=body, index=index, clip=clip)
 
 
-def contact_force(*bodies: str, index: Index = None, clip: Clip = None) -> ContactForce:
-    """The external (contact) forces on ``bodies`` (every body but the world when none): see :class:`ContactForce`.
+def contact_force(*bodies: str, index: Index = None, clip: Clip = None, applied: bool = True) -> ContactForce:
+    """The external forces on ``bodies`` (every body but the world when none), with the forces applied through
+    ``xfrc_applied`` or (``applied=False``) the contacts alone: see :class:`ContactForce`.
 
     Example:
         >>> contact_force("left_foot", "right_foot", clip=(-1, 1)).bodies
         ('left_foot', 'right_foot')
+        >>> contact_force("torso", applied=False).applied  # a push of the torso is no contact
+        False
     """
-    return ContactForce(bodies=bodies, index=index, clip=clip)
+    return ContactForce(bodies=bodies, index=index, clip=clip, applied=applied)
 
 
 def site_pos(site: str, *, index: Index = None, clip: Clip = None) -> SitePos:

@@ -138,7 +138,10 @@ def velocity_tracking_env(
         if not isinstance(transform, Transform):
             raise TypeError(f"perturbations[{i}] must be a torchrl Transform, got {type(transform).__name__}")
     layout = velocity_tracking_state(num_joints=len(LEG_JOINTS), num_feet=len(LEGS), num_undesired=len(LEGS))
-    thigh_force = [readings.norm(readings.contact_force(f"{leg}_thigh", index=(3, 4, 5))) for leg in LEGS]
+    # contacts alone (applied=False): a Pushes force on the torso is neither a base contact nor a thigh contact
+    thigh_force = [
+        readings.norm(readings.contact_force(f"{leg}_thigh", index=(3, 4, 5), applied=False)) for leg in LEGS
+    ]
     base = BatchedMujocoEnv(
         model_path("quadruped"),
         num_envs,
@@ -157,7 +160,7 @@ def velocity_tracking_env(
             "joint_torques": readings.actuator_force(),
             "foot_contact": [readings.sensor(f"{leg}_touch") for leg in LEGS],
             "undesired_contact": thigh_force,
-            "base_contact": readings.norm(readings.contact_force("torso", index=(3, 4, 5))),
+            "base_contact": readings.norm(readings.contact_force("torso", index=(3, 4, 5), applied=False)),
         },
         actions=Actions(scale=action_scale, offset="home"),
         resets=Resets(
