@@ -28,6 +28,8 @@ from torchtasks.transforms.names import (
     FRAMES,
     GROUPS_KEY,
     LEVEL,
+    NOISE_KEY,
+    PUSH_KEY,
     REWARD_KEY,
     SUCCESS_KEY,
     TERMINATED_KEY,
@@ -161,6 +163,8 @@ def episode_statistics(
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = CURRICULUM_KEY,
     domain_key: NestedKey | None = DOMAIN_KEY,
+    noise_key: NestedKey | None = NOISE_KEY,
+    push_key: NestedKey | None = PUSH_KEY,
     cost_terms_key: NestedKey | None = COST_TERMS_KEY,
     ended_by_key: NestedKey | None = ENDED_BY_KEY,
     groups_key: NestedKey | None = GROUPS_KEY,
@@ -261,6 +265,13 @@ def episode_statistics(
       ``("next", domain_key, field)``): the mean over the ended episodes of the field's value at the episode's
       last frame (the physics that episode ended with), beside the outcome rates; a vector field gives one key
       per entry, ``domain/<field>/<i>`` (e.g. ``domain/gravity/2``).
+    - ``observation_bias_rms/<entry>`` (when the data holds an :class:`~torchtasks.transforms.ObservationNoise`'s
+      biases ``("next", noise_key, "bias", *entry)``): the root mean square over the ended episodes and the
+      entry's elements of the bias each episode ended with (an estimate of the bias std; nested entries joined
+      with ``/``).
+    - ``push_steps_mean/<kind>`` (when the data holds a :class:`~torchtasks.transforms.Pushes`' entries
+      ``("next", push_key, kind)``): the steps of an episode in which the entry is not zero, mean over the complete
+      episodes: for ``velocity`` the pushes (velocity changes) per episode, for ``wrench`` the steps under a force.
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
       :class:`~torchtasks.transforms.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
@@ -295,6 +306,8 @@ def episode_statistics(
             data without it report no scheduled values; ``None`` skips them.
         domain_key: the DomainRandomization's ``entry_key`` (the drawn physics under ``"next"``); data without it
             report no domain values; ``None`` skips them.
+        noise_key, push_key: the ObservationNoise's and the Pushes' ``entry_key``; data without them report no
+            biases and no pushes; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
         mask_key: the padding mask of a padded batch (bool, at the root, False on padding; TorchRL writes
@@ -334,6 +347,8 @@ def episode_statistics(
             ("achieved_goal_key", achieved_goal_key),
             ("curriculum_key", curriculum_key),
             ("domain_key", domain_key),
+            ("noise_key", noise_key),
+            ("push_key", push_key),
             ("cost_terms_key", cost_terms_key),
             ("ended_by_key", ended_by_key),
             ("groups_key", groups_key),
@@ -404,6 +419,14 @@ def _statistics(
         name: _required_vector(frames, (*keys["domain_key"], name), "domain_key", where="next")
         for name in ([] if not isinstance(domain_entries, TensorDictBase) else list(domain_entries.keys()))
     }
+    # per noisy entry: the episode's bias at every frame, [F, elements]; per kind of push: pushed frames, summed
+    biases = {
+        "/".join(name): _required_vector(frames, (*keys["noise_key"], "bias", *name), "noise_key", where="next")
+        for name in _leaf_names(batch, keys["noise_key"], "bias")
+    }
+    for kind in _leaf_names(batch, keys["push_key"]):
+        pushed = _required_vector(frames, (*keys["push_key"], *kind), "push_key", where="next") != 0
+        returns["push_steps_mean/" + "/".join(kind)] = pushed.any(-1)
     goals = None
     if keys["goal_key"] is not None:
         goals = (  # the goal that judged step t, and the goal achieved by it
@@ -504,6 +527,8 @@ def _statistics(
             results[f"{DOMAIN_KEY}/{name}"] = means[0]
         else:
             results.update({f"{DOMAIN_KEY}/{name}/{i}": mean for i, mean in enumerate(means)})
+    for name, values in biases.items():  # the bias each ended episode ended with
+        results[f"observation_bias_rms/{name}"] = values[ends].to(torch.float64).square().mean().sqrt()
     if goals is not None:
         goal, achieved = (value[ends].to(torch.float64) for value in goals)
         results["final_goal_distance_mean"] = torch.linalg.vector_norm(goal - achieved, dim=-1).mean()
@@ -611,6 +636,14 @@ def _level_stats(levels: torch.Tensor, stat: str) -> dict[str, torch.Tensor]:
     result = {stat: levels.to(torch.float64).mean()}
     result.update((f"{stat}_fraction/{k}", fraction) for k, fraction in enumerate(fractions))
     return result
+
+
+def _leaf_names(batch: TensorDictBase, key: tuple[str, ...] | None, *inner: str) -> list[tuple[str, ...]]:
+    """The leaves of the node ``("next", *key, *inner)`` of ``batch`` as key tuples (none: no such node)."""
+    node = None if key is None else batch.get(("next", *key, *inner), None)
+    if not isinstance(node, TensorDictBase):
+        return []
+    return [key_parts(name) for name in node.keys(True, True)]
 
 
 def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where: str) -> torch.Tensor:

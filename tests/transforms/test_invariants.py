@@ -184,6 +184,8 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
     are in its row; returns sum the reward (and each entry of the breakdown and the costs) over its frames. The
     schedule and the levels are read at the last frame of every row (the end of the batch) and averaged over rows.
     The groups of a vector reward are summed like the terms, one entry per group (``group_return_mean/<group>``).
+    The steps with a push are summed like the terms (``push_steps_mean/<kind>``); the biases of the noisy entries at
+    the episodes' last frames give their root mean square (``observation_bias_rms/<entry>``).
     """
     nxt = data["next"]
     rows, steps = data.batch_size
@@ -198,6 +200,8 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
                 others = set(nxt[group].keys())
                 if not (leaf.startswith("episode_") and leaf[len("episode_") :] in others):
                     entries[prefix + leaf] = nxt[group, leaf]
+    for kind in nxt["push"].keys() if "push" in nxt.keys() else []:  # the steps with a push, summed per episode
+        entries["push_steps_mean/" + kind] = (nxt["push", kind] != 0).any(-1)
     ended_by = list(nxt["ended_by"].keys()) if "ended_by" in nxt.keys() else []
     ends, complete_sums = [], {stat: [] for stat in entries}
     for row in range(rows):
@@ -235,6 +239,11 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
             for i in range(len(values[0])):
                 key = f"domain/{name}" if len(values[0]) == 1 else f"domain/{name}/{i}"
                 stats[key] = sum(float(value[i]) for value in values) / len(ends)
+        biases = nxt["observation_noise", "bias"] if "observation_noise" in nxt.keys() else None
+        for entry in biases.keys(True, True) if biases is not None else []:  # the biases episodes ended with
+            parts = entry if isinstance(entry, tuple) else (entry,)
+            squares = [float(v) ** 2 for row, t, _ in ends for v in biases[parts][row, t].reshape(-1)]
+            stats["observation_bias_rms/" + "/".join(parts)] = math.sqrt(sum(squares) / len(squares))
     if "curriculum" in nxt.keys():
         for name in nxt["curriculum"].keys():
             last = nxt["curriculum", name][:, -1].reshape(rows, -1)

@@ -42,6 +42,7 @@ __all__ = [
     "LEVEL",
     "MEMORY_KEY",
     "NOISE_KEY",
+    "PUSH_KEY",
     "REWARD_KEY",
     "STEP_TERM",
     "SUCCESS_KEY",
@@ -106,6 +107,9 @@ DOMAIN_KEY = "domain"
 #: the default key under which an ObservationNoise writes each episode's bias per entry (``entry_key``):
 #: ``("observation_noise", "bias", <entry>)``
 NOISE_KEY = "observation_noise"
+#: the default key under which a Pushes writes each step's push (``entry_key``): ``("push", "velocity")``,
+#: ``("push", "wrench")``
+PUSH_KEY = "push"
 
 
 def names_task_buffer(target: str) -> bool:

@@ -24,6 +24,7 @@ from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
 from torchtasks.domain.fields import check_domain_values, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
+from torchtasks.transforms.names import PUSH_KEY
 from torchtasks.transforms.seeding import GeneratorTransform
 
 __all__ = ["PushableEnv", "Pushes"]
@@ -126,7 +127,7 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         duration: int = 1,
         interval_steps: int | tuple[int, int] | None = None,
         interval_seconds: tuple[float, float] | None = None,
-        entry_key: str | tuple[str, ...] = "push",
+        entry_key: str | tuple[str, ...] = PUSH_KEY,
         seed: int | None = None,
     ) -> None:
         if not isinstance(body, str) or not body:
