@@ -1,6 +1,6 @@
 """What the sim-to-real perturbations cost: the velocity-tracking preset with and without them, interleaved.
 
-``python benchmarks/perturbations.py [--envs 64] [--repeats 7] [--seconds 2.0] [--steps-per-batch 20] [--threads N]
+``python benchmarks/perturbations.py [--envs 64] [--repeats 15] [--seconds 1.0] [--steps-per-batch 20] [--threads N]
 [--output runs/perturbations_bench] [--quick]``
 
 The preset is ``velocity_tracking_env(N)`` (the shipped quadruped, 4 substeps per step, its task, command and
@@ -17,10 +17,14 @@ repeat (``--seconds`` each, at least one batch), so each ratio compares numbers 
   the torso, velocity changes of up to 0.5 m/s every 5 to 10 s per env; ``gains``: ``actuator_kp_scale`` drawn per
   env at reset).
 - ``all four``: the four together; ``all four + physics``: with the randomized masses and frictions of the same
-  function too (the set the example ``examples/velocity_tracking_ppo.py`` trains its robust policy with).
-- ``10 empty entries``: the plain preset with a transform that adds as many entries to the data as the four
-  perturbations do (``EmptyEntries``: zeros, no computation): what carrying entries costs in TorchRL's step, reset
-  and collector.
+  function too (the set the example ``examples/velocity_tracking_ppo.py`` trains its robust policy with);
+  ``all four, drawn at startup``: the four with the delay and the gains drawn once per env
+  (``velocity_tracking_perturbations(when="startup")``, IsaacLab's startup events) instead of at every reset: what
+  the randomization's per-reset draw costs.
+- ``records alone``: the plain preset with a transform that writes, at every reset and step, the entries the four
+  perturbations add to the data (the same keys, nesting, shapes and dtypes, read off the ``all four`` preset's
+  specs), as constant zeros (``Records``: no computation): what carrying the perturbations' records costs in
+  TorchRL's step, reset and collector, the floor of any perturbation that records what it did.
 
 The table reports medians over the repeats of frames/s and of the per-repeat ratio to ``plain`` (the cost of a
 perturbation is ``1 - ratio``) and to ``floor``. Results: ``<output>/results.json`` (every repeat's numbers, the
@@ -43,7 +47,7 @@ from typing import Any
 import mujoco
 import torch
 from tensordict import TensorDictBase
-from torchrl.data import Composite, Unbounded
+from torchrl.data import Composite
 from torchrl.envs import Transform, TransformedEnv
 
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
@@ -52,7 +56,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from control_suite import Collected, Floor, measure  # the same floor, Collector loop and timer
 
 #: the variants, measured in this order in every repeat
-VARIANTS = ("floor", "plain", "delay", "noise", "pushes", "gains", "all four", "all four + physics", "10 empty entries")
+VARIANTS = (
+    "floor",
+    "plain",
+    "delay",
+    "noise",
+    "pushes",
+    "gains",
+    "all four",
+    "all four + physics",
+    "all four, drawn at startup",
+    "records alone",
+)
 #: the perturbations of each variant (keywords of velocity_tracking_perturbations)
 PARTS = {
     "plain": {},
@@ -62,31 +77,30 @@ PARTS = {
     "gains": {"gains": True},
     "all four": {"delay": True, "noise": True, "pushes": True, "gains": True},
     "all four + physics": {"delay": True, "noise": True, "pushes": True, "gains": True, "physics": True},
-    "10 empty entries": {"empty_entries": True},
+    "all four, drawn at startup": {"delay": True, "noise": True, "pushes": True, "gains": True, "startup": True},
+    "records alone": {"records": True},
 }
 #: the action delay's maximum where a variant delays
 MAX_DELAY = 1
-#: the data entries the four perturbations add (applied_action, two domain entries, five noise biases, two push
-#: entries): ``"10 empty entries"`` adds as many entries that hold zeros, TorchRL's cost of carrying them
-ADDED_ENTRIES = 10
 
 
-class EmptyEntries(Transform):
-    """Adds ``count`` float64 ``[*B, 12]`` observation entries of zeros at every reset and step: no computation, only
-    the cost of entries in TorchRL's step, reset and collector."""
+class Records(Transform):
+    """Writes ``specs``' entries (a ``Composite`` of the env's batch) as constant zeros at every reset and step: no
+    computation, only the cost of carrying them in TorchRL's step, reset and collector."""
 
-    def __init__(self, count: int) -> None:
+    def __init__(self, specs: Composite) -> None:
         super().__init__()
-        self.count = count
+        self.specs = specs
+        self.zeros = {key: spec.zero() for key, spec in specs.items(True, True)}
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
-        for i in range(self.count):
-            observation_spec[("empty", str(i))] = Unbounded(shape=(*observation_spec.shape, 12), dtype=torch.float64)
+        for key, spec in self.specs.items(True, True):
+            observation_spec[key] = spec.clone()
         return observation_spec
 
     def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
-        for i in range(self.count):
-            tensordict.set(("empty", str(i)), torch.zeros(*tensordict.batch_size, 12, dtype=torch.float64))
+        for key, zeros in self.zeros.items():
+            tensordict.set(key, zeros)
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -96,14 +110,30 @@ class EmptyEntries(Transform):
         return self._write(tensordict_reset)
 
 
+def added_records(num_envs: int, num_threads: int) -> Composite:
+    """The observation entries the ``all four`` preset has and the plain one has not (their specs)."""
+    plain, perturbed = preset(num_envs, num_threads, {}), preset(num_envs, num_threads, PARTS["all four"])
+    try:
+        before = set(plain.observation_spec.keys(True, True))
+        added = Composite(shape=perturbed.batch_size)
+        for key, spec in perturbed.observation_spec.items(True, True):
+            if key not in before:
+                added[key] = spec.clone()
+        return added
+    finally:
+        plain.close()
+        perturbed.close()
+
+
 def preset(num_envs: int, num_threads: int, parts: dict[str, bool]) -> TransformedEnv:
     """``velocity_tracking_env`` with the perturbations ``parts`` switched on (all off: the plain preset)."""
     keywords = {name: parts.get(name, False) for name in ("delay", "noise", "pushes", "gains", "physics")}
     perturbations: list[Transform] = []
     if any(keywords.values()):
-        perturbations = velocity_tracking_perturbations(seed=0, max_action_delay=MAX_DELAY, **keywords)
-    if parts.get("empty_entries"):
-        perturbations = [EmptyEntries(ADDED_ENTRIES)]
+        when = "startup" if parts.get("startup") else "reset"
+        perturbations = velocity_tracking_perturbations(seed=0, max_action_delay=MAX_DELAY, when=when, **keywords)
+    if parts.get("records"):
+        perturbations = [Records(added_records(num_envs, num_threads))]
     return velocity_tracking_env(
         num_envs,
         seed=0,
@@ -176,8 +206,8 @@ def table(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--envs", type=int, default=64, help="envs of the batch (default 64)")
-    parser.add_argument("--repeats", type=int, default=7, help="interleaved repeats (default 7)")
-    parser.add_argument("--seconds", type=float, default=2.0, help="seconds per measurement (default 2.0)")
+    parser.add_argument("--repeats", type=int, default=15, help="interleaved repeats (default 15)")
+    parser.add_argument("--seconds", type=float, default=1.0, help="seconds per measurement (default 1.0)")
     parser.add_argument("--steps-per-batch", type=int, default=20, help="steps per Collector batch (default 20)")
     parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads (default 2)")
     parser.add_argument("--output", type=Path, default=Path("runs/perturbations_bench"), help="where results go")

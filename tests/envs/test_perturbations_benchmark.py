@@ -46,4 +46,17 @@ def test_quick_run_measures_every_perturbation_against_the_plain_preset(tmp_path
     plain = module.preset(2, 1, module.PARTS["plain"])
     assert not {"ObservationNoise", "Pushes", "DomainRandomization"} & {type(t).__name__ for t in plain.transform}
     assert "action_delay" not in {field.name for field in plain.base_env.domain_fields()}
-    plain.close()
+    # "records alone" carries exactly the entries the four add (keys, shapes, dtypes), and computes nothing
+    perturbed, records = (
+        module.preset(2, 1, module.PARTS["all four"]),
+        module.preset(2, 1, module.PARTS["records alone"]),
+    )
+    plain_keys = set(plain.observation_spec.keys(True, True))
+    added = {k: s for k, s in perturbed.observation_spec.items(True, True) if k not in plain_keys}
+    carried = {k: s for k, s in records.observation_spec.items(True, True) if k not in plain_keys}
+    assert len(added) >= 6 and carried.keys() == added.keys()
+    assert all((carried[k].shape, carried[k].dtype) == (added[k].shape, added[k].dtype) for k in added)
+    data = records.rollout(2)
+    assert all(not data["next", k].any() for k in added)
+    for env in (plain, perturbed, records):
+        env.close()

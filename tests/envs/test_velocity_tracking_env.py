@@ -11,7 +11,7 @@ pytest.importorskip("mujoco")
 from torchrl.envs import ClipTransform
 
 from torchtasks.domain import UniformDomainParam
-from torchtasks.envs import velocity_tracking_env
+from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 from torchtasks.envs.velocity_tracking import POLICY_KEYS
 from torchtasks.tasks import VELOCITY_TRACKING_WEIGHTS, velocity_tracking_state
 from torchtasks.transforms import DomainRandomization, EntryNoise, ObservationNoise
@@ -62,3 +62,25 @@ def test_bad_builder_arguments_are_refused():
         velocity_tracking_env(1, seed=0, perturbations=[object()])
     with pytest.raises(ValueError, match="command_low and command_high must have 3 entries"):
         velocity_tracking_env(1, seed=0, command_low=[-1.0, 0.0], command_high=[1.0, 0.0])
+
+
+def test_the_perturbations_drawn_at_startup_keep_each_envs_values_over_its_resets():
+    """``when="startup"``: each env's delay and gains drawn at its first reset and kept; ``"reset"``: new ones."""
+    kept, redrawn = (
+        velocity_tracking_env(
+            8,
+            seed=0,
+            max_steps=3,
+            max_action_delay=1,
+            perturbations=velocity_tracking_perturbations(seed=0, noise=False, pushes=False, when=when),
+        )
+        for when in ("startup", "reset")
+    )
+    for env, same in ((kept, True), (redrawn, False)):
+        data = env.rollout(7, break_when_any_done=False)  # resets after steps 3 and 6
+        gains = data["next", "domain", "actuator_kp_scale"][..., 0]
+        assert (gains.std(0) > 0).all()  # drawn per env
+        assert bool((gains == gains[:, :1]).all()) is same
+        env.close()
+    with pytest.raises(ValueError, match="when must be 'reset' or 'startup', got 'interval'"):
+        velocity_tracking_perturbations(seed=0, when="interval")

@@ -223,6 +223,7 @@ def velocity_tracking_perturbations(
     max_action_delay: int = 1,
     push_velocity: float = 0.5,
     push_interval: tuple[float, float] = (5.0, 10.0),
+    when: str = "reset",
 ) -> list[Transform]:
     """The sim-to-real perturbations of the velocity task as transforms for ``velocity_tracking_env(perturbations=)``.
 
@@ -230,7 +231,8 @@ def velocity_tracking_perturbations(
     the sensed policy entries (:data:`SENSOR_NOISE`: uniform per-step noise; a normal per-episode bias on two);
     ``pushes``: :class:`~torchtasks.transforms.Pushes` of the torso, a planar velocity change of up to
     ``push_velocity`` m/s every ``push_interval`` seconds per env; then one
-    :class:`~torchtasks.transforms.DomainRandomization` drawing per env at each reset: ``delay``: the action delay
+    :class:`~torchtasks.transforms.DomainRandomization` drawing per env at each reset (``when="startup"``: once per
+    env, at its first reset, as IsaacLab's startup events): ``delay``: the action delay
     (0 to ``max_action_delay`` steps; the env needs ``max_action_delay`` at least this large), ``gains``: the servos'
     stiffness ``actuator_kp_scale`` in [0.8, 1.2], ``physics``: ``body_mass_scale`` in [0.9, 1.1] and
     ``geom_friction_scale`` in [0.6, 1.2]. The owners of fields (noise, pushes) come before the randomization, as it
@@ -242,6 +244,7 @@ def velocity_tracking_perturbations(
         max_action_delay: the largest delay drawn, in steps.
         push_velocity: the half-width of the pushes' planar velocity change [m/s].
         push_interval: the seconds between pushes, per env (low, high).
+        when: when the randomization draws: ``"reset"`` (every episode) or ``"startup"`` (once per env).
 
     Example:
         >>> from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
@@ -277,6 +280,8 @@ def velocity_tracking_perturbations(
     if physics:
         params.append(UniformDomainParam("body_mass_scale", mean=1.0, halfspan=0.1))
         params.append(UniformDomainParam("geom_friction_scale", mean=0.9, halfspan=0.3))
+    if when not in ("reset", "startup"):
+        raise ValueError(f"velocity_tracking_perturbations: when must be 'reset' or 'startup', got {when!r}")
     if params:
-        transforms.append(DomainRandomization(params, when="reset", seed=seed + 2))
+        transforms.append(DomainRandomization(params, when=when, seed=seed + 2))
     return transforms
