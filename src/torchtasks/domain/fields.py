@@ -238,10 +238,9 @@ def check_domain_values(
     rows = None
     for name, value in values.items():
         field = table[name]
-        if not (isinstance(value, torch.Tensor) and value.dtype == torch.float64 and value.shape[: len(batch)] == batch
-                and value.shape[len(batch) :] == field.value_shape):  # fmt: skip
-            shape = [*batch, *field.value_shape]
-            expected = f"a float64 tensor of shape {shape} ([*batch, *value_shape])"
+        shape = (*batch, *field.value_shape)
+        if not (isinstance(value, torch.Tensor) and value.dtype == torch.float64 and value.shape == shape):
+            expected = f"a float64 tensor of shape {list(shape)} ([*batch, *value_shape])"
             check_tensor(value, torch.float64, shape, f"{owner}: {what}[{name!r}]", expected)
         flat = value.detach().cpu().numpy().reshape(batch.numel(), -1)
         # NaN fails both comparisons; an infinite value fails the finite bound or isfinite
