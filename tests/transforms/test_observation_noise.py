@@ -149,6 +149,34 @@ def test_entries_drawn_together_keep_their_own_moments_and_are_independent():
     env.close()
 
 
+def test_an_entry_of_several_dimensions_gets_its_elements_stds():
+    """A [B, 2, 1] entry drawn with a 1-D one in the same draw: each element has its own std and bias std."""
+    from torchrl.envs import UnsqueezeTransform
+
+    std = torch.tensor([[0.1], [0.3]], dtype=torch.float64)
+    bias = torch.tensor([[0.2], [0.05]], dtype=torch.float64)
+    noise = ObservationNoise(
+        {
+            "observation": EntryNoise(std=0.05, out_key="noisy"),
+            "column": EntryNoise(std=std.float(), bias=bias.float(), out_key="noisy_column"),
+        },
+        seed=0,
+    )
+    column = UnsqueezeTransform(dim=-1, in_keys=["observation"], out_keys=["column"])
+    env = TransformedEnv(PendulumEnv(batch_size=[4096], seed=0), Compose(StepCounter(50), column, noise))
+    data = env.rollout(3)
+    assert data["next", "noisy_column"].shape == (4096, 3, 2, 1)
+    offsets = (data["next", "noisy_column"] - data["next", "column"]).double()
+    biases = data["next", "observation_noise", "bias", "column"].double()
+    residual = (offsets - biases).reshape(-1, 2)
+    n = residual.shape[0]
+    assert ((residual.var(0) / std.reshape(-1) ** 2 - 1).abs() < 5 * math.sqrt(2 / n)).all()
+    first = biases[:, 0].reshape(-1, 2)
+    assert ((first.var(0) / bias.reshape(-1) ** 2 - 1).abs() < 5 * math.sqrt(2 / first.shape[0])).all()
+    other = (data["next", "noisy"] - data["next", "observation"]).double().reshape(-1, 2)
+    assert ((other.var(0) / 0.05**2 - 1).abs() < 5 * math.sqrt(2 / other.shape[0])).all()
+
+
 def test_an_entry_without_a_bias_has_no_bias_field_entry_or_draw():
     noise = _noise(std=0.1)
     env = _env(noise)
