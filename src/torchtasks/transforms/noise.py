@@ -115,25 +115,19 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     per-element ``σ``) and, for an entry with a bias, ``"observation_bias:<entry>"`` (``β``), of the entry's per-env
     shape, ``>= 0``, nominal the constructor's values (a nested key's parts are joined by ``":"``:
     ``("agent", "joint_pos")`` gives ``"observation_noise:agent:joint_pos"``). A
-    :class:`~torchtasks.transforms.DomainRandomization` after this transform draws them per env (``when="startup"``,
-    ``"reset"``, ``"interval"``); a new ``σ`` applies from the next reset or step, a new ``β`` from the next bias drawn
-    (the env's next reset). They are then entries ``("domain", <field>)`` and ``episode_statistics``'
-    ``domain/<field>``, and a :class:`~torchtasks.transforms.Curriculum` or
-    :class:`~torchtasks.transforms.DifficultyLevels` sets their distributions
-    (``"domain.observation_noise:joint_pos.mean"``).
+    :class:`~torchtasks.transforms.DomainRandomization` after this transform draws them per env; a new ``σ`` applies
+    from the next reset or step, a new ``β`` from the env's next reset. A ``Curriculum`` or ``DifficultyLevels`` sets
+    their distributions (``"domain.observation_noise:joint_pos.mean"``).
 
     An entry's episode bias is written under ``(entry_key, "bias", *entry)`` at reset and every step, so offline users
     see what each episode had. An entry a :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state
-    (or goal) is refused in place: the task keeps judging the true state. On an env whose observation is its state in
-    the data (:class:`~torchtasks.envs.PendulumEnv`, :class:`~torchtasks.envs.PointMassEnv` step from the data's
-    ``"observation"``) noise in place would change the simulation: write a copy (``out_key``).
+    (or goal) is refused in place: the task keeps judging the true state. On an env that steps from the data's
+    ``"observation"`` (:class:`~torchtasks.envs.PendulumEnv`), write a copy (``out_key``).
 
-    Randomness: one generator draws every entry's noise for all envs (``seed=k``: its own; ``None``: torch's global
-    one until ``env.set_seed(s)`` gives it one seeded from ``s`` and its place in the env): at each step and reset one
-    draw ``[*B, n]`` per distribution and dtype for the ``ε`` of its entries (``n`` their elements, in the order given),
-    and at each reset, before it, one float64 draw per bias distribution for the ``η`` (every env draws: the
-    generator's use does not depend on which envs reset). Run state (``state_dict``): the generator, every env's
-    ``σ``, ``β`` and bias; a checkpoint of other entries, distributions or shapes is refused and changes nothing.
+    Randomness: one generator (``seed=k``; ``None``: torch's global one until ``env.set_seed(s)``) draws, per step,
+    one ``[*B, n]`` per distribution and dtype for its entries' ``ε``, and per reset first the ``η`` of every env.
+    Run state (``state_dict``): the generator, every env's ``σ``, ``β`` and bias; a checkpoint of other entries,
+    distributions or shapes is refused and changes nothing.
 
     Args:
         noises: the noise of each observation entry, by key (a string or a tuple of strings).
