@@ -368,7 +368,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
 
         Example:
             >>> noise = ObservationNoise({"observation": EntryNoise(std=0.1)})
-            >>> noise.absent_field_reason("observation_bias:observation")[:57]
+            >>> noise.absent_field_reason("observation_bias:observation")[:56]
             "'observation_bias:observation' is not a field: the entry"
         """
         for entry in self.entries:
