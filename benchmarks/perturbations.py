@@ -21,6 +21,8 @@ repeat (``--seconds`` each, at least one batch), so each ratio compares numbers 
   ``all four, drawn at startup``: the four with the delay and the gains drawn once per env
   (``velocity_tracking_perturbations(when="startup")``, IsaacLab's startup events) instead of at every reset: what
   the randomization's per-reset draw costs.
+- ``all but delay``, ``all but noise``, ``all but pushes``, ``all but gains``: the four with one left out: what each
+  costs in the combination (``all four`` minus the row), which need not be its cost alone.
 - ``records alone``: the plain preset with a transform that writes, at every reset and step, the entries the four
   perturbations add to the data (the same keys, nesting, shapes and dtypes, read off the ``all four`` preset's
   specs), as constant zeros (``Records``: no computation): what carrying the perturbations' records costs in
@@ -66,6 +68,10 @@ VARIANTS = (
     "all four",
     "all four + physics",
     "all four, drawn at startup",
+    "all but delay",
+    "all but noise",
+    "all but pushes",
+    "all but gains",
     "records alone",
 )
 #: the perturbations of each variant (keywords of velocity_tracking_perturbations)
@@ -78,6 +84,10 @@ PARTS = {
     "all four": {"delay": True, "noise": True, "pushes": True, "gains": True},
     "all four + physics": {"delay": True, "noise": True, "pushes": True, "gains": True, "physics": True},
     "all four, drawn at startup": {"delay": True, "noise": True, "pushes": True, "gains": True, "startup": True},
+    **{
+        f"all but {left_out}": {part: part != left_out for part in ("delay", "noise", "pushes", "gains")}
+        for left_out in ("delay", "noise", "pushes", "gains")
+    },
     "records alone": {"records": True},
 }
 #: the action delay's maximum where a variant delays
