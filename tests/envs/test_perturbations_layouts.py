@@ -163,6 +163,7 @@ def _worker() -> object:
 
 @pytest.mark.multiprocess
 @pytest.mark.xdist_group("multiprocess")
+@pytest.mark.filterwarnings("ignore:A lambda function was passed to ParallelEnv")  # the layout under test
 def test_parallel_env_workers_from_a_lambda_draw_their_own_perturbations_and_repeat_under_a_seed(
     fork_start_method,
 ) -> None:
