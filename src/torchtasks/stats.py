@@ -414,10 +414,9 @@ def _statistics(
     for name, value in _named_entries(frames, keys["groups_key"], "groups_key").items():
         returns["group_return_mean/" + name] = value
     # per domain field: its values at every frame, [F, elements]
-    domain_entries = None if keys["domain_key"] is None else batch.get(("next", *keys["domain_key"]), None)
     domain = {
-        name: _required_vector(frames, (*keys["domain_key"], name), "domain_key", where="next")
-        for name in ([] if not isinstance(domain_entries, TensorDictBase) else list(domain_entries.keys()))
+        "/".join(name): _required_vector(frames, (*keys["domain_key"], *name), "domain_key", where="next")
+        for name in _leaf_names(batch, keys["domain_key"])
     }
     # per noisy entry: the episode's bias at every frame, [F, elements]; per kind of push: pushed frames, summed
     biases = {
