@@ -20,6 +20,7 @@ __all__ = [
     "hollow_paths",
     "make_memory",
     "read",
+    "set_records",
     "td_get",
     "td_set",
     "unshared",
@@ -76,6 +77,38 @@ def td_set(tensordict: TensorDictBase, key: str | tuple[str, ...], value: torch.
             tensordict._set_tuple(key, value, inplace=False, validated=True)
         return
     tensordict.set(key, value)
+
+
+def set_records(
+    tensordict: TensorDictBase, prefix: tuple[str, ...], values: Mapping[tuple[str, ...], torch.Tensor]
+) -> None:
+    """Write ``values`` (by key parts under ``prefix``, each of ``tensordict``'s batch shape) into ``tensordict``.
+
+    A transform's records of a step (``("domain", name)``, ``("observation_bias", entry)``) are new keys of
+    a fresh step's data: when ``prefix``'s first part is absent, the whole subtree is built and set at once (one set
+    instead of one per value, each creating or walking the nodes on its path); otherwise each value is set at its
+    key. The values are trusted (the caller's copies, of the right shape).
+    """
+    if type(tensordict) is not TensorDict or tensordict._tensordict.get(prefix[0]) is not None:
+        for parts, value in values.items():
+            td_set(tensordict, (*prefix, *parts), value)
+        return
+    batch, device = tensordict.batch_size, tensordict.device
+    tree: dict[str, Any] = {}
+    for parts, value in values.items():
+        node = tree
+        for part in (*prefix[1:], *parts[:-1]):
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+
+    def build(node: dict[str, Any]) -> TensorDict:
+        return TensorDict._new_unsafe(
+            {key: build(child) if isinstance(child, dict) else child for key, child in node.items()},
+            batch_size=batch,
+            device=device,
+        )
+
+    td_set(tensordict, prefix[0], build(tree))
 
 
 def _storages(node: TensorDictBase, into: set[int]) -> set[int]:

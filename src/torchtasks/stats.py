@@ -18,6 +18,7 @@ from tensordict.utils import NestedKey
 from torchtasks._checks import check_int
 from torchtasks._torchrl import key_parts, keys_text, nested_key
 from torchtasks.transforms.names import (
+    BIAS_KEY,
     COST_TERMS_KEY,
     CURRICULUM_KEY,
     DOMAIN_KEY,
@@ -28,7 +29,6 @@ from torchtasks.transforms.names import (
     FRAMES,
     GROUPS_KEY,
     LEVEL,
-    NOISE_KEY,
     PUSH_KEY,
     REWARD_KEY,
     SUCCESS_KEY,
@@ -163,7 +163,7 @@ def episode_statistics(
     achieved_goal_key: NestedKey | None = None,
     curriculum_key: NestedKey | None = CURRICULUM_KEY,
     domain_key: NestedKey | None = DOMAIN_KEY,
-    noise_key: NestedKey | None = NOISE_KEY,
+    bias_key: NestedKey | None = BIAS_KEY,
     push_key: NestedKey | None = PUSH_KEY,
     cost_terms_key: NestedKey | None = COST_TERMS_KEY,
     ended_by_key: NestedKey | None = ENDED_BY_KEY,
@@ -266,7 +266,7 @@ def episode_statistics(
       last frame (the physics that episode ended with), beside the outcome rates; a vector field gives one key
       per entry, ``domain/<field>/<i>`` (e.g. ``domain/gravity/2``).
     - ``observation_bias_rms/<entry>`` (when the data holds an :class:`~torchtasks.transforms.ObservationNoise`'s
-      biases ``("next", noise_key, "bias", *entry)``): the root mean square over the ended episodes and the
+      biases ``("next", bias_key, *entry)``): the root mean square over the ended episodes and the
       entry's elements of the bias each episode ended with (an estimate of the bias std; nested entries joined
       with ``/``).
     - ``push_steps_mean/<kind>`` (when the data holds a :class:`~torchtasks.transforms.Pushes`' entries
@@ -306,7 +306,7 @@ def episode_statistics(
             data without it report no scheduled values; ``None`` skips them.
         domain_key: the DomainRandomization's ``entry_key`` (the drawn physics under ``"next"``); data without it
             report no domain values; ``None`` skips them.
-        noise_key, push_key: the ObservationNoise's and the Pushes' ``entry_key``; data without them report no
+        bias_key, push_key: the ObservationNoise's and the Pushes' ``entry_key``; data without them report no
             biases and no pushes; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
@@ -347,7 +347,7 @@ def episode_statistics(
             ("achieved_goal_key", achieved_goal_key),
             ("curriculum_key", curriculum_key),
             ("domain_key", domain_key),
-            ("noise_key", noise_key),
+            ("bias_key", bias_key),
             ("push_key", push_key),
             ("cost_terms_key", cost_terms_key),
             ("ended_by_key", ended_by_key),
@@ -420,8 +420,8 @@ def _statistics(
     }
     # per noisy entry: the episode's bias at every frame, [F, elements]; per kind of push: pushed frames, summed
     biases = {
-        "/".join(name): _required_vector(frames, (*keys["noise_key"], "bias", *name), "noise_key", where="next")
-        for name in _leaf_names(batch, keys["noise_key"], "bias")
+        "/".join(name): _required_vector(frames, (*keys["bias_key"], *name), "bias_key", where="next")
+        for name in _leaf_names(batch, keys["bias_key"])
     }
     for kind in _leaf_names(batch, keys["push_key"]):
         pushed = _required_vector(frames, (*keys["push_key"], *kind), "push_key", where="next") != 0
@@ -637,9 +637,9 @@ def _level_stats(levels: torch.Tensor, stat: str) -> dict[str, torch.Tensor]:
     return result
 
 
-def _leaf_names(batch: TensorDictBase, key: tuple[str, ...] | None, *inner: str) -> list[tuple[str, ...]]:
-    """The leaves of the node ``("next", *key, *inner)`` of ``batch`` as key tuples (none: no such node)."""
-    node = None if key is None else batch.get(("next", *key, *inner), None)
+def _leaf_names(batch: TensorDictBase, key: tuple[str, ...] | None) -> list[tuple[str, ...]]:
+    """The leaves of the node ``("next", *key)`` of ``batch`` as key tuples (none: no such node)."""
+    node = None if key is None else batch.get(("next", *key), None)
     if not isinstance(node, TensorDictBase):
         return []
     return [key_parts(name) for name in node.keys(True, True)]

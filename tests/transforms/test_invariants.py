@@ -239,7 +239,7 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
             for i in range(len(values[0])):
                 key = f"domain/{name}" if len(values[0]) == 1 else f"domain/{name}/{i}"
                 stats[key] = sum(float(value[i]) for value in values) / len(ends)
-        biases = nxt["observation_noise", "bias"] if "observation_noise" in nxt.keys() else None
+        biases = nxt["observation_bias"] if "observation_bias" in nxt.keys() else None
         for entry in biases.keys(True, True) if biases is not None else []:  # the biases episodes ended with
             parts = entry if isinstance(entry, tuple) else (entry,)
             squares = [float(v) ** 2 for row, t, _ in ends for v in biases[parts][row, t].reshape(-1)]

@@ -53,7 +53,7 @@ def _saved(state: dict) -> dict:
 def _residuals(data: TensorDict) -> tuple[torch.Tensor, torch.Tensor]:
     """The offsets of the noisy copy from the clean entry at the reset and after every step (``[B, 1 + T, d]``), and
     the biases recorded with them (zeros for an entry without a bias)."""
-    key = ("observation_noise", "bias", "observation")
+    key = ("observation_bias", "observation")
     first, steps = data[:, :1], data["next"]
     offsets = torch.cat([first["noisy"] - first["observation"], steps["noisy"] - steps["observation"]], 1).double()
     if key not in first.keys(True):  # an entry without a bias
@@ -87,13 +87,13 @@ def test_noise_and_bias_moments_over_many_envs(distribution: str):
 def test_the_bias_is_held_per_episode_and_redrawn_for_the_envs_that_reset():
     env = _env(_noise(std=0.0, bias=1.0), steps=100)
     first = env.reset()
-    bias = first["observation_noise", "bias", "observation"]
+    bias = first["observation_bias", "observation"]
     assert torch.equal(first["noisy"], first["observation"] + bias)  # std 0: the bias alone
     data = env.rollout(3, auto_reset=False, tensordict=first)
-    assert (data["next", "observation_noise", "bias", "observation"] == bias.unsqueeze(1)).all()
+    assert (data["next", "observation_bias", "observation"] == bias.unsqueeze(1)).all()
     last = data[:, -1]["next"].clone()
     reset = env.reset(last.set("_reset", torch.tensor([True, False, True, False]).reshape(4, 1)))
-    redrawn = reset["observation_noise", "bias", "observation"]
+    redrawn = reset["observation_bias", "observation"]
     assert torch.equal(redrawn[[1, 3]], bias[[1, 3]]) and (redrawn[[0, 2]] != bias[[0, 2]]).all()
     assert torch.equal(reset["noisy"][[1, 3]], last["noisy"][[1, 3]])  # the running episodes go on as they were
     assert torch.equal(reset["noisy"], reset["observation"].double().add(redrawn).float())
@@ -121,7 +121,7 @@ def test_entries_drawn_together_keep_their_own_moments_and_are_independent():
     for key, entry in spec.items():
         noisy = torch.cat([data[entry.out_key], data["next", entry.out_key]], 1).double()
         clean = torch.cat([data[key], data["next", key]], 1).double()
-        bias_key = ("observation_noise", "bias", key)
+        bias_key = ("observation_bias", key)
         if entry.bias is None:
             assert bias_key not in data.keys(True) and ("next", *bias_key) not in data.keys(True)
             bias = torch.zeros_like(noisy)
@@ -167,7 +167,7 @@ def test_an_entry_of_several_dimensions_gets_its_elements_stds():
     data = env.rollout(3)
     assert data["next", "noisy_column"].shape == (4096, 3, 2, 1)
     offsets = (data["next", "noisy_column"] - data["next", "column"]).double()
-    biases = data["next", "observation_noise", "bias", "column"].double()
+    biases = data["next", "observation_bias", "column"].double()
     residual = (offsets - biases).reshape(-1, 2)
     n = residual.shape[0]
     assert ((residual.var(0) / std.reshape(-1) ** 2 - 1).abs() < 5 * math.sqrt(2 / n)).all()
@@ -181,7 +181,7 @@ def test_an_entry_without_a_bias_has_no_bias_field_entry_or_draw():
     noise = _noise(std=0.1)
     env = _env(noise)
     data = env.rollout(2)
-    assert ("observation_noise", "bias", "observation") not in data.keys(True)
+    assert ("observation_bias", "observation") not in data.keys(True)
     assert [field.name for field in noise.domain_fields()] == [NOISE]
     assert dict(noise.state_dict()).keys() == {"noise_std.observation", "_extra_state"}
     bias = DomainRandomization([UniformDomainParam(BIAS, mean=_vector(0.1, 0.1), halfspan=_vector(0.0, 0.0))])
@@ -429,7 +429,7 @@ def test_the_data_keeps_its_biases_when_the_transform_is_loaded() -> None:
     env, other = make(0), make(1)
     data = env.reset()
     other.reset()
-    bias = data["observation_noise", "bias", "observation"]
+    bias = data["observation_bias", "observation"]
     kept = bias.clone()
     env.transform[-1].load_state_dict(other.transform[-1].state_dict())
     assert not torch.equal(env.transform[-1].bias._buffers["observation"].to(kept.dtype), kept)  # the load changed it

@@ -15,12 +15,13 @@ from collections.abc import Mapping, Sequence
 from typing import Any, NamedTuple
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from torch import nn
 from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_positive_int
+from torchtasks._memory import set_records
 from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainEnv, DomainField, DomainParam
 from torchtasks.transforms._base import EnvDerivedTransform
@@ -482,15 +483,8 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         values = {}
         for name in self.names:
             value = self.drawn._buffers[name]
-            values[name] = (value.unsqueeze(-1) if name in scalars else value).clone()
-        prefix = key_parts(self.entry_key)
-        batch = tensordict.batch_size
-        node = TensorDict._new_unsafe(values, batch_size=batch, device=tensordict.device)
-        if len(prefix) == 1 and tensordict.get(prefix[0], None) is None:
-            tensordict.set(prefix[0], node)
-        else:
-            for name, value in values.items():
-                tensordict.set((*prefix, name), value)
+            values[(name,)] = (value.unsqueeze(-1) if name in scalars else value).clone()
+        set_records(tensordict, key_parts(self.entry_key), values)
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

@@ -25,6 +25,7 @@ from collections.abc import Iterable, Sequence
 from torchtasks.tasks.transition import FINAL_SOURCE, STEP_SOURCE
 
 __all__ = [
+    "BIAS_KEY",
     "COMMAND",
     "COST_KEY",
     "COST_TERMS_KEY",
@@ -41,7 +42,6 @@ __all__ = [
     "GROUPS_KEY",
     "LEVEL",
     "MEMORY_KEY",
-    "NOISE_KEY",
     "PUSH_KEY",
     "REWARD_KEY",
     "STEP_TERM",
@@ -105,8 +105,8 @@ DOMAIN = "domain"
 #: per domain field (``("domain", "body_mass:torso")``)
 DOMAIN_KEY = "domain"
 #: the default key under which an ObservationNoise writes each episode's bias per entry (``entry_key``):
-#: ``("observation_noise", "bias", <entry>)``
-NOISE_KEY = "observation_noise"
+#: ``("observation_bias", <entry>)``
+BIAS_KEY = "observation_bias"
 #: the default key under which a Pushes writes each step's push (``entry_key``): ``("push", "velocity")``,
 #: ``("push", "wrench")``
 PUSH_KEY = "push"

@@ -23,11 +23,11 @@ from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, did_you_mean
-from torchtasks._memory import td_get, td_set
+from torchtasks._memory import set_records, td_get, td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
 from torchtasks.domain import DomainField, check_domain_values, check_field_name, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.names import NOISE_KEY
+from torchtasks.transforms.names import BIAS_KEY
 from torchtasks.transforms.seeding import GeneratorTransform
 from torchtasks.transforms.task import TaskTransform
 
@@ -119,9 +119,10 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     from the next reset or step, a new ``β`` from the env's next reset. A ``Curriculum`` or ``DifficultyLevels`` sets
     their distributions (``"domain.observation_noise:joint_pos.mean"``).
 
-    An entry's episode bias is written under ``(entry_key, "bias", *entry)`` at reset and every step, so offline users
-    see what each episode had. An entry a :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state
-    (or goal) is refused in place: the task keeps judging the true state. On an env that steps from the data's
+    An entry's episode bias is written under ``(entry_key, *entry)`` (``("observation_bias", "joint_pos")``) at reset
+    and every step, so offline users see what each episode had. An entry a
+    :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state (or goal) is refused in place: the
+    task keeps judging the true state. On an env that steps from the data's
     ``"observation"`` (:class:`~torchtasks.envs.PendulumEnv`), write a copy (``out_key``).
 
     Randomness: one generator (``seed=k``; ``None``: torch's global one until ``env.set_seed(s)``) draws, per step,
@@ -131,7 +132,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
 
     Args:
         noises: the noise of each observation entry, by key (a string or a tuple of strings).
-        entry_key: where the biases are written (under ``(entry_key, "bias", *entry)``).
+        entry_key: where the biases are written (under ``(entry_key, *entry)``).
         seed: seed of the transform's own generator (``None``: torch's global one until ``env.set_seed``).
 
     Example:
@@ -143,7 +144,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), noise)
         >>> data = env.rollout(3)
         >>> offset = data["next", "noisy"] - data["next", "observation"]  # the bias plus the step's noise
-        >>> bias = data["next", "observation_noise", "bias", "observation"]
+        >>> bias = data["next", "observation_bias", "observation"]
         >>> bool(((offset - bias).abs() < 0.1).all()), bool((bias[:, 0] == bias[:, 2]).all())  # held per episode
         (True, True)
         >>> [field.name for field in noise.domain_fields()]
@@ -154,7 +155,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         self,
         noises: Mapping[NestedKey, EntryNoise],
         *,
-        entry_key: NestedKey = NOISE_KEY,
+        entry_key: NestedKey = BIAS_KEY,
         seed: int | None = None,
     ) -> None:
         if not isinstance(noises, Mapping) or not noises:
@@ -204,7 +205,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if noise.bias is not None:
             bias = _std(noise.bias, f"ObservationNoise: the bias of {key!r}")
             bias_distribution = distribution
-            bias_key = (*key_parts(self.entry_key), "bias", *key_parts(key))
+            bias_key = (*key_parts(self.entry_key), *key_parts(key))
         if noise.bias_distribution is not None:
             checked = _distribution(noise.bias_distribution, f"ObservationNoise: the bias_distribution of {key!r}")
             if bias is None:
@@ -435,6 +436,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         per group of entries (a distribution and dtype), each entry reading its columns."""
         stds, biases = self._casts("_cast"), self._casts("_bias_cast")
         batch = tensordict.batch_size
+        prefix, records = key_parts(self.entry_key), {}
         for group in self.__dict__["_noise_groups"]:
             units = torch.split_with_sizes(self._standard(group, batch), group.sizes, -1)
             for entry, unit, shape in zip(group.entries, units, group.shapes, strict=True):
@@ -451,7 +453,9 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                 else:
                     td_set(tensordict, entry.out_key, torch.addcmul(value + bias, stds[entry.name], unit))
                     # a copy of this episode's bias: no entry of a step shares storage with another's
-                    td_set(tensordict, entry.bias_key, bias.clone())
+                    records[entry.bias_key[len(prefix) :]] = bias.clone()
+        if records:
+            set_records(tensordict, prefix, records)
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:

@@ -20,6 +20,7 @@ from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_positive_int, did_you_mean
+from torchtasks._memory import set_records
 from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
 from torchtasks.domain.fields import check_domain_values, select_fields
@@ -400,11 +401,14 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         buffers["steps_left"] = torch.where(fired, timers, buffers["steps_left"])
 
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
+        """Write copies of this step's velocity change and wrench (no entry of a step shares storage with the state)."""
         keys = self.__dict__["_keys"]
+        values = {}
         if "push_velocity" in keys:
-            tensordict.set(keys["push_velocity"], self._buffers["applied_velocity"].clone())
+            values[keys["push_velocity"][-1:]] = self._buffers["applied_velocity"].clone()
         if "push_force" in keys:
-            tensordict.set(keys["push_force"], self._buffers["wrench"].clone())
+            values[keys["push_force"][-1:]] = self._buffers["wrench"].clone()
+        set_records(tensordict, key_parts(self.entry_key), values)
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
