@@ -30,11 +30,13 @@ from torchtasks.transforms.names import (
     GROUPS_KEY,
     LEVEL,
     PUSH_KEY,
+    PUSH_RECORDS,
     REWARD_KEY,
     SUCCESS_KEY,
     TERMINATED_KEY,
     TERMS_KEY,
     TRUNCATED_KEY,
+    push_entry,
 )
 
 __all__ = ["episode_statistics"]
@@ -270,8 +272,9 @@ def episode_statistics(
       entry's elements of the bias each episode ended with (an estimate of the bias std; nested entries joined
       with ``/``).
     - ``push_steps_mean/<kind>`` (when the data holds a :class:`~torchtasks.transforms.Pushes`' entries
-      ``("next", push_key, kind)``): the steps of an episode in which the entry is not zero, mean over the complete
-      episodes: for ``velocity`` the pushes (velocity changes) per episode, for ``wrench`` the steps under a force.
+      ``("next", "<push_key>_velocity")`` or ``("next", "<push_key>_wrench")``): the steps of an episode in which
+      the entry is not zero, mean over the complete episodes: for ``velocity`` the pushes (velocity changes) per
+      episode, for ``wrench`` the steps under a force.
     - ``curriculum/level`` and ``curriculum/level_fraction/<k>`` (when the data holds a
       :class:`~torchtasks.transforms.DifficultyLevels`' integer entry ``("next", curriculum_key, "level")``):
       at the same latest frames, the mean level over the envs and the fraction of envs at level ``k``,
@@ -306,7 +309,8 @@ def episode_statistics(
             data without it report no scheduled values; ``None`` skips them.
         domain_key: the DomainRandomization's ``entry_key`` (the drawn physics under ``"next"``); data without it
             report no domain values; ``None`` skips them.
-        bias_key, push_key: the ObservationNoise's and the Pushes' ``entry_key``; data without them report no
+        bias_key, push_key: the ObservationNoise's and the Pushes' ``entry_key`` (the Pushes': its entries'
+            prefix); data without them report no
             biases and no pushes; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
@@ -423,9 +427,11 @@ def _statistics(
         "/".join(name): _required_vector(frames, (*keys["bias_key"], *name), "bias_key", where="next")
         for name in _leaf_names(batch, keys["bias_key"])
     }
-    for kind in _leaf_names(batch, keys["push_key"]):
-        pushed = _required_vector(frames, (*keys["push_key"], *kind), "push_key", where="next") != 0
-        returns["push_steps_mean/" + "/".join(kind)] = pushed.any(-1)
+    for record in () if keys["push_key"] is None else PUSH_RECORDS:
+        key = push_entry(keys["push_key"], record)
+        if batch.get(("next", *key), None) is not None:
+            pushed = _required_vector(frames, key, "push_key", where="next") != 0
+            returns["push_steps_mean/" + record] = pushed.any(-1)
     goals = None
     if keys["goal_key"] is not None:
         goals = (  # the goal that judged step t, and the goal achieved by it

@@ -49,7 +49,7 @@ def test_resume_in_a_new_process_continues_every_perturbation_bit_for_bit(tmp_pa
     expected = [next(batches) for _ in range(3)]
     running.shutdown()
     # the perturbations acted in the batches compared: pushes, held forces, delays and biases of several episodes
-    pushed = torch.cat([batch["next", "push", "velocity"] for batch in expected])
+    pushed = torch.cat([batch["next", "push_velocity"] for batch in expected])
     assert (pushed.abs().sum(-1) > 0).sum() >= 3
     assert torch.cat([batch["next", "done"] for batch in expected]).any()
     code = textwrap.dedent(
@@ -140,7 +140,7 @@ def test_statistics_count_the_pushes_and_the_biases_in_every_layout() -> None:
             lengths.append(length)
             if t - length + 1 >= 0:  # a complete episode
                 for kind in sums:
-                    pushed = nxt["push", kind][row, t - length + 1 : t + 1]
+                    pushed = nxt[f"push_{kind}"][row, t - length + 1 : t + 1]
                     sums[kind].append(sum(bool(frame.any()) for frame in pushed))
     expected = {f"push_steps_mean/{kind}": sum(counts) / len(counts) for kind, counts in sums.items()}
     expected.update({f"observation_bias_rms/{n}": math.sqrt(sum(v) / len(v)) for n, v in squares.items()})

@@ -200,8 +200,9 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
                 others = set(nxt[group].keys())
                 if not (leaf.startswith("episode_") and leaf[len("episode_") :] in others):
                     entries[prefix + leaf] = nxt[group, leaf]
-    for kind in nxt["push"].keys() if "push" in nxt.keys() else []:  # the steps with a push, summed per episode
-        entries["push_steps_mean/" + kind] = (nxt["push", kind] != 0).any(-1)
+    for kind in ("velocity", "wrench"):  # the steps with a push, summed per episode
+        if f"push_{kind}" in nxt.keys():
+            entries["push_steps_mean/" + kind] = (nxt[f"push_{kind}"] != 0).any(-1)
     ended_by = list(nxt["ended_by"].keys()) if "ended_by" in nxt.keys() else []
     ends, complete_sums = [], {stat: [] for stat in entries}
     for row in range(rows):

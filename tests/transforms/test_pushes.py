@@ -128,8 +128,8 @@ def test_pushes_equal_per_env_mujoco_with_partial_resets() -> None:
                 mujoco.mj_step(model, data)
         out, td = env.step_and_maybe_reset(td.set("action", action))
         step = out["next"]
-        assert torch.equal(step["push", "velocity"], delta), t
-        assert torch.equal(step["push", "wrench"], reference.wrench), t
+        assert torch.equal(step["push_velocity"], delta), t
+        assert torch.equal(step["push_wrench"], reference.wrench), t
         assert np.array_equal(step["qpos"].numpy(), np.stack([d.qpos for d in datas])), t
         assert np.array_equal(step["qvel"].numpy(), np.stack([d.qvel for d in datas])), t
         for i in np.flatnonzero(fired.numpy()).tolist():
@@ -280,7 +280,7 @@ def test_set_seed_seeds_each_worker_and_repeats_with_the_same_seed() -> None:
     for seed in (5, 5, 6):
         env = SerialEnv(2, make_small_env)
         env.set_seed(seed)
-        runs.append(env.rollout(6, break_when_any_done=False)["next", "push", "velocity"])
+        runs.append(env.rollout(6, break_when_any_done=False)["next", "push_velocity"])
         env.close()
     assert torch.equal(runs[0], runs[1])  # the same seed, the same pushes
     assert not torch.equal(runs[0], runs[2])
@@ -356,7 +356,7 @@ def test_domain_randomization_draws_the_push_ranges_per_env_and_episode() -> Non
     ranges = DomainRandomization([UniformDomainParam("push_velocity:torso", mean=mean, halfspan=1.0)], seed=1)
     env = TransformedEnv(quadruped(3), Compose(StepCounter(4), pushes, ranges))
     data = env.rollout(12, break_when_any_done=False)
-    half_widths, velocity = data["next", "domain", "push_velocity:torso"], data["next", "push", "velocity"]
+    half_widths, velocity = data["next", "domain", "push_velocity:torso"], data["next", "push_velocity"]
     assert bool((velocity.abs() <= half_widths).all())  # each push within its env's drawn range
     assert bool((velocity.abs() > 0.1).any())  # beyond the nominal range: the drawn ones were used
     assert not torch.equal(half_widths[:, 0], half_widths[:, 4])  # a new range per episode (reset every 4 steps)
@@ -403,7 +403,7 @@ def test_a_force_push_of_the_torso_is_no_base_contact() -> None:
     pushes = Pushes("torso", force=[30.0, 30.0, 30.0, 1.0, 1.0, 1.0], duration=3, interval_steps=5, seed=0)
     env = velocity_tracking_env(4, seed=0, perturbations=[pushes])
     data = env.rollout(20, lambda td: td.set("action", torch.zeros(4, 12)), break_when_any_done=False)
-    pushed = (data["next", "push", "wrench"] != 0).any(-1)
+    pushed = (data["next", "push_wrench"] != 0).any(-1)
     assert pushed.sum() >= 4 * 9
     assert not data["next", "ended_by", "base_contact"].any()
     assert (data["next", "base_contact"][pushed] == 0).all()

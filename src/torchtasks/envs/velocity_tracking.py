@@ -253,7 +253,7 @@ def velocity_tracking_perturbations(
         >>> data = env.rollout(3)
         >>> sorted(data["next", "domain"].keys())
         ['action_delay', 'actuator_kp_scale', 'body_mass_scale', 'geom_friction_scale']
-        >>> data["next", "push", "velocity"].shape
+        >>> data["next", "push_velocity"].shape
         torch.Size([2, 3, 6])
         >>> env.close()
     """

@@ -43,6 +43,7 @@ __all__ = [
     "LEVEL",
     "MEMORY_KEY",
     "PUSH_KEY",
+    "PUSH_RECORDS",
     "REWARD_KEY",
     "STEP_TERM",
     "SUCCESS_KEY",
@@ -52,6 +53,7 @@ __all__ = [
     "VECTOR_REWARD_KEY",
     "entry_name",
     "names_task_buffer",
+    "push_entry",
     "respelt_entries",
     "short_names",
     "suffix_matches",
@@ -107,9 +109,11 @@ DOMAIN_KEY = "domain"
 #: the default key under which an ObservationNoise writes each episode's bias per entry (``entry_key``):
 #: ``("observation_bias", <entry>)``
 BIAS_KEY = "observation_bias"
-#: the default key under which a Pushes writes each step's push (``entry_key``): ``("push", "velocity")``,
-#: ``("push", "wrench")``
+#: the default prefix of a Pushes' entries (``entry_key``): ``"push_velocity"``, ``"push_wrench"``
+#: (:func:`push_entry`)
 PUSH_KEY = "push"
+#: what a Pushes records, by the suffix of its entries: the velocity change of a step, the wrench held in it
+PUSH_RECORDS = ("velocity", "wrench")
 
 
 def names_task_buffer(target: str) -> bool:
@@ -208,3 +212,15 @@ def respelt_entries(saved: Iterable[str], own: Iterable[str]) -> str:
                     "the targets as written; build the writer with the saved spelling)"
                 )
     return ""
+
+
+def push_entry(prefix: tuple[str, ...], record: str) -> tuple[str, ...]:
+    """The key of a Pushes' ``record`` (``"velocity"``, ``"wrench"``) for the entry prefix ``prefix`` (key parts):
+    the last part joined with ``"_"``, so that the records are leaves beside the others, not a node of their own
+    (each node of a step's data costs TorchRL's step, reset and collector more than a leaf).
+
+    Example:
+        >>> push_entry(("push",), "velocity"), push_entry(("robot", "push"), "wrench")
+        (('push_velocity',), ('robot', 'push_wrench'))
+    """
+    return (*prefix[:-1], f"{prefix[-1]}_{record}")

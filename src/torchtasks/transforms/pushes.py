@@ -20,12 +20,12 @@ from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, check_positive_int, did_you_mean
-from torchtasks._memory import set_records
+from torchtasks._memory import td_set
 from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
 from torchtasks.domain.fields import check_domain_values, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.names import PUSH_KEY
+from torchtasks.transforms.names import PUSH_KEY, push_entry
 from torchtasks.transforms.seeding import GeneratorTransform
 
 __all__ = ["PushableEnv", "Pushes"]
@@ -84,8 +84,9 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     replaces it. ``h`` are 6 half-widths per env: the domain fields ``push_velocity:<body>`` and
     ``push_force:<body>`` (:meth:`domain_fields`), which a ``DomainRandomization`` may draw per env.
 
-    Entries (float64 ``[*B, 6]``, observation spec): ``(entry_key, "velocity")``, the change applied in the step
-    (zeros elsewhere), and ``(entry_key, "wrench")``, the wrench held during the step. Run state (``state_dict``):
+    Entries (float64 ``[*B, 6]``, observation spec): ``"<entry_key>_velocity"``, the change applied in the step
+    (zeros elsewhere), and ``"<entry_key>_wrench"``, the wrench held during the step (leaves, not a node: a node
+    costs TorchRL's step more; for a nested ``entry_key`` the last part takes the suffix). Run state (``state_dict``):
     the timers, the force's steps left, the wrench, the per-env half-widths and the generator, seeded per worker
     by ``env.set_seed``; a checkpoint of another body, kinds, duration or interval is refused. The draws, at each step
     where some env is pushed or a force ends, for all envs: uniforms ``u`` ``[*B, 6 per kind]`` (velocity columns
@@ -98,7 +99,7 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         duration: the steps a force is held (``>= 1``).
         interval_steps: the steps between pushes, an int or an inclusive ``(low, high)`` with ``1 <= low <= high``.
         interval_seconds: or that range in seconds, ``0 < low <= high`` (one of the two).
-        entry_key: the key under which the entries are written.
+        entry_key: the prefix of the entries' keys (``"push"``: ``"push_velocity"``, ``"push_wrench"``).
         seed: seed of the transform's own generator (``None``: torch's global one until ``env.set_seed``).
 
     Example:
@@ -112,7 +113,7 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         >>> pushes = Pushes("box", velocity=[0.5, 0.5, 0.0, 0.0, 0.0, 1.0], interval_steps=(2, 4), seed=0)
         >>> env = TransformedEnv(base, Compose(StepCounter(10), pushes))
         >>> rollout = env.rollout(8)
-        >>> pushed = rollout["next", "push", "velocity"].abs().sum(-1) > 0  # [3 envs, 8 steps]
+        >>> pushed = rollout["next", "push_velocity"].abs().sum(-1) > 0  # [3 envs, 8 steps]
         >>> pushed.sum(-1).tolist()  # every env: 2 to 4 pushes in 8 steps
         [2, 2, 2]
         >>> [field.name for field in pushes.domain_fields()]  # schedulable ranges
@@ -147,7 +148,7 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         self.duration = check_positive_int(duration, "Pushes: duration")
         self.interval_steps, self.interval_seconds = _interval(interval_steps, interval_seconds)
         self.entry_key = nested_key(entry_key, "Pushes: entry_key")
-        keys = {kind: (*key_parts(self.entry_key), _KINDS[kind][1]) for kind in nominal}
+        keys = {kind: push_entry(key_parts(self.entry_key), _KINDS[kind][1]) for kind in nominal}
         super().__init__(in_keys=[], out_keys=list(keys.values()))
         self.body = body
         #: the domain field's name by kind (``"push_velocity"``) and the entry each kind writes
@@ -403,12 +404,10 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     def _entries(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write copies of this step's velocity change and wrench (no entry of a step shares storage with the state)."""
         keys = self.__dict__["_keys"]
-        values = {}
         if "push_velocity" in keys:
-            values[keys["push_velocity"][-1:]] = self._buffers["applied_velocity"].clone()
+            td_set(tensordict, keys["push_velocity"], self._buffers["applied_velocity"].clone())
         if "push_force" in keys:
-            values[keys["push_force"][-1:]] = self._buffers["wrench"].clone()
-        set_records(tensordict, key_parts(self.entry_key), values)
+            td_set(tensordict, keys["push_force"], self._buffers["wrench"].clone())
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
