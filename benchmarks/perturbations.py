@@ -1,7 +1,7 @@
 """What the sim-to-real perturbations cost: the velocity-tracking preset with and without them, interleaved.
 
 ``python benchmarks/perturbations.py [--envs 64] [--repeats 15] [--seconds 1.0] [--steps-per-batch 20] [--threads N]
-[--output runs/perturbations_bench] [--quick]``
+[--calls-batches 20] [--output runs/perturbations_bench] [--quick]``
 
 The preset is ``velocity_tracking_env(N)`` (the shipped quadruped, 4 substeps per step, its task, command and
 ``CatTensors``) in a ``torchrl.collectors.Collector`` with uniform random actions (one torch thread,
@@ -29,7 +29,10 @@ repeat (``--seconds`` each, at least one batch), so each ratio compares numbers 
   TorchRL's step, reset and collector, the floor of any perturbation that records what it did.
 
 The table reports medians over the repeats of frames/s and of the per-repeat ratio to ``plain`` (the cost of a
-perturbation is ``1 - ratio``) and to ``floor``. Results: ``<output>/results.json`` (every repeat's numbers, the
+perturbation is ``1 - ratio``) and to ``floor``, and, beside them, the Python function calls per step of each
+variant (``cProfile``'s count over ``--calls-batches`` batches after the timed repeats; 0: not counted): a measure of
+the work outside the physics that does not move with the machine's speed (it moves only with the number of resets
+in the batches counted, a few percent). Results: ``<output>/results.json`` (every repeat's numbers, the
 load average before and after, the versions) and ``<output>/results.md``. ``--quick`` runs every code path in
 seconds (its timings mean nothing).
 """
@@ -37,9 +40,11 @@ seconds (its timings mean nothing).
 from __future__ import annotations
 
 import argparse
+import cProfile
 import json
 import os
 import platform
+import pstats
 import statistics
 import sys
 import time
@@ -101,7 +106,8 @@ class Records(Transform):
     def __init__(self, specs: Composite) -> None:
         super().__init__()
         self.specs = specs
-        self.zeros = {key: spec.zero() for key, spec in specs.items(True, True)}
+        # by top-level key: a tensor, or a node with its whole subtree, set in one call (as the transforms do)
+        self.zeros = dict(specs.zero().items())
 
     def transform_observation_spec(self, observation_spec: Composite) -> Composite:
         for key, spec in self.specs.items(True, True):
@@ -110,7 +116,8 @@ class Records(Transform):
 
     def _write(self, tensordict: TensorDictBase) -> TensorDictBase:
         for key, zeros in self.zeros.items():
-            tensordict.set(key, zeros)
+            # a node's shallow copy: the step's data may add to its nodes, never to these
+            tensordict.set(key, zeros.copy() if isinstance(zeros, TensorDictBase) else zeros)
         return tensordict
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase) -> TensorDictBase:
@@ -153,8 +160,23 @@ def preset(num_envs: int, num_threads: int, parts: dict[str, bool]) -> Transform
     )
 
 
-def run(num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int) -> dict[str, Any]:
-    """Every variant built once, then measured back to back in each repeat."""
+def calls_per_step(measured: Collected, batches: int, steps: int) -> float:
+    """The Python function calls (``cProfile``: every call, built-in ones too) per step of ``batches`` batches."""
+    profile = cProfile.Profile()
+    profile.enable()
+    try:
+        for _ in range(batches):
+            measured.batch()
+    finally:
+        profile.disable()
+    calls = sum(entry[1] for entry in pstats.Stats(profile).stats.values())  # type: ignore[attr-defined]
+    return calls / (batches * steps)
+
+
+def run(
+    num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int, calls_batches: int = 0
+) -> dict[str, Any]:
+    """Every variant built once, then measured back to back in each repeat; then each one's calls per step."""
     load_before = os.getloadavg()
     frames_per_batch = num_envs * steps
     built: dict[str, Floor | Collected] = {"floor": Floor(preset(num_envs, num_threads, {}), steps)}
@@ -165,6 +187,11 @@ def run(num_envs: int, repeats: int, seconds: float, steps: int, num_threads: in
         for _ in range(repeats):
             for variant in VARIANTS:
                 raw[variant].append(measure(built[variant], seconds)["frames_per_second"])
+        calls = {
+            variant: calls_per_step(measured, calls_batches, steps)
+            for variant, measured in built.items()
+            if calls_batches and isinstance(measured, Collected)
+        }
     finally:
         for measured in built.values():
             measured.close()
@@ -176,6 +203,8 @@ def run(num_envs: int, repeats: int, seconds: float, steps: int, num_threads: in
         "load_average_before": load_before,
         "load_average_after": os.getloadavg(),
         "raw": raw,
+        "calls_per_step": calls,
+        "calls_batches": calls_batches,
         "median": {variant: statistics.median(values) for variant, values in raw.items()},
         "ratio_to_plain": {
             variant: statistics.median(v / p for v, p in zip(values, raw["plain"], strict=True))
@@ -198,18 +227,25 @@ def table(result: dict[str, Any]) -> str:
         f"interleaved repeats of {result['seconds']} s; load average before "
         f"{result['load_average_before'][0]:.2f}, after {result['load_average_after'][0]:.2f}",
         "",
-        "| variant | frames/s | vs plain | cost | vs floor |",
-        "|---|---:|---:|---:|---:|",
+        "| variant | frames/s | vs plain | cost | vs floor | Python calls per step |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
+    calls, plain_calls = result["calls_per_step"], result["calls_per_step"].get("plain")
     for variant in VARIANTS:
         fps = result["median"][variant]
         if variant == "floor":
-            lines.append(f"| floor (physics alone) | {fps:,.0f} | | | 1.00 |")
+            lines.append(f"| floor (physics alone) | {fps:,.0f} | | | 1.00 | |")
             continue
         to_plain = result["ratio_to_plain"].get(variant)
         plain = "1.00" if to_plain is None else f"{to_plain:.3f}"
         cost = "" if to_plain is None else f"{100 * (1 - to_plain):+.1f}%"
-        lines.append(f"| {variant} | {fps:,.0f} | {plain} | {cost} | {result['ratio_to_floor'][variant]:.2f} |")
+        counted = ""
+        if variant in calls:
+            counted = f"{calls[variant]:,.0f}"
+            if variant != "plain" and plain_calls:
+                counted += f" ({100 * (calls[variant] / plain_calls - 1):+.1f}%)"
+        floor = result["ratio_to_floor"][variant]
+        lines.append(f"| {variant} | {fps:,.0f} | {plain} | {cost} | {floor:.2f} | {counted} |")
     return "\n".join(lines) + "\n"
 
 
@@ -220,16 +256,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seconds", type=float, default=1.0, help="seconds per measurement (default 1.0)")
     parser.add_argument("--steps-per-batch", type=int, default=20, help="steps per Collector batch (default 20)")
     parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads (default 2)")
+    parser.add_argument(
+        "--calls-batches", type=int, default=20, help="batches over which calls per step are counted (0: none)"
+    )
     parser.add_argument("--output", type=Path, default=Path("runs/perturbations_bench"), help="where results go")
     parser.add_argument("--quick", action="store_true", help="every code path in seconds (timings mean nothing)")
     args = parser.parse_args(argv)
     if args.quick:
-        args.envs, args.repeats, args.seconds, args.steps_per_batch = 4, 1, 0.0, 2
+        args.envs, args.repeats, args.seconds, args.steps_per_batch, args.calls_batches = 4, 1, 0.0, 2, 1
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     started = time.perf_counter()
     try:
-        result = run(args.envs, args.repeats, args.seconds, args.steps_per_batch, args.threads)
+        result = run(args.envs, args.repeats, args.seconds, args.steps_per_batch, args.threads, args.calls_batches)
     finally:
         torch.set_num_threads(threads)
     result.update(

@@ -32,6 +32,10 @@ def test_quick_run_measures_every_perturbation_against_the_plain_preset(tmp_path
     assert list(result["raw"]) == list(module.VARIANTS)
     assert all(len(values) == 1 and values[0] > 0 for values in result["raw"].values())
     assert set(result["ratio_to_plain"]) == set(module.VARIANTS) - {"floor", "plain"}
+    # calls per step counted for every collected variant; the perturbations add calls, records alone some
+    calls = result["calls_per_step"]
+    assert set(calls) == set(module.VARIANTS) - {"floor"} and all(value > 0 for value in calls.values())
+    assert calls["all four"] > calls["plain"]
     table = (tmp_path / "results.md").read_text()
     assert f"`python benchmarks/perturbations.py --quick --output {tmp_path}`" in table
     for variant in module.VARIANTS[1:]:
