@@ -84,7 +84,7 @@ def set_records(
 ) -> None:
     """Write ``values`` (by key parts under ``prefix``, each of ``tensordict``'s batch shape) into ``tensordict``.
 
-    A transform's records of a step (``("domain", name)``, ``("observation_bias", entry)``) are new keys of
+    A transform's records of a step (``("domain", name)``) are new keys of
     a fresh step's data: when ``prefix``'s first part is absent, the whole subtree is built and set at once (one set
     instead of one per value, each creating or walking the nodes on its path); otherwise each value is set at its
     key. The values are trusted (the caller's copies, of the right shape).

@@ -36,6 +36,7 @@ from torchtasks.transforms.names import (
     TERMINATED_KEY,
     TERMS_KEY,
     TRUNCATED_KEY,
+    bias_entry,
     push_entry,
 )
 
@@ -268,9 +269,9 @@ def episode_statistics(
       last frame (the physics that episode ended with), beside the outcome rates; a vector field gives one key
       per entry, ``domain/<field>/<i>`` (e.g. ``domain/gravity/2``).
     - ``observation_bias_rms/<entry>`` (when the data holds an :class:`~torchtasks.transforms.ObservationNoise`'s
-      biases ``("next", bias_key, *entry)``): the root mean square over the ended episodes and the
-      entry's elements of the bias each episode ended with (an estimate of the bias std; nested entries joined
-      with ``/``).
+      biases ``("next", "<bias_key>_<entry>")``): the root mean square over the ended episodes and the
+      entry's elements of the bias each episode ended with (an estimate of the bias std; a nested entry's parts
+      joined with ``:``, as in its field names).
     - ``push_steps_mean/<kind>`` (when the data holds a :class:`~torchtasks.transforms.Pushes`' entries
       ``("next", "<push_key>_velocity")`` or ``("next", "<push_key>_wrench")``): the steps of an episode in which
       the entry is not zero, mean over the complete episodes: for ``velocity`` the pushes (velocity changes) per
@@ -309,9 +310,8 @@ def episode_statistics(
             data without it report no scheduled values; ``None`` skips them.
         domain_key: the DomainRandomization's ``entry_key`` (the drawn physics under ``"next"``); data without it
             report no domain values; ``None`` skips them.
-        bias_key, push_key: the ObservationNoise's and the Pushes' ``entry_key`` (the Pushes': its entries'
-            prefix); data without them report no
-            biases and no pushes; ``None`` skips them.
+        bias_key, push_key: the ObservationNoise's and the Pushes' ``entry_key`` (the prefix of their entries);
+            data without them report no biases and no pushes; ``None`` skips them.
         time_dim: the time dim of a ``[*envs, time]`` batch; by default the last one (or, for a 1-D
             batch with the collector's trajectory ids, the flat layout).
         mask_key: the padding mask of a padded batch (bool, at the root, False on padding; TorchRL writes
@@ -424,8 +424,8 @@ def _statistics(
     }
     # per noisy entry: the episode's bias at every frame, [F, elements]; per kind of push: pushed frames, summed
     biases = {
-        "/".join(name): _required_vector(frames, (*keys["bias_key"], *name), "bias_key", where="next")
-        for name in _leaf_names(batch, keys["bias_key"])
+        name: _required_vector(frames, bias_entry(keys["bias_key"], name), "bias_key", where="next")
+        for name in _suffixes(batch, keys["bias_key"])
     }
     for record in () if keys["push_key"] is None else PUSH_RECORDS:
         key = push_entry(keys["push_key"], record)
@@ -649,6 +649,24 @@ def _leaf_names(batch: TensorDictBase, key: tuple[str, ...] | None) -> list[tupl
     if not isinstance(node, TensorDictBase):
         return []
     return [key_parts(name) for name in node.keys(True, True)]
+
+
+def _suffixes(batch: TensorDictBase, prefix: tuple[str, ...] | None) -> list[str]:
+    """The ``<suffix>`` of each leaf ``("next", *prefix[:-1], "<prefix[-1]>_<suffix>")`` of ``batch``, in order."""
+    if prefix is None:
+        return []
+    node = batch.get(("next", *prefix[:-1]), None)
+    if not isinstance(node, TensorDictBase):
+        return []
+    start = prefix[-1] + "_"
+    return [
+        key[len(start) :]
+        for key, value in node.items()
+        if isinstance(key, str)
+        and key.startswith(start)
+        and len(key) > len(start)
+        and not isinstance(value, TensorDictBase)
+    ]
 
 
 def _required_vector(frames: _Frames, key: tuple[str, ...], name: str, *, where: str) -> torch.Tensor:

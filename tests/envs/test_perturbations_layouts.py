@@ -135,7 +135,7 @@ def test_statistics_count_the_pushes_and_the_biases_in_every_layout() -> None:
             if not bool(nxt["done"][row, t]):
                 continue
             for name in squares:
-                squares[name] += [float(v) ** 2 for v in nxt["observation_bias", name][row, t]]
+                squares[name] += [float(v) ** 2 for v in nxt[f"observation_bias_{name}"][row, t]]
             length = int(nxt["step_count"][row, t])
             lengths.append(length)
             if t - length + 1 >= 0:  # a complete episode
@@ -177,6 +177,6 @@ def test_parallel_env_workers_from_a_lambda_draw_their_own_perturbations_and_rep
 
     first, again, other = rollout(5), rollout(5), rollout(6)
     _assert_equal_batches(first, again)
-    for key in [("next", "observation_bias", "joint_pos"), ("next", "domain", "actuator_kp_scale")]:
+    for key in [("next", "observation_bias_joint_pos"), ("next", "domain", "actuator_kp_scale")]:
         assert not torch.equal(first[key][0], first[key][1]), key  # the workers' streams differ
         assert not torch.equal(first[key], other[key]), key  # another seed, other draws

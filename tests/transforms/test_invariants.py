@@ -240,11 +240,11 @@ def count_statistics(data: TensorDictBase) -> dict[str, float]:
             for i in range(len(values[0])):
                 key = f"domain/{name}" if len(values[0]) == 1 else f"domain/{name}/{i}"
                 stats[key] = sum(float(value[i]) for value in values) / len(ends)
-        biases = nxt["observation_bias"] if "observation_bias" in nxt.keys() else None
-        for entry in biases.keys(True, True) if biases is not None else []:  # the biases episodes ended with
-            parts = entry if isinstance(entry, tuple) else (entry,)
-            squares = [float(v) ** 2 for row, t, _ in ends for v in biases[parts][row, t].reshape(-1)]
-            stats["observation_bias_rms/" + "/".join(parts)] = math.sqrt(sum(squares) / len(squares))
+        biases = [key for key in nxt.keys() if key.startswith("observation_bias_")]  # the biases episodes ended with
+        for key in biases:
+            squares = [float(v) ** 2 for row, t, _ in ends for v in nxt[key][row, t].reshape(-1)]
+            name = key.removeprefix("observation_bias_")
+            stats["observation_bias_rms/" + name] = math.sqrt(sum(squares) / len(squares))
     if "curriculum" in nxt.keys():
         for name in nxt["curriculum"].keys():
             last = nxt["curriculum", name][:, -1].reshape(rows, -1)

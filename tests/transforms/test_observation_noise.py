@@ -10,7 +10,7 @@ import math
 import pytest
 import torch
 from tensordict import TensorDict
-from torchrl.envs import Compose, SerialEnv, StepCounter, TransformedEnv
+from torchrl.envs import Compose, SerialEnv, StepCounter, TransformedEnv, UnsqueezeTransform
 
 from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import PendulumEnv, swing_up_task
@@ -53,7 +53,7 @@ def _saved(state: dict) -> dict:
 def _residuals(data: TensorDict) -> tuple[torch.Tensor, torch.Tensor]:
     """The offsets of the noisy copy from the clean entry at the reset and after every step (``[B, 1 + T, d]``), and
     the biases recorded with them (zeros for an entry without a bias)."""
-    key = ("observation_bias", "observation")
+    key = "observation_bias_observation"
     first, steps = data[:, :1], data["next"]
     offsets = torch.cat([first["noisy"] - first["observation"], steps["noisy"] - steps["observation"]], 1).double()
     if key not in first.keys(True):  # an entry without a bias
@@ -87,13 +87,13 @@ def test_noise_and_bias_moments_over_many_envs(distribution: str):
 def test_the_bias_is_held_per_episode_and_redrawn_for_the_envs_that_reset():
     env = _env(_noise(std=0.0, bias=1.0), steps=100)
     first = env.reset()
-    bias = first["observation_bias", "observation"]
+    bias = first["observation_bias_observation"]
     assert torch.equal(first["noisy"], first["observation"] + bias)  # std 0: the bias alone
     data = env.rollout(3, auto_reset=False, tensordict=first)
-    assert (data["next", "observation_bias", "observation"] == bias.unsqueeze(1)).all()
+    assert (data["next", "observation_bias_observation"] == bias.unsqueeze(1)).all()
     last = data[:, -1]["next"].clone()
     reset = env.reset(last.set("_reset", torch.tensor([True, False, True, False]).reshape(4, 1)))
-    redrawn = reset["observation_bias", "observation"]
+    redrawn = reset["observation_bias_observation"]
     assert torch.equal(redrawn[[1, 3]], bias[[1, 3]]) and (redrawn[[0, 2]] != bias[[0, 2]]).all()
     assert torch.equal(reset["noisy"][[1, 3]], last["noisy"][[1, 3]])  # the running episodes go on as they were
     assert torch.equal(reset["noisy"], reset["observation"].double().add(redrawn).float())
@@ -121,9 +121,9 @@ def test_entries_drawn_together_keep_their_own_moments_and_are_independent():
     for key, entry in spec.items():
         noisy = torch.cat([data[entry.out_key], data["next", entry.out_key]], 1).double()
         clean = torch.cat([data[key], data["next", key]], 1).double()
-        bias_key = ("observation_bias", key)
+        bias_key = f"observation_bias_{key}"
         if entry.bias is None:
-            assert bias_key not in data.keys(True) and ("next", *bias_key) not in data.keys(True)
+            assert bias_key not in data.keys(True) and ("next", bias_key) not in data.keys(True)
             bias = torch.zeros_like(noisy)
         else:
             bias = torch.cat([data[bias_key], data["next", bias_key]], 1).double()
@@ -151,8 +151,6 @@ def test_entries_drawn_together_keep_their_own_moments_and_are_independent():
 
 def test_an_entry_of_several_dimensions_gets_its_elements_stds():
     """A [B, 2, 1] entry drawn with a 1-D one in the same draw: each element has its own std and bias std."""
-    from torchrl.envs import UnsqueezeTransform
-
     std = torch.tensor([[0.1], [0.3]], dtype=torch.float64)
     bias = torch.tensor([[0.2], [0.05]], dtype=torch.float64)
     noise = ObservationNoise(
@@ -167,7 +165,7 @@ def test_an_entry_of_several_dimensions_gets_its_elements_stds():
     data = env.rollout(3)
     assert data["next", "noisy_column"].shape == (4096, 3, 2, 1)
     offsets = (data["next", "noisy_column"] - data["next", "column"]).double()
-    biases = data["next", "observation_bias", "column"].double()
+    biases = data["next", "observation_bias_column"].double()
     residual = (offsets - biases).reshape(-1, 2)
     n = residual.shape[0]
     assert ((residual.var(0) / std.reshape(-1) ** 2 - 1).abs() < 5 * math.sqrt(2 / n)).all()
@@ -181,7 +179,7 @@ def test_an_entry_without_a_bias_has_no_bias_field_entry_or_draw():
     noise = _noise(std=0.1)
     env = _env(noise)
     data = env.rollout(2)
-    assert ("observation_bias", "observation") not in data.keys(True)
+    assert "observation_bias_observation" not in data.keys(True)
     assert [field.name for field in noise.domain_fields()] == [NOISE]
     assert dict(noise.state_dict()).keys() == {"noise_std.observation", "_extra_state"}
     bias = DomainRandomization([UniformDomainParam(BIAS, mean=_vector(0.1, 0.1), halfspan=_vector(0.0, 0.0))])
@@ -189,6 +187,28 @@ def test_an_entry_without_a_bias_has_no_bias_field_entry_or_draw():
         _env(_noise(std=0.1), bias).reset()
     with pytest.raises(ValueError, match="bias_distribution of 'observation' is 'uniform' but it has no bias"):
         _noise(std=0.1, bias_distribution="uniform")
+
+
+def test_the_bias_of_a_nested_entry_is_a_leaf_named_like_its_field_and_counted_by_the_statistics():
+    """An entry ("sensors", "column") has its bias at "observation_bias_sensors:column" (a leaf beside the others,
+    no node), given another prefix by entry_key; episode_statistics reads it by that prefix: the root mean square of
+    the biases the ended episodes ended with, counted here frame by frame."""
+    column = UnsqueezeTransform(dim=-1, in_keys=["observation"], out_keys=[("sensors", "column")])
+    for entry_key, bias_key in [(None, "observation_bias_sensors:column"), ("imu_bias", "imu_bias_sensors:column")]:
+        keywords = {} if entry_key is None else {"entry_key": entry_key}
+        noise = ObservationNoise({("sensors", "column"): EntryNoise(bias=0.3, out_key="noisy")}, seed=0, **keywords)
+        env = TransformedEnv(PendulumEnv(batch_size=[8], seed=0), Compose(StepCounter(4), column.clone(), noise))
+        data = env.rollout(9, break_when_any_done=False)
+        assert data["next", bias_key].shape == (8, 9, 2, 1)
+        assert not isinstance(data.get("observation_bias", None), TensorDict)  # a leaf, no node
+        ends = data["next", "done"].reshape(8, 9)
+        squares = [
+            float(v) ** 2 for row, t in ends.nonzero().tolist() for v in data["next", bias_key][row, t].flatten()
+        ]
+        keywords = {} if entry_key is None else {"bias_key": entry_key}
+        stats = episode_statistics(data, **keywords)
+        assert len(squares) == 8 * 2 * 2  # two ended episodes per env, two elements each
+        assert math.isclose(stats["observation_bias_rms/sensors:column"], math.sqrt(sum(squares) / len(squares)))
 
 
 def test_noise_in_place_replaces_the_entry():
@@ -382,6 +402,11 @@ def test_bad_noise_is_refused_at_construction(noise, error: type, match: str):
         ObservationNoise({"observation": noise})
 
 
+def test_a_bias_entry_that_is_an_out_key_is_refused_at_construction():
+    with pytest.raises(ValueError, match="bias entry 'noisy_observation' of 'observation' is an out_key"):
+        ObservationNoise({"observation": EntryNoise(bias=0.1, out_key="noisy_observation")}, entry_key="noisy")
+
+
 @pytest.mark.parametrize(
     ("noises", "transforms", "error", "match"),
     [
@@ -407,6 +432,12 @@ def test_bad_noise_is_refused_at_construction(noise, error: type, match: str):
         ),
         ({"observation": EntryNoise(out_key="step_count")}, [], ValueError, "out_key 'step_count' .* already names"),
         ({"step_count": EntryNoise()}, [], TypeError, "dtype torch.int64"),
+        (
+            {"observation": EntryNoise(bias=0.1, out_key="noisy")},
+            [UnsqueezeTransform(dim=-1, in_keys=["observation"], out_keys=["observation_bias_observation"])],
+            ValueError,
+            "the bias entry 'observation_bias_observation' of 'observation' already names an entry",
+        ),
     ],
 )
 def test_bad_entries_are_refused_when_the_env_is_built(noises, transforms, error: type, match: str):
@@ -429,7 +460,7 @@ def test_the_data_keeps_its_biases_when_the_transform_is_loaded() -> None:
     env, other = make(0), make(1)
     data = env.reset()
     other.reset()
-    bias = data["observation_bias", "observation"]
+    bias = data["observation_bias_observation"]
     kept = bias.clone()
     env.transform[-1].load_state_dict(other.transform[-1].state_dict())
     assert not torch.equal(env.transform[-1].bias._buffers["observation"].to(kept.dtype), kept)  # the load changed it

@@ -51,9 +51,11 @@ __all__ = [
     "TERMS_KEY",
     "TRUNCATED_KEY",
     "VECTOR_REWARD_KEY",
+    "bias_entry",
     "entry_name",
     "names_task_buffer",
     "push_entry",
+    "record_entry",
     "respelt_entries",
     "short_names",
     "suffix_matches",
@@ -106,8 +108,8 @@ DOMAIN = "domain"
 #: the default key under which a DomainRandomization writes every env's drawn values (``entry_key``), one entry
 #: per domain field (``("domain", "body_mass:torso")``)
 DOMAIN_KEY = "domain"
-#: the default key under which an ObservationNoise writes each episode's bias per entry (``entry_key``):
-#: ``("observation_bias", <entry>)``
+#: the default prefix of an ObservationNoise's bias entries (``entry_key``): ``"observation_bias_<entry>"`` per noisy
+#: entry with a bias (:func:`bias_entry`)
 BIAS_KEY = "observation_bias"
 #: the default prefix of a Pushes' entries (``entry_key``): ``"push_velocity"``, ``"push_wrench"``
 #: (:func:`push_entry`)
@@ -214,13 +216,34 @@ def respelt_entries(saved: Iterable[str], own: Iterable[str]) -> str:
     return ""
 
 
+def record_entry(prefix: tuple[str, ...], suffix: str) -> tuple[str, ...]:
+    """The key of a transform's record ``suffix`` for the entry prefix ``prefix`` (key parts): the last part and the
+    suffix joined with ``"_"``, so that a transform's records are leaves beside the other entries, not a node of their
+    own (each node of a step's data costs TorchRL's step, partial reset and collector more than its leaves do).
+
+    Example:
+        >>> record_entry(("push",), "velocity"), record_entry(("robot", "observation_bias"), "joint_pos")
+        (('push_velocity',), ('robot', 'observation_bias_joint_pos'))
+    """
+    return (*prefix[:-1], f"{prefix[-1]}_{suffix}")
+
+
 def push_entry(prefix: tuple[str, ...], record: str) -> tuple[str, ...]:
-    """The key of a Pushes' ``record`` (``"velocity"``, ``"wrench"``) for the entry prefix ``prefix`` (key parts):
-    the last part joined with ``"_"``, so that the records are leaves beside the others, not a node of their own
-    (each node of a step's data costs TorchRL's step, reset and collector more than a leaf).
+    """The key of a Pushes' ``record`` (``"velocity"``, ``"wrench"``) for the entry prefix ``prefix`` (key parts).
 
     Example:
         >>> push_entry(("push",), "velocity"), push_entry(("robot", "push"), "wrench")
         (('push_velocity',), ('robot', 'push_wrench'))
     """
-    return (*prefix[:-1], f"{prefix[-1]}_{record}")
+    return record_entry(prefix, record)
+
+
+def bias_entry(prefix: tuple[str, ...], entry: str) -> tuple[str, ...]:
+    """The key of an ObservationNoise's episode bias of the entry named ``entry`` (its key's parts joined by ``":"``)
+    for the entry prefix ``prefix`` (key parts).
+
+    Example:
+        >>> bias_entry(("observation_bias",), "joint_pos"), bias_entry(("observation_bias",), "agent:joint_pos")
+        (('observation_bias_joint_pos',), ('observation_bias_agent:joint_pos',))
+    """
+    return record_entry(prefix, entry)

@@ -23,11 +23,11 @@ from torchrl.data import Composite, Unbounded
 
 from torchtasks._checked_load import CheckedLoad
 from torchtasks._checks import check_int, did_you_mean
-from torchtasks._memory import set_records, td_get, td_set
+from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
 from torchtasks.domain import DomainField, check_domain_values, check_field_name, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.names import BIAS_KEY
+from torchtasks.transforms.names import BIAS_KEY, bias_entry
 from torchtasks.transforms.seeding import GeneratorTransform
 from torchtasks.transforms.task import TaskTransform
 
@@ -119,7 +119,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     from the next reset or step, a new ``β`` from the env's next reset. A ``Curriculum`` or ``DifficultyLevels`` sets
     their distributions (``"domain.observation_noise:joint_pos.mean"``).
 
-    An entry's episode bias is written under ``(entry_key, *entry)`` (``("observation_bias", "joint_pos")``) at reset
+    An entry's episode bias is written to the entry ``"<entry_key>_<entry>"`` (``"observation_bias_joint_pos"``; a
+    nested entry's parts joined by ``":"``, as in its field names: ``"observation_bias_agent:joint_pos"``) at reset
     and every step, so offline users see what each episode had. An entry a
     :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state (or goal) is refused in place: the
     task keeps judging the true state. On an env that steps from the data's
@@ -132,7 +133,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
 
     Args:
         noises: the noise of each observation entry, by key (a string or a tuple of strings).
-        entry_key: where the biases are written (under ``(entry_key, *entry)``).
+        entry_key: the prefix of the bias entries (``"<entry_key>_<entry>"``; a nested key's last part is the prefix,
+            its first parts the node the entries go to).
         seed: seed of the transform's own generator (``None``: torch's global one until ``env.set_seed``).
 
     Example:
@@ -144,7 +146,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         >>> env = TransformedEnv(PendulumEnv(batch_size=[4]), noise)
         >>> data = env.rollout(3)
         >>> offset = data["next", "noisy"] - data["next", "observation"]  # the bias plus the step's noise
-        >>> bias = data["next", "observation_bias", "observation"]
+        >>> bias = data["next", "observation_bias_observation"]
         >>> bool(((offset - bias).abs() < 0.1).all()), bool((bias[:, 0] == bias[:, 2]).all())  # held per episode
         (True, True)
         >>> [field.name for field in noise.domain_fields()]
@@ -205,7 +207,8 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if noise.bias is not None:
             bias = _std(noise.bias, f"ObservationNoise: the bias of {key!r}")
             bias_distribution = distribution
-            bias_key = (*key_parts(self.entry_key), *key_parts(key))
+            parts = bias_entry(key_parts(self.entry_key), name)
+            bias_key = parts[0] if len(parts) == 1 else parts
         if noise.bias_distribution is not None:
             checked = _distribution(noise.bias_distribution, f"ObservationNoise: the bias_distribution of {key!r}")
             if bias is None:
@@ -290,8 +293,14 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             noisy = Unbounded(shape=spec.shape, dtype=spec.dtype, device=spec.device)
             observation_spec[entry.out_key] = noisy
             if entry.bias_key is not None:
+                if entry.bias_key in keys:
+                    raise ValueError(
+                        f"ObservationNoise: the bias entry {entry.bias_key!r} of {entry.key!r} already names an entry "
+                        "of the env; give the ObservationNoise another entry_key"
+                    )
                 observation_spec[entry.bias_key] = noisy.clone()
         self.__dict__["_shapes"], self.__dict__["_dtypes"] = shapes, dtypes
+        self.__dict__["_device"] = None if device is None else torch.device(device)
         self.__dict__["_noise_groups"] = _groups(self.entries, shapes, lambda e: (e.distribution, dtypes[e.name]))
         self.__dict__["_bias_groups"] = _groups(self.biased, shapes, lambda e: (e.bias_distribution, torch.float64))
         self.__dict__.pop("_fields", None)
@@ -411,12 +420,15 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
 
     # ------------------------------------------------------------------ drawing
     def _standard(self, group: _Group, batch: torch.Size) -> torch.Tensor:
-        """The group's draws ``[*B, width]`` of mean 0 and std 1 (normal, or uniform on ``[-√3, √3)``) on the CPU, by
-        the own generator."""
+        """The group's draws ``[*B, width]`` of mean 0 and std 1 (normal, or uniform on ``[-√3, √3)``), drawn on the
+        CPU by the own generator and moved, once, to the device of the env's specs (where the stds and biases are)."""
         shape = (*batch, group.width)
         if group.distribution == "normal":
-            return torch.randn(shape, generator=self.generator, dtype=group.dtype)
-        return torch.rand(shape, generator=self.generator, dtype=group.dtype).mul_(2.0 * _SQRT3).sub_(_SQRT3)
+            draw = torch.randn(shape, generator=self.generator, dtype=group.dtype)
+        else:
+            draw = torch.rand(shape, generator=self.generator, dtype=group.dtype).mul_(2.0 * _SQRT3).sub_(_SQRT3)
+        device = self.__dict__["_device"]
+        return draw if device is None or device.type == "cpu" else draw.to(device)
 
     def _casts(self, name: str) -> dict[str, torch.Tensor]:
         """Each entry's noise std (``"_cast"``) or bias (``"_bias_cast"``) in the entry's dtype and device, cached until
@@ -436,7 +448,6 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         per group of entries (a distribution and dtype), each entry reading its columns."""
         stds, biases = self._casts("_cast"), self._casts("_bias_cast")
         batch = tensordict.batch_size
-        prefix, records = key_parts(self.entry_key), {}
         for group in self.__dict__["_noise_groups"]:
             units = torch.split_with_sizes(self._standard(group, batch), group.sizes, -1)
             for entry, unit, shape in zip(group.entries, units, group.shapes, strict=True):
@@ -446,16 +457,14 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
                         f"ObservationNoise: the entry {entry.key!r} is missing from the data; the entries are "
                         f"{keys_text(tensordict.keys(True, True))}"
                     )
-                unit = (unit if shape is None else unit.unflatten(-1, shape)).to(value.device)
+                unit = unit if shape is None else unit.unflatten(-1, shape)
                 bias = biases.get(entry.name)
                 if bias is None:
                     td_set(tensordict, entry.out_key, torch.addcmul(value, stds[entry.name], unit))
                 else:
                     td_set(tensordict, entry.out_key, torch.addcmul(value + bias, stds[entry.name], unit))
                     # a copy of this episode's bias: no entry of a step shares storage with another's
-                    records[entry.bias_key[len(prefix) :]] = bias.clone()
-        if records:
-            set_records(tensordict, prefix, records)
+                    td_set(tensordict, entry.bias_key, bias.clone())
         return tensordict
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase) -> TensorDictBase:
@@ -473,7 +482,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             for entry, unit, shape in zip(group.entries, units, group.shapes, strict=True):
                 held = self.bias._buffers[entry.name]
                 unit = unit if shape is None else unit.unflatten(-1, shape)
-                new = self.bias_std._buffers[entry.name] * unit.to(held.device)
+                new = self.bias_std._buffers[entry.name] * unit
                 if reset is not None:
                     rows = reset.reshape(batch + (1,) * (held.dim() - len(batch))).to(held.device)
                     new = torch.where(rows, new, held)
@@ -629,4 +638,10 @@ def _check_distinct(entries: Sequence[_Entry]) -> None:
             raise ValueError(
                 f"ObservationNoise: the out_key {entry.out_key!r} of {entry.key!r} is another noisy entry or another's "
                 "out_key; give each noisy copy its own key"
+            )
+    for entry in entries:
+        if entry.bias_key is not None and entry.bias_key in written:
+            raise ValueError(
+                f"ObservationNoise: the bias entry {entry.bias_key!r} of {entry.key!r} is an out_key; give the noisy "
+                "copy another key"
             )
