@@ -64,3 +64,52 @@ def test_quick_run_measures_every_perturbation_against_the_plain_preset(tmp_path
     assert all(not data["next", k].any() for k in added)
     for env in (plain, perturbed, records):
         env.close()
+
+
+def _instructions_benchmark() -> Any:
+    path = ROOT / "benchmarks" / "perturbations_instructions.py"
+    spec = importlib.util.spec_from_file_location("perturbations_instructions", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_instruction_count_worker_runs_its_batches_between_the_handshakes(tmp_path: Path) -> None:
+    """The process valgrind counts: warm-up, "ready", the counted batches after "go", "done", exit after "end" (the
+    counting itself is valgrind's; here a thread plays the parent)."""
+    import threading
+
+    module = _instructions_benchmark()
+    worker = threading.Thread(target=module.worker, args=("all four", 4, 1, 2, 1, tmp_path))
+    worker.start()
+    try:
+        for signal, answer in (("ready", "go"), ("done", "end")):
+            module._wait_for(tmp_path / signal, _Running(worker))
+            assert not (tmp_path / "done").exists() or signal == "done"
+            (tmp_path / answer).touch()
+    finally:
+        (tmp_path / "go").touch()
+        (tmp_path / "end").touch()
+        worker.join()
+
+
+class _Running:
+    """A thread seen as a process (``poll()``: ``None`` while it runs)."""
+
+    def __init__(self, thread: Any) -> None:
+        self.thread, self.returncode = thread, None
+
+    def poll(self) -> int | None:
+        self.returncode = None if self.thread.is_alive() else 0
+        return self.returncode
+
+
+def test_the_instruction_count_is_read_from_the_callgrind_totals(tmp_path: Path) -> None:
+    module = _instructions_benchmark()
+    (tmp_path / "out").write_text("events: Ir\nsummary: 0\ntotals: 8259593231\n")
+    assert module.totals(tmp_path / "out") == 8259593231
+    (tmp_path / "bad").write_text("events: Ir\n")
+    with pytest.raises(ValueError, match="has no 'totals:' line"):
+        module.totals(tmp_path / "bad")
+    with pytest.raises(SystemExit):  # argparse's error: the unknown variant named, the variants listed
+        module.main(["--variants", "plain", "everything"])
