@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import shutil
 import subprocess
 import sys
@@ -143,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
             for variant, process, handshake in running:
                 counted[variant] = count(process, handshake) / steps
     result = {
-        "command": " ".join(["python", "benchmarks/perturbations_instructions.py", *(argv or sys.argv[1:])]),
+        "command": shlex.join(["python", "benchmarks/perturbations_instructions.py", *(argv or sys.argv[1:])]),
         "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         "envs": args.envs,
         "steps": steps,
