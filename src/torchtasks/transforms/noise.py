@@ -120,11 +120,10 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
     their distributions (``"domain.observation_noise:joint_pos.mean"``).
 
     An entry's episode bias is written to the entry ``"<entry_key>_<entry>"`` (``"observation_bias_joint_pos"``; a
-    nested entry's parts joined by ``":"``, as in its field names: ``"observation_bias_agent:joint_pos"``) at reset
-    and every step, so offline users see what each episode had. An entry a
-    :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state (or goal) is refused in place: the
-    task keeps judging the true state. On an env that steps from the data's
-    ``"observation"`` (:class:`~torchtasks.envs.PendulumEnv`), write a copy (``out_key``).
+    nested entry's parts joined by ``":"``) at reset and every step, so offline users see what each episode had. An
+    entry a :class:`~torchtasks.transforms.TaskTransform` of the env reads as its state (or goal) is refused in place:
+    the task keeps judging the true state. On an env that steps from the data's ``"observation"``
+    (:class:`~torchtasks.envs.PendulumEnv`), write a copy (``out_key``).
 
     Randomness: one generator (``seed=k``; ``None``: torch's global one until ``env.set_seed(s)``) draws, per step,
     one ``[*B, n]`` per distribution and dtype for its entries' ``ε``, and per reset first the ``η`` of every env.
