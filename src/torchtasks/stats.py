@@ -36,8 +36,7 @@ from torchtasks.transforms.names import (
     TERMINATED_KEY,
     TERMS_KEY,
     TRUNCATED_KEY,
-    bias_entry,
-    push_entry,
+    record_entry,
 )
 
 __all__ = ["episode_statistics"]
@@ -424,11 +423,11 @@ def _statistics(
     }
     # per noisy entry: the episode's bias at every frame, [F, elements]; per kind of push: pushed frames, summed
     biases = {
-        name: _required_vector(frames, bias_entry(keys["bias_key"], name), "bias_key", where="next")
+        name: _required_vector(frames, record_entry(keys["bias_key"], name), "bias_key", where="next")
         for name in _suffixes(batch, keys["bias_key"])
     }
     for record in () if keys["push_key"] is None else PUSH_RECORDS:
-        key = push_entry(keys["push_key"], record)
+        key = record_entry(keys["push_key"], record)
         if batch.get(("next", *key), None) is not None:
             pushed = _required_vector(frames, key, "push_key", where="next") != 0
             returns["push_steps_mean/" + record] = pushed.any(-1)

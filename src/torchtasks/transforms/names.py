@@ -51,10 +51,8 @@ __all__ = [
     "TERMS_KEY",
     "TRUNCATED_KEY",
     "VECTOR_REWARD_KEY",
-    "bias_entry",
     "entry_name",
     "names_task_buffer",
-    "push_entry",
     "record_entry",
     "respelt_entries",
     "short_names",
@@ -109,10 +107,10 @@ DOMAIN = "domain"
 #: per domain field (``("domain", "body_mass:torso")``)
 DOMAIN_KEY = "domain"
 #: the default prefix of an ObservationNoise's bias entries (``entry_key``): ``"observation_bias_<entry>"`` per noisy
-#: entry with a bias (:func:`bias_entry`)
+#: entry with a bias (:func:`record_entry`)
 BIAS_KEY = "observation_bias"
 #: the default prefix of a Pushes' entries (``entry_key``): ``"push_velocity"``, ``"push_wrench"``
-#: (:func:`push_entry`)
+#: (:func:`record_entry`)
 PUSH_KEY = "push"
 #: what a Pushes records, by the suffix of its entries: the velocity change of a step, the wrench held in it
 PUSH_RECORDS = ("velocity", "wrench")
@@ -226,24 +224,3 @@ def record_entry(prefix: tuple[str, ...], suffix: str) -> tuple[str, ...]:
         (('push_velocity',), ('robot', 'observation_bias_joint_pos'))
     """
     return (*prefix[:-1], f"{prefix[-1]}_{suffix}")
-
-
-def push_entry(prefix: tuple[str, ...], record: str) -> tuple[str, ...]:
-    """The key of a Pushes' ``record`` (``"velocity"``, ``"wrench"``) for the entry prefix ``prefix`` (key parts).
-
-    Example:
-        >>> push_entry(("push",), "velocity"), push_entry(("robot", "push"), "wrench")
-        (('push_velocity',), ('robot', 'push_wrench'))
-    """
-    return record_entry(prefix, record)
-
-
-def bias_entry(prefix: tuple[str, ...], entry: str) -> tuple[str, ...]:
-    """The key of an ObservationNoise's episode bias of the entry named ``entry`` (its key's parts joined by ``":"``)
-    for the entry prefix ``prefix`` (key parts).
-
-    Example:
-        >>> bias_entry(("observation_bias",), "joint_pos"), bias_entry(("observation_bias",), "agent:joint_pos")
-        (('observation_bias_joint_pos',), ('observation_bias_agent:joint_pos',))
-    """
-    return record_entry(prefix, entry)

@@ -17,7 +17,7 @@ from typing import Any, NamedTuple
 
 import torch
 from tensordict import TensorDictBase
-from tensordict.utils import NestedKey
+from tensordict.utils import NestedKey, unravel_key
 from torch import nn
 from torchrl.data import Composite, Unbounded
 
@@ -27,7 +27,7 @@ from torchtasks._memory import td_get, td_set
 from torchtasks._torchrl import container_env, key_parts, keys_text, nested_key
 from torchtasks.domain import DomainField, check_domain_values, check_field_name, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.names import BIAS_KEY, bias_entry
+from torchtasks.transforms.names import BIAS_KEY, record_entry
 from torchtasks.transforms.seeding import GeneratorTransform
 from torchtasks.transforms.task import TaskTransform
 
@@ -206,8 +206,7 @@ class ObservationNoise(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if noise.bias is not None:
             bias = _std(noise.bias, f"ObservationNoise: the bias of {key!r}")
             bias_distribution = distribution
-            parts = bias_entry(key_parts(self.entry_key), name)
-            bias_key = parts[0] if len(parts) == 1 else parts
+            bias_key = unravel_key(record_entry(key_parts(self.entry_key), name))
         if noise.bias_distribution is not None:
             checked = _distribution(noise.bias_distribution, f"ObservationNoise: the bias_distribution of {key!r}")
             if bias is None:

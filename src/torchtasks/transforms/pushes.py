@@ -25,7 +25,7 @@ from torchtasks._torchrl import container_env, key_parts, nested_key
 from torchtasks.domain import DomainField
 from torchtasks.domain.fields import check_domain_values, select_fields
 from torchtasks.transforms._base import EnvDerivedTransform
-from torchtasks.transforms.names import PUSH_KEY, push_entry
+from torchtasks.transforms.names import PUSH_KEY, record_entry
 from torchtasks.transforms.seeding import GeneratorTransform
 
 __all__ = ["PushableEnv", "Pushes"]
@@ -148,7 +148,7 @@ class Pushes(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         self.duration = check_positive_int(duration, "Pushes: duration")
         self.interval_steps, self.interval_seconds = _interval(interval_steps, interval_seconds)
         self.entry_key = nested_key(entry_key, "Pushes: entry_key")
-        keys = {kind: push_entry(key_parts(self.entry_key), _KINDS[kind][1]) for kind in nominal}
+        keys = {kind: record_entry(key_parts(self.entry_key), _KINDS[kind][1]) for kind in nominal}
         super().__init__(in_keys=[], out_keys=list(keys.values()))
         self.body = body
         #: the domain field's name by kind (``"push_velocity"``) and the entry each kind writes
