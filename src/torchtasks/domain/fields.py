@@ -242,7 +242,7 @@ def check_domain_values(
         if not (isinstance(value, torch.Tensor) and value.dtype == torch.float64 and value.shape == shape):
             expected = f"a float64 tensor of shape {list(shape)} ([*batch, *value_shape])"
             check_tensor(value, torch.float64, shape, f"{owner}: {what}[{name!r}]", expected)
-        flat = value.detach().cpu().numpy().reshape(batch.numel(), -1)
+        flat = value.numpy(force=True).reshape(batch.numel(), -1)
         # NaN fails both comparisons; an infinite value fails the finite bound or isfinite
         above = flat > field.low if field.low_open else flat >= field.low
         allowed = above & (flat <= field.high)
@@ -252,7 +252,7 @@ def check_domain_values(
             allowed &= np.isfinite(flat)
         if allowed.all():
             continue
-        rows = mask.detach().cpu().numpy().reshape(-1) if rows is None else rows
+        rows = mask.numpy(force=True).reshape(-1) if rows is None else rows
         bad = rows & ~allowed.all(axis=1)
         if bad.any():
             env = int(np.flatnonzero(bad)[0])

@@ -224,7 +224,8 @@ class DomainParam(CheckedLoad, nn.Module):
     ) -> torch.Tensor:
         """One call of ``sampler`` (``torch.rand``/``torch.randn``) for ``[num, *value_shape]`` on the CPU, moved."""
         shape = (num, *self._value_shape)
-        return sampler(shape, generator=generator, dtype=FLOAT64, device="cpu").to(device)
+        noise = sampler(shape, generator=generator, dtype=FLOAT64, device="cpu")
+        return noise if device.type == "cpu" else noise.to(device)
 
     # ---------------------------------------------------------------------------- support
     def support(self) -> tuple[torch.Tensor, torch.Tensor]:

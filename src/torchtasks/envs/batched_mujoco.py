@@ -614,7 +614,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"action must have shape {tuple(self._action_shape)} ([num_envs, nu]), got {tuple(action.shape)}"
             )
         # float32 or float64: np.copyto into the float64 controls casts it as .to(torch.float64) would
-        return action.detach().cpu().numpy()
+        return action.numpy(force=True)
 
     def _check_open(self) -> None:
         if self._closed:
@@ -690,7 +690,7 @@ class BatchedMujocoEnv(EnvBase):
                 f"{name} must be a float64 tensor of shape [{self.num_envs}, {size}] (num_envs, the model's "
                 f"{count}), got {got}"
             )
-        values = value.detach().cpu().numpy()
+        values = value.numpy(force=True)
         if not np.isfinite(values[rows]).all():
             raise ValueError(f"{name} must be finite in the rows of {where}")
         return values

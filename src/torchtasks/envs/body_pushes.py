@@ -108,7 +108,7 @@ class PushableBodies:
         shape = [mask.shape[0], PUSH_SIZE]
         expected = f"a float64 tensor of shape {shape} ([num_envs, 6]: 3 linear, 3 angular components)"
         check_tensor(value, torch.float64, shape, f"{self.owner}: {name}", expected)
-        rows = value.detach().cpu().numpy()
+        rows = value.numpy(force=True)
         if not np.isfinite(rows).all() and not np.isfinite(rows[mask]).all():  # the whole array first: cheaper
             raise ValueError(f"{self.owner}: {name} must be finite in the rows of the envs in mask")
         return rows

@@ -499,7 +499,7 @@ class BatchDomain:
         ids = None if ids.size == nsim else ids
         rows = {}
         for name, value in values.items():
-            array = value.detach().cpu().numpy()
+            array = value.numpy(force=True)
             rows[name] = array if ids is None else array[ids]
         return rows, ids
 

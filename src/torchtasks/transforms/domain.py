@@ -286,6 +286,7 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         state = super().__getstate__()
         state.pop("_base", None)  # derived from the env again where the copy lands
         state.pop("_fields", None)
+        state.pop("_entry_views", None)  # views of the buffers: made again from the copy's own
         return state
 
     def _others(self) -> list[DomainRandomization]:
@@ -416,13 +417,17 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
             }
         values = {}
         for name, param in self.params.items():
-            old = self.drawn._buffers[name]
-            mask = need.reshape(batch + (1,) * len(param.value_shape))
-            values[name] = torch.where(mask, new[name].to(old.device), old)
+            old, value = self.drawn._buffers[name], new[name]
+            # a scalar field's mask is need itself, and a draw on the buffer's device stays there: each op skipped
+            # is a few microseconds at every reset
+            mask = need.reshape(batch + (1,) * len(param.value_shape)) if param.value_shape else need
+            value = value if value.device == old.device else value.to(old.device)
+            values[name] = torch.where(mask, value, old)
         return _Draw(values, domains, next_domain)
 
     def _sample(self, param: DomainParam, batch: torch.Size) -> torch.Tensor:
-        return param.sample(batch.numel(), self.generator).reshape(batch + param.value_shape)
+        values = param.sample(batch.numel(), self.generator)
+        return values if len(batch) == 1 else values.reshape(batch + param.value_shape)
 
     def _apply_draw(self, need: torch.Tensor) -> None:
         """Draw for the envs of ``need`` and give the values to the base env (nothing when no env needs values: one
@@ -467,7 +472,8 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         if reset is None:
             need = torch.ones(batch, dtype=torch.bool, device=self.started.device)
         else:
-            need = reset.reshape(batch).to(self.started.device)
+            need = reset.reshape(batch)
+            need = need if need.device == self.started.device else need.to(self.started.device)
         if self.when != "reset":
             need = need & ~self.started
         with torch.no_grad():
@@ -480,10 +486,17 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         scalars = self.__dict__.get("_scalars")
         if scalars is None:
             scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
+        # a scalar field's [*B, 1] view of its buffer, kept while the buffer is the same tensor (a draw replaces it)
+        views = self.__dict__.setdefault("_entry_views", {})
         values = {}
         for name in self.names:
             value = self.drawn._buffers[name]
-            values[(name,)] = (value.unsqueeze(-1) if name in scalars else value).clone()
+            if name in scalars:
+                held = views.get(name)
+                if held is None or held[0] is not value:
+                    held = views[name] = (value, value.unsqueeze(-1))
+                value = held[1]
+            values[(name,)] = value.clone()
         set_records(tensordict, key_parts(self.entry_key), values)
         return tensordict
 
