@@ -6,7 +6,8 @@
 The preset is ``velocity_tracking_env(N)`` (the shipped quadruped, 4 substeps per step, its task, command and
 ``CatTensors``) in a ``torchrl.collectors.Collector`` with uniform random actions (one torch thread,
 ``N * --steps-per-batch`` frames per batch). These variants are built once and then measured back to back in every
-repeat (``--seconds`` each, at least one batch), so each ratio compares numbers taken under the same machine load:
+repeat (``--seconds`` each, at least one batch; in an order shuffled per repeat, seeded, so that no variant always
+follows the same one), so each ratio compares numbers taken under the same machine load:
 
 - ``floor``: ``mujoco.batch.Batch.step(nstep=4, stage=mjSTAGE_VEL)`` of the preset's own batch after writing random
   controls into its bound ``ctrl`` rows: the physics alone.
@@ -45,6 +46,7 @@ import json
 import os
 import platform
 import pstats
+import random
 import statistics
 import sys
 import time
@@ -176,7 +178,7 @@ def calls_per_step(measured: Collected, batches: int, steps: int) -> float:
 def run(
     num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int, calls_batches: int = 0
 ) -> dict[str, Any]:
-    """Every variant built once, then measured back to back in each repeat; then each one's calls per step."""
+    """Every variant built once, then measured back to back in each repeat (shuffled); then its calls per step."""
     load_before = os.getloadavg()
     frames_per_batch = num_envs * steps
     built: dict[str, Floor | Collected] = {"floor": Floor(preset(num_envs, num_threads, {}), steps)}
@@ -184,8 +186,10 @@ def run(
         built[variant] = Collected(preset(num_envs, num_threads, PARTS[variant]), frames_per_batch)
     raw: dict[str, list[float]] = {variant: [] for variant in VARIANTS}
     try:
-        for _ in range(repeats):
-            for variant in VARIANTS:
+        for repeat in range(repeats):
+            order = list(VARIANTS)
+            random.Random(repeat).shuffle(order)
+            for variant in order:
                 raw[variant].append(measure(built[variant], seconds)["frames_per_second"])
         calls = {
             variant: calls_per_step(measured, calls_batches, steps)
