@@ -286,7 +286,6 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         state = super().__getstate__()
         state.pop("_base", None)  # derived from the env again where the copy lands
         state.pop("_fields", None)
-        state.pop("_entry_views", None)  # views of the buffers: made again from the copy's own
         return state
 
     def _others(self) -> list[DomainRandomization]:
@@ -486,17 +485,10 @@ class DomainRandomization(CheckedLoad, GeneratorTransform, EnvDerivedTransform):
         scalars = self.__dict__.get("_scalars")
         if scalars is None:
             scalars = self.__dict__["_scalars"] = frozenset(n for n, p in self.params.items() if not p.value_shape)
-        # a scalar field's [*B, 1] view of its buffer, kept while the buffer is the same tensor (a draw replaces it)
-        views = self.__dict__.setdefault("_entry_views", {})
         values = {}
         for name in self.names:
             value = self.drawn._buffers[name]
-            if name in scalars:
-                held = views.get(name)
-                if held is None or held[0] is not value:
-                    held = views[name] = (value, value.unsqueeze(-1))
-                value = held[1]
-            values[(name,)] = value.clone()
+            values[(name,)] = (value.unsqueeze(-1) if name in scalars else value).clone()
         set_records(tensordict, key_parts(self.entry_key), values)
         return tensordict
 
