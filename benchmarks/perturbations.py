@@ -1,13 +1,16 @@
 """What the sim-to-real perturbations cost: the velocity-tracking preset with and without them, interleaved.
 
 ``python benchmarks/perturbations.py [--envs 64] [--repeats 15] [--seconds 1.0] [--steps-per-batch 20] [--threads N]
-[--calls-batches 20] [--output runs/perturbations_bench] [--quick]``
+[--calls-batches 20] [--output runs/perturbations_bench] [--variants "all four" ...] [--quick]``
 
 The preset is ``velocity_tracking_env(N)`` (the shipped quadruped, 4 substeps per step, its task, command and
 ``CatTensors``) in a ``torchrl.collectors.Collector`` with uniform random actions (one torch thread,
-``N * --steps-per-batch`` frames per batch). These variants are built once and then measured back to back in every
-repeat (``--seconds`` each, at least one batch; in an order shuffled per repeat, seeded, so that no variant always
-follows the same one), so each ratio compares numbers taken under the same machine load:
+``N * --steps-per-batch`` frames per batch). These variants are built once and then measured batch by batch: a
+repeat is rounds of one batch of every variant, in an order shuffled per round (seeded), until one variant has run
+``--seconds`` (at least one round), so each variant's frames/s in a repeat is taken over the same time window as
+every other's and each ratio compares numbers taken under the same machine load (this machine's speed moves by a
+third within seconds: blocks of a second per variant, as measured until 2026-12-03, gave per-repeat costs from -2% to
++41% for the same code):
 
 - ``floor``: ``mujoco.batch.Batch.step(nstep=4, stage=mjSTAGE_VEL)`` of the preset's own batch after writing random
   controls into its bound ``ctrl`` rows: the physics alone.
@@ -30,12 +33,12 @@ follows the same one), so each ratio compares numbers taken under the same machi
   TorchRL's step, reset and collector, the floor of any perturbation that records what it did.
 
 The table reports medians over the repeats of frames/s and of the per-repeat ratio to ``plain`` (the cost of a
-perturbation is ``1 - ratio``) and to ``floor``, and, beside them, the Python function calls per step of each
-variant (``cProfile``'s count over ``--calls-batches`` batches after the timed repeats; 0: not counted): a measure of
-the work outside the physics that does not move with the machine's speed (it moves only with the number of resets
-in the batches counted, a few percent). Results: ``<output>/results.json`` (every repeat's numbers, the
-load average before and after, the versions) and ``<output>/results.md``. ``--quick`` runs every code path in
-seconds (its timings mean nothing).
+perturbation is ``1 - ratio``; beside it a 95% interval of that median, by resampling the repeats) and to ``floor``,
+and, beside them, the Python function calls per step of each variant (``cProfile``'s count over ``--calls-batches``
+batches after the timed repeats; 0: not counted): a measure of the work outside the physics that does not move with the
+machine's speed (it moves only with the number of resets in the batches counted, a few percent). Results:
+``<output>/results.json`` (every repeat's numbers, the load average before and after, the versions) and
+``<output>/results.md``. ``--quick`` runs every code path in seconds (its timings mean nothing).
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ import os
 import platform
 import pstats
 import random
+import shlex
 import statistics
 import sys
 import time
@@ -62,7 +66,7 @@ from torchrl.envs import Transform, TransformedEnv
 from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbations
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from control_suite import Collected, Floor, measure  # the same floor, Collector loop and timer
+from control_suite import Collected, Floor  # the same floor and Collector loop
 
 #: the variants, measured in this order in every repeat
 VARIANTS = (
@@ -175,22 +179,53 @@ def calls_per_step(measured: Collected, batches: int, steps: int) -> float:
     return calls / (batches * steps)
 
 
+def sliced(built: dict[str, Floor | Collected], seconds: float, order: random.Random) -> dict[str, float]:
+    """One repeat: rounds of one batch of every variant, in an order shuffled per round by ``order``, until one of
+    them has run ``seconds`` (at least one round); the frames/s of each over its batches. The variants share the
+    repeat's time window batch by batch, so a change of the machine's speed within it reaches each of them alike."""
+    frames = dict.fromkeys(built, 0)
+    elapsed = dict.fromkeys(built, 0.0)
+    while True:
+        variants = list(built)
+        order.shuffle(variants)
+        for variant in variants:
+            start = time.perf_counter()
+            frames[variant] += built[variant].batch()
+            elapsed[variant] += time.perf_counter() - start
+        if max(elapsed.values()) >= seconds:
+            return {variant: frames[variant] / elapsed[variant] for variant in built}
+
+
+def median_interval(ratios: list[float], draws: int = 2000) -> tuple[float, float]:
+    """A 95% interval of the median of ``ratios`` (one per repeat): the 2.5th and 97.5th percentiles of the medians
+    of ``draws`` resamples with replacement (seeded: the same numbers give the same interval)."""
+    resample = random.Random(0)
+    medians = sorted(statistics.median(resample.choices(ratios, k=len(ratios))) for _ in range(draws))
+    return medians[int(0.025 * draws)], medians[int(0.975 * draws) - 1]
+
+
 def run(
-    num_envs: int, repeats: int, seconds: float, steps: int, num_threads: int, calls_batches: int = 0
+    num_envs: int,
+    repeats: int,
+    seconds: float,
+    steps: int,
+    num_threads: int,
+    calls_batches: int = 0,
+    variants: tuple[str, ...] = VARIANTS,
 ) -> dict[str, Any]:
-    """Every variant built once, then measured back to back in each repeat (shuffled); then its calls per step."""
+    """The ``variants`` (with the floor and the plain preset) built once, then measured batch by batch in each repeat
+    (:func:`sliced`); then their calls per step."""
     load_before = os.getloadavg()
     frames_per_batch = num_envs * steps
+    variants = tuple(variant for variant in VARIANTS if variant in {"floor", "plain", *variants})
     built: dict[str, Floor | Collected] = {"floor": Floor(preset(num_envs, num_threads, {}), steps)}
-    for variant in VARIANTS[1:]:
+    for variant in variants[1:]:
         built[variant] = Collected(preset(num_envs, num_threads, PARTS[variant]), frames_per_batch)
-    raw: dict[str, list[float]] = {variant: [] for variant in VARIANTS}
+    raw: dict[str, list[float]] = {variant: [] for variant in variants}
     try:
         for repeat in range(repeats):
-            order = list(VARIANTS)
-            random.Random(repeat).shuffle(order)
-            for variant in order:
-                raw[variant].append(measure(built[variant], seconds)["frames_per_second"])
+            for variant, fps in sliced(built, seconds, random.Random(repeat)).items():
+                raw[variant].append(fps)
         calls = {
             variant: calls_per_step(measured, calls_batches, steps)
             for variant, measured in built.items()
@@ -215,6 +250,11 @@ def run(
             for variant, values in raw.items()
             if variant not in ("floor", "plain")
         },
+        "ratio_to_plain_interval": {
+            variant: median_interval([v / p for v, p in zip(values, raw["plain"], strict=True)])
+            for variant, values in raw.items()
+            if variant not in ("floor", "plain")
+        },
         "ratio_to_floor": {
             variant: statistics.median(v / f for v, f in zip(values, raw["floor"], strict=True))
             for variant, values in raw.items()
@@ -228,14 +268,14 @@ def table(result: dict[str, Any]) -> str:
     lines = [
         f"{result['date']}, `{result['command']}`:",
         f"x{result['num_envs']} envs, {result['num_threads']} MuJoCo threads, medians of {result['repeats']} "
-        f"interleaved repeats of {result['seconds']} s; load average before "
+        f"repeats of batches interleaved one by one for {result['seconds']} s; load average before "
         f"{result['load_average_before'][0]:.2f}, after {result['load_average_after'][0]:.2f}",
         "",
-        "| variant | frames/s | vs plain | cost | vs floor | Python calls per step |",
+        "| variant | frames/s | vs plain | cost (95% interval) | vs floor | Python calls per step |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     calls, plain_calls = result["calls_per_step"], result["calls_per_step"].get("plain")
-    for variant in VARIANTS:
+    for variant in result["median"]:
         fps = result["median"][variant]
         if variant == "floor":
             lines.append(f"| floor (physics alone) | {fps:,.0f} | | | 1.00 | |")
@@ -243,6 +283,9 @@ def table(result: dict[str, Any]) -> str:
         to_plain = result["ratio_to_plain"].get(variant)
         plain = "1.00" if to_plain is None else f"{to_plain:.3f}"
         cost = "" if to_plain is None else f"{100 * (1 - to_plain):+.1f}%"
+        if to_plain is not None:
+            high, low = result["ratio_to_plain_interval"][variant]
+            cost += f" ({100 * (1 - low):+.1f} to {100 * (1 - high):+.1f})"
         counted = ""
         if variant in calls:
             counted = f"{calls[variant]:,.0f}"
@@ -257,13 +300,21 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--envs", type=int, default=64, help="envs of the batch (default 64)")
     parser.add_argument("--repeats", type=int, default=15, help="interleaved repeats (default 15)")
-    parser.add_argument("--seconds", type=float, default=1.0, help="seconds per measurement (default 1.0)")
+    parser.add_argument("--seconds", type=float, default=1.0, help="seconds per repeat and variant (default 1)")
     parser.add_argument("--steps-per-batch", type=int, default=20, help="steps per Collector batch (default 20)")
     parser.add_argument("--threads", type=int, default=2, help="MuJoCo threads (default 2)")
     parser.add_argument(
         "--calls-batches", type=int, default=20, help="batches over which calls per step are counted (0: none)"
     )
     parser.add_argument("--output", type=Path, default=Path("runs/perturbations_bench"), help="where results go")
+    parser.add_argument(
+        "--variants",
+        nargs="+",
+        choices=VARIANTS[2:],
+        default=VARIANTS[2:],
+        metavar="VARIANT",
+        help="the variants besides the floor and the plain preset (default: all)",
+    )
     parser.add_argument("--quick", action="store_true", help="every code path in seconds (timings mean nothing)")
     args = parser.parse_args(argv)
     if args.quick:
@@ -272,17 +323,25 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     started = time.perf_counter()
     try:
-        result = run(args.envs, args.repeats, args.seconds, args.steps_per_batch, args.threads, args.calls_batches)
+        result = run(
+            args.envs,
+            args.repeats,
+            args.seconds,
+            args.steps_per_batch,
+            args.threads,
+            args.calls_batches,
+            tuple(args.variants),
+        )
     finally:
         torch.set_num_threads(threads)
     result.update(
-        command=" ".join(["python", "benchmarks/perturbations.py", *(sys.argv[1:] if argv is None else argv)]),
+        command=shlex.join(["python", "benchmarks/perturbations.py", *(sys.argv[1:] if argv is None else argv)]),
         date=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
         wall_seconds=time.perf_counter() - started,
         versions={"python": platform.python_version(), "torch": torch.__version__, "mujoco": mujoco.__version__},
     )
     args.output.mkdir(parents=True, exist_ok=True)
-    if not args.quick and result["ratio_to_plain"]["all four"] < 0.9:
+    if not args.quick and result["ratio_to_plain"].get("all four", 1.0) < 0.9:
         print("note: the four perturbations cost more than 10% in this run", file=sys.stderr)
     (args.output / "results.json").write_text(json.dumps(result, indent=2))
     text = table(result)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import random
+import statistics
 from pathlib import Path
 from typing import Any
 
@@ -113,3 +115,52 @@ def test_the_instruction_count_is_read_from_the_callgrind_totals(tmp_path: Path)
         module.totals(tmp_path / "bad")
     with pytest.raises(SystemExit):  # argparse's error: the unknown variant named, the variants listed
         module.main(["--variants", "plain", "everything"])
+
+
+def test_a_repeat_interleaves_the_variants_batch_by_batch(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every variant runs one batch per round, in an order reshuffled per round, until one has run the seconds."""
+    module = _benchmark()
+    clock, log = [0.0], []
+
+    class Fake:
+        def __init__(self, name: str, seconds: float, frames: int) -> None:
+            self.name, self.seconds, self.frames = name, seconds, frames
+
+        def batch(self) -> int:
+            log.append(self.name)
+            clock[0] += self.seconds
+            return self.frames
+
+    monkeypatch.setattr(module.time, "perf_counter", lambda: clock[0])
+    built = {"floor": Fake("floor", 0.1, 50), "plain": Fake("plain", 0.4, 100), "slow": Fake("slow", 0.5, 100)}
+    fps = module.sliced(built, 1.2, module.random.Random(0))
+    # "slow" reaches 1.2 s in its third batch: three rounds, every variant once in each
+    assert len(log) == 9 and all(sorted(log[k : k + 3]) == ["floor", "plain", "slow"] for k in (0, 3, 6))
+    assert len({tuple(log[k : k + 3]) for k in (0, 3, 6)}) > 1  # the order is shuffled per round
+    assert fps == pytest.approx({"floor": 500.0, "plain": 250.0, "slow": 200.0})
+    log.clear()
+    assert module.sliced(built, 0.0, module.random.Random(0)) == pytest.approx(fps) and len(log) == 3
+
+
+def test_variants_measures_the_ones_named_beside_the_floor_and_the_plain_preset(tmp_path: Path) -> None:
+    module = _benchmark()
+    assert module.main(["--quick", "--calls-batches", "0", "--variants", "all four", "--output", str(tmp_path)]) == 0
+    result = json.loads((tmp_path / "results.json").read_text())
+    assert list(result["raw"]) == ["floor", "plain", "all four"] and list(result["ratio_to_plain"]) == ["all four"]
+    assert "| all four |" in (tmp_path / "results.md").read_text()
+    with pytest.raises(SystemExit):
+        module.main(["--quick", "--variants", "floor", "--output", str(tmp_path)])
+
+
+def test_the_interval_of_a_median_holds_it_and_narrows_with_more_repeats() -> None:
+    module = _benchmark()
+    draw = random.Random(1)
+    few = [0.9 + draw.gauss(0.0, 0.05) for _ in range(10)]
+    many = few * 10
+    for ratios in (few, many):
+        low, high = module.median_interval(ratios)
+        assert min(ratios) <= low <= statistics.median(ratios) <= high <= max(ratios)
+        assert module.median_interval(ratios) == (low, high)  # seeded
+    (low_few, high_few), (low_many, high_many) = module.median_interval(few), module.median_interval(many)
+    assert high_many - low_many < high_few - low_few
+    assert module.median_interval([0.9] * 5) == (0.9, 0.9)
