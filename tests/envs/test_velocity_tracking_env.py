@@ -62,6 +62,15 @@ def test_bad_builder_arguments_are_refused():
         velocity_tracking_env(1, seed=0, perturbations=[object()])
     with pytest.raises(ValueError, match="command_low and command_high must have 3 entries"):
         velocity_tracking_env(1, seed=0, command_low=[-1.0, 0.0], command_high=[1.0, 0.0])
+    # the function instead of what it returns
+    with pytest.raises(TypeError, match=r"perturbations must be a sequence of torchrl Transforms .* got function"):
+        velocity_tracking_env(1, seed=0, perturbations=velocity_tracking_perturbations)
+    with pytest.raises(TypeError, match="velocity_tracking_perturbations: seed must be an int, got None"):
+        velocity_tracking_perturbations(seed=None)
+    with pytest.raises(TypeError, match="push_interval must be a pair"):
+        velocity_tracking_perturbations(seed=0, push_interval=5.0)
+    with pytest.raises(ValueError, match="push_interval must satisfy low <= high"):
+        velocity_tracking_perturbations(seed=0, push_interval=(10.0, 5.0))
 
 
 def test_the_perturbations_drawn_at_startup_keep_each_envs_values_over_its_resets():

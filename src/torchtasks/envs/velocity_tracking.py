@@ -13,7 +13,14 @@ from collections.abc import Sequence
 
 from torchrl.envs import CatTensors, Compose, RewardSum, StepCounter, Transform, TransformedEnv
 
-from torchtasks._checks import as_constant, check_non_negative_int, check_positive_int, check_weight
+from torchtasks._checks import (
+    as_constant,
+    check_int,
+    check_non_negative_int,
+    check_pair,
+    check_positive_int,
+    check_weight,
+)
 from torchtasks.domain import UniformDomainParam
 from torchtasks.envs import readings
 from torchtasks.envs.batched_mujoco import BatchedMujocoEnv, ZeroBrokenStepReward
@@ -132,6 +139,11 @@ def velocity_tracking_env(
     if low.shape != (3,) or high.shape != (3,):
         raise ValueError(
             f"command_low and command_high must have 3 entries (v_x, v_y, ω_z), got {low.tolist()} and {high.tolist()}"
+        )
+    if isinstance(perturbations, (str, bytes)) or not isinstance(perturbations, Sequence):
+        raise TypeError(
+            "perturbations must be a sequence of torchrl Transforms (e.g. velocity_tracking_perturbations(seed=0)), "
+            f"got {type(perturbations).__name__}"
         )
     perturbations = list(perturbations)
     for i, transform in enumerate(perturbations):
@@ -257,6 +269,8 @@ def velocity_tracking_perturbations(
         torch.Size([2, 3, 6])
         >>> env.close()
     """
+    seed = check_int(seed, "velocity_tracking_perturbations: seed")
+    push_interval = check_pair(push_interval, "velocity_tracking_perturbations: push_interval")
     transforms: list[Transform] = []
     if noise:
         entries = {
@@ -269,7 +283,7 @@ def velocity_tracking_perturbations(
     if pushes:
         push_velocity = check_weight(push_velocity, "push_velocity")
         velocity = [push_velocity, push_velocity, 0.0, 0.0, 0.0, 0.0]
-        transforms.append(Pushes("torso", velocity=velocity, interval_seconds=tuple(push_interval), seed=seed + 1))
+        transforms.append(Pushes("torso", velocity=velocity, interval_seconds=push_interval, seed=seed + 1))
     params = []
     if delay:
         max_action_delay = check_positive_int(max_action_delay, "max_action_delay")
