@@ -22,8 +22,11 @@ from torchtasks.transforms import BaseEnvState, Pushes
 MAX_DELAY = 2
 
 
-def make_perturbed_env(num_envs: int = 3, *, pushes: bool = True, seed: int = 0) -> TransformedEnv:
-    """``num_envs`` quadrupeds with all four perturbations and randomized physics; episodes of 12 steps."""
+def make_perturbed_env(
+    num_envs: int = 3, *, pushes: bool = True, seed: int = 0, max_action_delay: int = MAX_DELAY
+) -> TransformedEnv:
+    """``num_envs`` quadrupeds with all four perturbations and randomized physics; episodes of 12 steps (the delay
+    drawn up to :data:`MAX_DELAY` steps, in an env whose queue holds ``max_action_delay``)."""
     perturbations = velocity_tracking_perturbations(seed=seed, max_action_delay=MAX_DELAY, pushes=False)
     if pushes:  # pushes every 2-4 steps: velocity changes (roll and pitch rates that tip it over at times) and forces
         force = [20.0] * 3 + [1.0] * 3
@@ -31,7 +34,12 @@ def make_perturbed_env(num_envs: int = 3, *, pushes: bool = True, seed: int = 0)
         push = Pushes("torso", velocity=velocity, force=force, duration=2, interval_steps=(2, 4), seed=seed + 7)
         perturbations.insert(1, push)  # after the noise, before the randomization (an owner of fields)
     env = velocity_tracking_env(
-        num_envs, seed=seed, max_steps=12, max_action_delay=MAX_DELAY, perturbations=perturbations, num_threads=1
+        num_envs,
+        seed=seed,
+        max_steps=12,
+        max_action_delay=max_action_delay,
+        perturbations=perturbations,
+        num_threads=1,
     )
     env.append_transform(BaseEnvState())
     return env
@@ -48,7 +56,7 @@ def make_policy(env: TransformedEnv) -> TensorDictModule:
     return TensorDictModule(linear, ["observation"], ["action"])
 
 
-def make_collector(num_envs: int = 3, *, pushes: bool = True) -> Collector:
+def make_collector(num_envs: int = 3, *, pushes: bool = True, max_action_delay: int = MAX_DELAY) -> Collector:
     """A Collector of ``3 * num_envs`` frames per batch over :func:`make_perturbed_env`."""
-    env = make_perturbed_env(num_envs, pushes=pushes)
+    env = make_perturbed_env(num_envs, pushes=pushes, max_action_delay=max_action_delay)
     return Collector(env, make_policy(env), frames_per_batch=3 * num_envs, total_frames=-1)

@@ -72,17 +72,39 @@ def test_resume_in_a_new_process_continues_every_perturbation_bit_for_bit(tmp_pa
         _assert_equal_batches(want, got)
 
 
-def test_a_checkpoint_of_other_perturbations_is_refused_and_changes_nothing() -> None:
-    without_pushes = make_collector(pushes=False)
-    next(iter(without_pushes))
-    checkpoint = collector_state(without_pushes)
-    without_pushes.shutdown()
+#: checkpoints of other configurations and the module that refuses each: a transform in the middle of the
+#: Compose before anything of it is written (no pushes), the base env through the last transform, BaseEnvState,
+#: once every transform before it has loaded (another action queue), a transform after loading, by its check of
+#: the loaded values (another number of envs)
+OTHER_CONFIGURATIONS = {
+    "no pushes": ({"pushes": False}, "Pushes"),
+    "another max_action_delay": ({"max_action_delay": 3}, "max_action_delay differ"),
+    "another number of envs": ({"num_envs": 2}, "ObservationNoise.load_state_dict: the checkpoint holds values"),
+}
+#: how a checkpoint is loaded: torchtasks' resume, and TorchRL's own loads of a collector and of an env, which load
+#: the transforms one after the other
+LOADS = {
+    "load_collector_state": lambda collector, other: load_collector_state(collector, collector_state(other)),
+    "Collector.load_state_dict": lambda collector, other: collector.load_state_dict(other.state_dict()),
+    "TransformedEnv.load_state_dict": lambda collector, other: collector.env.load_state_dict(other.env.state_dict()),
+}
+
+
+@pytest.mark.parametrize("load", list(LOADS))
+@pytest.mark.parametrize("other", list(OTHER_CONFIGURATIONS))
+def test_a_checkpoint_of_other_perturbations_is_refused_and_changes_nothing(other: str, load: str) -> None:
+    keywords, refuser = OTHER_CONFIGURATIONS[other]
+    saved = make_collector(**keywords)
+    batches = iter(saved)
+    next(batches), next(batches)  # a batch further than the other two: its generators and timers elsewhere
     refusing, untouched = make_collector(), make_collector()
-    with pytest.raises(ValueError):
-        load_collector_state(refusing, checkpoint)
+    next(iter(refusing)), next(iter(untouched))  # mid-run: generators, timers, queues and biases all in use
+    # load_collector_state refuses from the carried data when they differ, before any module
+    with pytest.raises(ValueError, match=refuser if load != "load_collector_state" else None):
+        LOADS[load](refusing, saved)
     _assert_equal_batches(next(iter(untouched)), next(iter(refusing)))
-    refusing.shutdown()
-    untouched.shutdown()
+    for collector in (saved, refusing, untouched):
+        collector.shutdown()
 
 
 def test_collected_rewards_recompute_offline_from_the_data() -> None:

@@ -46,6 +46,7 @@ from torchrl.envs import EnvBase, ParallelEnv, TransformedEnv
 from torchrl.envs.batched_envs import BatchedEnvBase
 from torchrl.envs.transforms import Transform
 
+from torchtasks._checked_load import join_load, refuse_load
 from torchtasks._torchrl import container_env, flat_transforms
 
 __all__ = ["BaseEnvState", "collector_state", "load_collector_state"]
@@ -142,6 +143,24 @@ class BaseEnvState(Transform):
         continues = bool(state.pop(_CONTINUES, False))
         _load_env_state(base, state)
         self._stale_after_load = not continues
+
+    def _load_from_state_dict(self, state_dict: Any, prefix: str, *args: Any, **kwargs: Any) -> None:
+        # one of the modules of a load: a refusal of the base env puts back the transforms loaded before this one,
+        # and a refusal after it puts the base env back (_checked_load)
+        try:
+            before = None
+            if prefix + "_extra_state" in state_dict and isinstance(container_env(self), TransformedEnv):
+                before = copy.deepcopy(self.get_extra_state()), self._stale_after_load
+            super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
+        except Exception:
+            refuse_load()
+            raise
+        if before is not None:
+            join_load(self, lambda: self._put_back(*before))
+
+    def _put_back(self, state: dict[str, Any], stale: bool) -> None:
+        self.set_extra_state(state)
+        self._stale_after_load = stale
 
     # ------------------------------------------------------------------ TorchRL hooks: the data pass unchanged
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
