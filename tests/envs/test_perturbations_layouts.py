@@ -78,7 +78,11 @@ def test_resume_in_a_new_process_continues_every_perturbation_bit_for_bit(tmp_pa
 #: the loaded values (another number of envs)
 OTHER_CONFIGURATIONS = {
     "no pushes": ({"pushes": False}, "Pushes"),
-    "another max_action_delay": ({"max_action_delay": 3}, "max_action_delay differ"),
+    # the facts that differ, not the whole declaration
+    "another max_action_delay": (
+        {"max_action_delay": 3},
+        r"max_action_delay differ\): saved \{'max_action_delay': 3\}, this env \{'max_action_delay': 2\}; load",
+    ),
     "another number of envs": ({"num_envs": 2}, "ObservationNoise.load_state_dict: the checkpoint holds values"),
 }
 #: how a checkpoint is loaded: torchtasks' resume, and TorchRL's own loads of a collector and of an env, which load

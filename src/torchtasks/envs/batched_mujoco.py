@@ -1169,9 +1169,12 @@ class BatchedMujocoEnv(EnvBase):
             differ = sorted(
                 key for key in own_model.keys() | saved_model.keys() if saved_model.get(key) != own_model.get(key)
             )
+            # the facts that differ only: the declaration alone runs to thousands of characters
+            saved = {key: saved_model.get(key) for key in differ}
+            own = {key: own_model.get(key) for key in differ}
             raise ValueError(
                 f"{owner}: the saved running episodes are of another simulation ({', '.join(differ)} differ): "
-                f"saved {saved_model}, this env {own_model}"
+                f"saved {saved}, this env {own}; load a checkpoint of an env built as this one"
             )
         if set(running) - {_DOMAIN_KEY, *_OPTIONAL_RUNNING_KEYS} != set(_RUNNING_KEYS + delayed):
             raise ValueError(f"{owner}: 'running_episodes' must be {expected}, got {sorted(running)}")
