@@ -68,7 +68,7 @@ from torchtasks.envs import velocity_tracking_env, velocity_tracking_perturbatio
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from control_suite import Collected, Floor  # the same floor and Collector loop
 
-#: the variants, measured in this order in every repeat
+#: the variants, in the order of the table (measured in an order shuffled per round)
 VARIANTS = (
     "floor",
     "plain",

@@ -30,11 +30,11 @@ from typing import Any
 from torch import nn
 
 _BEFORE = "_state_before_load"  # the module's state_dict() as it was when a load began
-_RESTORING = "_restoring_state"  # set while a refused load puts the earlier state back
 #: the running load: the outermost ``nn.Module.load_state_dict`` frame (held, so its identity is not reused) and how
 #: to put back each module loaded so far in it, in load order
 _LOAD: list[tuple[FrameType, list[Callable[[], None]]]] = []
-#: not empty while earlier states are being put back (their loads are not new loads to count)
+#: not empty while earlier states are being put back (their loads are not new loads to count): the modules whose own
+#: state is being loaded back (not checked again), or None for a whole load's put-back
 _ROLLING_BACK: list[object] = []
 
 
@@ -58,7 +58,7 @@ class CheckedLoad(nn.Module):
         raise NotImplementedError
 
     def _load_from_state_dict(self, state_dict: Any, prefix: str, *args: Any, **kwargs: Any) -> None:
-        if not self.__dict__.get(_RESTORING, False):
+        if not _restoring(self):
             before = self.state_dict()
             try:
                 self._check_saved(state_dict if _strict_load() else _completed(state_dict, prefix, before), prefix)
@@ -75,7 +75,7 @@ class CheckedLoad(nn.Module):
 def _after_load(module: nn.Module, incompatible_keys: Any) -> None:
     """The post-load hook of a :class:`CheckedLoad` module: check, and put the earlier state back on a refusal."""
     before = module.__dict__.pop(_BEFORE, None)
-    if before is None or module.__dict__.get(_RESTORING, False):
+    if before is None or _restoring(module):
         return
     try:
         module._check_loaded()
@@ -88,13 +88,16 @@ def _after_load(module: nn.Module, incompatible_keys: Any) -> None:
 
 def _restore(module: nn.Module, before: Mapping[str, Any]) -> None:
     """Load ``before`` (the module's earlier ``state_dict()``) back, without the checks of a new load."""
-    module.__dict__[_RESTORING] = True
     _ROLLING_BACK.append(module)
     try:
         module.load_state_dict(before)
     finally:
         _ROLLING_BACK.pop()
-        module.__dict__[_RESTORING] = False
+
+
+def _restoring(module: nn.Module) -> bool:
+    """Whether ``module``'s earlier state is being loaded back (:func:`_restore`)."""
+    return any(held is module for held in _ROLLING_BACK)
 
 
 def join_load(module: nn.Module, restore: Callable[[], None]) -> None:
